@@ -1,0 +1,59 @@
+// The one interface every CAN bus implementation offers to the event loop (SocketCAN, virtual,
+// fakes).
+#pragma once
+
+#include <boost/asio/awaitable.hpp>
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <system_error>
+#include <vector>
+
+#include "can/frame.hpp"
+
+namespace canbridge::can {
+
+// ISO 11898 fault confinement states as reported by the controller's error frames.
+enum class BusState : std::uint8_t { error_active, error_warning, error_passive, bus_off };
+const char* to_string(BusState state);
+
+// Monotonic counters; a frame is never lost without one of these moving.
+struct BusCounters {
+  std::uint64_t rx_frames = 0;          // frames handed to the reader
+  std::uint64_t tx_frames = 0;          // frames accepted by the driver
+  std::uint64_t rx_dropped_kernel = 0;  // receive-queue overflows reported by SO_RXQ_OVFL
+  std::uint64_t rx_dropped_queue = 0;   // frames dropped because our own receive queue was full
+  std::uint64_t tx_dropped_queue = 0;   // send() refused because the transmit queue was full
+  std::uint64_t tx_dropped_error = 0;   // frames the driver refused with a hard error
+  std::uint64_t tx_retries = 0;         // EAGAIN/ENOBUFS back-offs
+  std::uint64_t error_frames = 0;       // error frames received
+  std::uint64_t reopens = 0;            // times the interface was lost and reopened
+  BusState state = BusState::error_active;
+};
+
+class Bus {
+ public:
+  virtual ~Bus() = default;
+
+  virtual const std::string& name() const = 0;
+
+  // Waits until at least one frame is pending, then appends every pending frame (bounded by the
+  // implementation's batch size) to `out`, oldest first. Completes with an error once the bus is
+  // closed or the wait is cancelled. Error frames are not returned; they update state() and
+  // counters(). Only one receive may be outstanding.
+  virtual boost::asio::awaitable<std::error_code> receive_batch(std::vector<Frame>& out) = 0;
+
+  // Queues a frame for transmission, strictly in FIFO order, without blocking or suspending.
+  // Returns false when the bounded transmit queue is full; the drop is counted.
+  virtual bool send(const Frame& frame) = 0;
+
+  virtual BusCounters counters() const = 0;
+
+  // Called on every fault-confinement state change (from error frames); optional.
+  virtual void on_state_change(std::function<void(BusState)> handler) = 0;
+
+  // Stops both directions; a pending receive_batch completes with operation_aborted.
+  virtual void close() = 0;
+};
+
+}  // namespace canbridge::can

@@ -1,0 +1,92 @@
+#include "can/virtual_bus.hpp"
+
+#include <gtest/gtest.h>
+
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/detached.hpp>
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/use_awaitable.hpp>
+
+namespace canbridge::can {
+namespace {
+
+namespace asio = boost::asio;
+
+std::vector<Frame> receive_all(asio::io_context& io, Bus& bus) {
+  std::vector<Frame> out;
+  std::error_code result = std::make_error_code(std::errc::operation_would_block);
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { result = co_await bus.receive_batch(out); },
+      asio::detached);
+  io.run();
+  io.restart();
+  EXPECT_FALSE(result) << result.message();
+  return out;
+}
+
+TEST(VirtualBus, DeliversToEveryOtherEndpointInOrderWithoutEcho) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a");
+  auto b = medium.connect("b");
+  auto c = medium.connect("c");
+  ASSERT_TRUE(a->send(Frame::standard(0x181, {1, 2})));
+  ASSERT_TRUE(a->send(Frame::standard(0x182, {3})));
+  auto at_b = receive_all(io, *b);
+  auto at_c = receive_all(io, *c);
+  ASSERT_EQ(at_b.size(), 2u);
+  EXPECT_EQ(at_b[0], Frame::standard(0x181, {1, 2}));
+  EXPECT_EQ(at_b[1], Frame::standard(0x182, {3}));
+  EXPECT_EQ(at_c, at_b);
+  EXPECT_EQ(a->counters().tx_frames, 2u);
+  EXPECT_EQ(a->counters().rx_frames, 0u);  // never echoed to the sender
+}
+
+TEST(VirtualBus, ReceiveWaitsForAFrameSentLater) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a");
+  auto b = medium.connect("b");
+  std::vector<Frame> out;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { co_await b->receive_batch(out); }, asio::detached);
+  io.poll();
+  EXPECT_TRUE(out.empty());
+  a->send(Frame::standard(0x700, {0x05}));
+  io.run();
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_EQ(out[0].data[0], 0x05);
+  EXPECT_NE(out[0].timestamp.count(), 0);
+}
+
+TEST(VirtualBus, BoundedQueueCountsOverflowAndCloseEndsWait) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus", 2);
+  auto a = medium.connect("a");
+  auto b = medium.connect("b");
+  for (int i = 0; i < 5; ++i) a->send(Frame::standard(0x100, {}));
+  EXPECT_EQ(b->counters().rx_dropped_queue, 3u);
+  EXPECT_EQ(receive_all(io, *b).size(), 2u);
+
+  std::error_code ec;
+  std::vector<Frame> out;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { ec = co_await b->receive_batch(out); }, asio::detached);
+  io.poll();
+  b->close();
+  io.run();
+  EXPECT_EQ(ec, std::errc::operation_canceled);
+}
+
+TEST(Frame, FormatsLikeCansend) {
+  EXPECT_EQ(to_string(Frame::standard(0x123, {0xDE, 0xAD})), "123#DEAD");
+  Frame ext = Frame::from_span(0x12345678, std::array<std::uint8_t, 1>{1}, FrameFlags::extended);
+  EXPECT_EQ(to_string(ext), "12345678#01");
+  Frame rtr;
+  rtr.id = 0x7FF;
+  rtr.flags = FrameFlags::remote;
+  EXPECT_EQ(to_string(rtr), "7FF#R");
+}
+
+}  // namespace
+}  // namespace canbridge::can
