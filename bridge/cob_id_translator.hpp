@@ -1,0 +1,96 @@
+// Rewrites COB-IDs and NMT node ids between each module bus and the one surface network.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+
+#include "bridge/node_map.hpp"
+#include "can/frame.hpp"
+
+namespace canbridge::bridge {
+
+// Why a frame was not forwarded. Every frame the translator refuses is counted under one.
+enum class DropReason : std::uint8_t {
+  extended_id,    // 29-bit frames are not part of the predefined connection set
+  unknown_node,   // node-addressed COB-ID of a node id nobody maps
+  not_routable,   // COB-ID with no owner in that direction (e.g. SYNC/TIME/NMT from a module)
+  malformed_nmt,  // NMT frame shorter than 2 bytes
+  count_
+};
+inline constexpr std::size_t kDropReasonCount = static_cast<std::size_t>(DropReason::count_);
+const char* to_string(DropReason reason);
+
+using DropCounters = std::array<std::uint64_t, kDropReasonCount>;
+
+// Pure translation: no I/O, no clock. One instance per gateway, shared by all its modules.
+class CobIdTranslator {
+ public:
+  explicit CobIdTranslator(const NodeMap& map) : map_(map) {}
+
+  // A frame read on module `module_index`'s bus, as the surface must see it; nullopt if it maps
+  // nowhere (counted).
+  std::optional<can::Frame> to_surface(std::size_t module_index, const can::Frame& frame);
+
+  // A frame from the surface network: calls emit(module_index, frame) once for every module
+  // that must receive it (translated for that module). Returns false if no module gets it.
+  template <typename Emit>
+  bool to_modules(const can::Frame& frame, Emit&& emit);
+
+  const DropCounters& drops() const { return drops_; }
+
+ private:
+  void count(DropReason r) { ++drops_[static_cast<std::size_t>(r)]; }
+
+  const NodeMap& map_;
+  DropCounters drops_{};
+};
+
+template <typename Emit>
+bool CobIdTranslator::to_modules(const can::Frame& frame, Emit&& emit) {
+  if (frame.is_extended()) {
+    count(DropReason::extended_id);
+    return false;
+  }
+  const std::size_t module_count = map_.modules().size();
+  if (frame.id == canopen::cob::nmt) {
+    if (frame.len < 2 || frame.is_remote()) {
+      count(DropReason::malformed_nmt);
+      return false;
+    }
+    const NodeId target = frame.data[1];
+    if (target == 0) {  // broadcast: every module, unchanged
+      for (std::size_t m = 0; m < module_count; ++m) emit(m, frame);
+      return module_count != 0;
+    }
+    auto owner = map_.owner_of_surface(target);
+    if (!owner) {
+      count(DropReason::unknown_node);
+      return false;
+    }
+    can::Frame local = frame;
+    local.data[1] = owner->local;
+    emit(owner->module_index, local);
+    return true;
+  }
+  if (frame.id == canopen::cob::sync || frame.id == canopen::cob::time) {
+    for (std::size_t m = 0; m < module_count; ++m) emit(m, frame);
+    return module_count != 0;
+  }
+  auto address = canopen::split_predefined(frame.id);
+  if (!address) {
+    count(DropReason::not_routable);
+    return false;
+  }
+  auto owner = map_.owner_of_surface(address->node);
+  if (!owner) {
+    count(DropReason::unknown_node);
+    return false;
+  }
+  can::Frame local = frame;
+  local.id = address->function_base + owner->local;
+  emit(owner->module_index, local);
+  return true;
+}
+
+}  // namespace canbridge::bridge

@@ -1,0 +1,116 @@
+#include "bridge/cob_id_translator.hpp"
+
+#include <gtest/gtest.h>
+
+#include <vector>
+
+namespace canbridge::bridge {
+namespace {
+
+using can::Frame;
+
+// Modules 1 and 2 with the default map: module m's node n is surface node n + 32m.
+class TranslatorTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    ASSERT_TRUE(map.add_module(1, NodeMap::default_pairs(1)).empty());
+    ASSERT_TRUE(map.add_module(2, NodeMap::default_pairs(2)).empty());
+  }
+  std::vector<std::pair<std::size_t, Frame>> route(const Frame& f) {
+    std::vector<std::pair<std::size_t, Frame>> out;
+    translator.to_modules(f, [&](std::size_t m, const Frame& g) { out.emplace_back(m, g); });
+    return out;
+  }
+  std::uint64_t drops(DropReason r) const {
+    return translator.drops()[static_cast<std::size_t>(r)];
+  }
+  NodeMap map;
+  CobIdTranslator translator{map};
+};
+
+TEST_F(TranslatorTest, EveryNodeAddressedFunctionMapsBothWays) {
+  const std::uint16_t bases[] = {0x080, 0x180, 0x200, 0x280, 0x300, 0x380,
+                                 0x400, 0x480, 0x500, 0x580, 0x600, 0x700};
+  for (std::uint16_t base : bases) {
+    for (NodeId local : {NodeId{1}, NodeId{2}, NodeId{31}}) {
+      const Frame on_module = Frame::standard(base + local, {0xAA});
+      auto up = translator.to_surface(1, on_module);  // module index 1 = module id 2
+      ASSERT_TRUE(up) << std::hex << base;
+      EXPECT_EQ(up->id, base + local + 64u);
+      auto down = route(*up);
+      ASSERT_EQ(down.size(), 1u);
+      EXPECT_EQ(down[0].first, 1u);
+      EXPECT_EQ(down[0].second, on_module);
+    }
+  }
+}
+
+TEST_F(TranslatorTest, IssueExampleSdoRequestGoesOnlyToOwner) {
+  auto out = route(Frame::standard(0x622, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0}));
+  ASSERT_EQ(out.size(), 1u);
+  EXPECT_EQ(out[0].first, 0u);  // module id 1
+  EXPECT_EQ(out[0].second.id, 0x602u);
+  EXPECT_EQ(translator.to_surface(0, Frame::standard(0x582, {0x43}))->id, 0x5A2u);
+}
+
+TEST_F(TranslatorTest, NmtNodeSpecificRewritesByteOneAndBroadcastReachesAll) {
+  auto specific = route(Frame::standard(0x000, {0x01, 0x22}));
+  ASSERT_EQ(specific.size(), 1u);
+  EXPECT_EQ(specific[0].first, 0u);
+  EXPECT_EQ(specific[0].second, Frame::standard(0x000, {0x01, 0x02}));
+
+  auto broadcast = route(Frame::standard(0x000, {0x80, 0x00}));
+  ASSERT_EQ(broadcast.size(), 2u);
+  EXPECT_EQ(broadcast[0].second, Frame::standard(0x000, {0x80, 0x00}));
+  EXPECT_EQ(broadcast[1].first, 1u);
+}
+
+TEST_F(TranslatorTest, SyncAndTimeFanOut) {
+  EXPECT_EQ(route(Frame::standard(0x080, {})).size(), 2u);
+  EXPECT_EQ(route(Frame::standard(0x100, {1, 2, 3, 4, 5, 6})).size(), 2u);
+}
+
+TEST_F(TranslatorTest, UnmappedFramesAreCountedNeverForwarded) {
+  EXPECT_TRUE(route(Frame::standard(0x601, {})).empty());  // surface node 1: module 0 absent
+  EXPECT_TRUE(route(Frame::standard(0x000, {0x01, 0x7F})).empty());
+  EXPECT_EQ(drops(DropReason::unknown_node), 2u);
+  EXPECT_TRUE(route(Frame::standard(0x000, {0x01})).empty());
+  EXPECT_EQ(drops(DropReason::malformed_nmt), 1u);
+  EXPECT_TRUE(route(Frame::from_span(0x18FF0001, {}, can::FrameFlags::extended)).empty());
+  EXPECT_EQ(drops(DropReason::extended_id), 1u);
+  EXPECT_TRUE(route(Frame::standard(0x7E5, {})).empty());  // LSS: routed by a later issue
+  EXPECT_EQ(drops(DropReason::not_routable), 1u);
+
+  EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x000, {0x01, 0x00})));  // module NMT
+  EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x080, {})));            // module SYNC
+  EXPECT_EQ(drops(DropReason::not_routable), 3u);
+  EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x1A0, {})));  // local node 32: unmapped
+  EXPECT_EQ(drops(DropReason::unknown_node), 3u);
+}
+
+TEST_F(TranslatorTest, RemoteFramesKeepTheirFlag) {
+  Frame guard;
+  guard.id = 0x705;
+  guard.flags = can::FrameFlags::remote;
+  guard.len = 1;
+  auto up = translator.to_surface(0, guard);
+  ASSERT_TRUE(up);
+  EXPECT_EQ(up->id, 0x725u);
+  EXPECT_TRUE(up->is_remote());
+}
+
+TEST(NodeMap, RefusesOverlapNamingTheOwner) {
+  NodeMap map;
+  ASSERT_TRUE(map.add_module(0, NodeMap::default_pairs(0)).empty());
+  auto problems = map.add_module(5, {{1, 40}, {2, 3}, {3, 0}, {3, 41}});
+  ASSERT_EQ(problems.size(), 2u);
+  EXPECT_NE(problems[0].find("already owned by module 0 node 3"), std::string::npos) << problems[0];
+  EXPECT_NE(problems[1].find("must be 1..127"), std::string::npos);
+  EXPECT_EQ(map.modules().size(), 1u);
+  EXPECT_FALSE(map.add_module(0, {{1, 100}}).empty());  // module id twice
+  EXPECT_TRUE(NodeMap::default_pairs(4).empty());
+  EXPECT_EQ(NodeMap::default_pairs(3).back().second, 127);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge
