@@ -1,0 +1,13 @@
+// Runs the gateway and surface roles as processes: opens their SocketCAN buses and backbone
+// sockets from validated options, logs periodic counters, and shuts down in order on a signal.
+#pragma once
+
+#include "config/options.hpp"
+
+namespace canbridge::bridge {
+
+// Both return the process exit status; startup errors are thrown (std::exception) to main.
+int run_gateway(const config::GatewayOptions& options);
+int run_surface(const config::SurfaceOptions& options);
+
+}  // namespace canbridge::bridge
