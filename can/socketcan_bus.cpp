@@ -1,0 +1,508 @@
+#include "can/socketcan_bus.hpp"
+
+#include <linux/can.h>
+#include <linux/can/error.h>
+#include <linux/can/raw.h>
+#include <net/if.h>
+#include <sys/socket.h>
+#include <sys/uio.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/detached.hpp>
+#include <boost/asio/posix/stream_descriptor.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/asio/this_coro.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <cerrno>
+#include <chrono>
+#include <cstring>
+#include <ctime>
+#include <system_error>
+
+namespace canbridge::can {
+
+namespace asio = boost::asio;
+using namespace std::chrono_literals;
+
+namespace {
+
+constexpr auto kTxBackoffMin = std::chrono::microseconds(100);
+constexpr auto kTxBackoffMax = std::chrono::microseconds(10'000);
+constexpr auto kReopenBackoffMin = std::chrono::milliseconds(100);
+constexpr auto kReopenBackoffMax = std::chrono::milliseconds(2000);
+constexpr std::size_t kMaxBatch = 1024;  // UIO_MAXIOV: the kernel's limit for vlen
+
+// Room for SCM_TIMESTAMPNS (struct timespec) and SO_RXQ_OVFL (u32), each with its cmsghdr.
+constexpr std::size_t cmsg_align(std::size_t n) {
+  return (n + sizeof(std::size_t) - 1) & ~(sizeof(std::size_t) - 1);
+}
+constexpr std::size_t kControlBytes = cmsg_align(sizeof(cmsghdr)) + cmsg_align(sizeof(timespec)) +
+                                      cmsg_align(sizeof(cmsghdr)) +
+                                      cmsg_align(sizeof(std::uint32_t));
+struct alignas(cmsghdr) ControlBuffer {
+  unsigned char bytes[kControlBytes];
+};
+
+std::error_code errno_code(int err) {
+  return {err, std::system_category()};
+}
+
+// Errors after which the socket is useless until the interface is back: reopen it.
+bool interface_lost(int err) {
+  return err == ENETDOWN || err == ENODEV || err == ENXIO || err == EBADF;
+}
+
+void to_kernel(const Frame& f, can_frame& cf) {
+  std::memset(&cf, 0, sizeof cf);
+  if (f.is_error()) {
+    cf.can_id = CAN_ERR_FLAG | (f.id & CAN_ERR_MASK);
+  } else if (f.is_extended()) {
+    cf.can_id = CAN_EFF_FLAG | (f.id & CAN_EFF_MASK);
+  } else {
+    cf.can_id = f.id & CAN_SFF_MASK;
+  }
+  if (f.is_remote()) cf.can_id |= CAN_RTR_FLAG;
+  cf.len = std::min<std::uint8_t>(f.len, CAN_MAX_DLEN);
+  if (!f.is_remote()) std::memcpy(cf.data, f.data.data(), cf.len);
+}
+
+void from_kernel(const can_frame& cf, Frame& f) {
+  f = Frame{};
+  if (cf.can_id & CAN_ERR_FLAG) {
+    f.flags = FrameFlags::error;
+    f.id = cf.can_id & CAN_ERR_MASK;
+  } else if (cf.can_id & CAN_EFF_FLAG) {
+    f.flags = FrameFlags::extended;
+    f.id = cf.can_id & CAN_EFF_MASK;
+  } else {
+    f.id = cf.can_id & CAN_SFF_MASK;
+  }
+  if (cf.can_id & CAN_RTR_FLAG) f.flags |= FrameFlags::remote;
+  f.len = std::min<std::uint8_t>(cf.len, CAN_MAX_DLEN);
+  if (!f.is_remote()) std::memcpy(f.data.data(), cf.data, f.len);
+}
+
+// A fixed-capacity FIFO: the transmit queue allocates once, at open.
+class FrameRing {
+ public:
+  explicit FrameRing(std::size_t capacity) : slots_(capacity) {}
+  bool full() const { return size_ == slots_.size(); }
+  bool empty() const { return size_ == 0; }
+  std::size_t size() const { return size_; }
+  const Frame& at(std::size_t i) const { return slots_[(head_ + i) % slots_.size()]; }
+  void push_back(const Frame& f) {
+    slots_[(head_ + size_) % slots_.size()] = f;
+    ++size_;
+  }
+  void pop_front(std::size_t n) {
+    head_ = (head_ + n) % slots_.size();
+    size_ -= n;
+  }
+  void clear() { head_ = size_ = 0; }
+
+ private:
+  std::vector<Frame> slots_;
+  std::size_t head_ = 0;
+  std::size_t size_ = 0;
+};
+
+int set_int_option(int fd, int level, int name, int value) {
+  return ::setsockopt(fd, level, name, &value, sizeof value);
+}
+
+}  // namespace
+
+struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
+  Impl(asio::any_io_executor ex, SocketCanOptions opts)
+      : executor(ex),
+        options(std::move(opts)),
+        socket(ex),
+        reader_wake(ex),
+        writer_wake(ex),
+        writer_backoff(ex),
+        reopen_timer(ex),
+        tx_queue(options.transmit_queue_frames),
+        rx_msgs(options.batch_size),
+        rx_iov(options.batch_size),
+        rx_frames(options.batch_size),
+        rx_control(options.batch_size),
+        tx_msgs(options.batch_size),
+        tx_iov(options.batch_size),
+        tx_frames(options.batch_size) {
+    // The wake timers are condition variables: they never expire, cancel() is notify_all. Their
+    // expiry is set once here; resetting it per wait would cancel the other waiter.
+    reader_wake.expires_at(asio::steady_timer::time_point::max());
+    writer_wake.expires_at(asio::steady_timer::time_point::max());
+    // The message headers point at member buffers once; only lengths are reset per call.
+    for (std::size_t i = 0; i < options.batch_size; ++i) {
+      rx_iov[i] = {&rx_frames[i], sizeof(can_frame)};
+      rx_msgs[i] = {};
+      rx_msgs[i].msg_hdr.msg_iov = &rx_iov[i];
+      rx_msgs[i].msg_hdr.msg_iovlen = 1;
+      rx_msgs[i].msg_hdr.msg_control = rx_control[i].bytes;
+      tx_iov[i] = {&tx_frames[i], sizeof(can_frame)};
+      tx_msgs[i] = {};
+      tx_msgs[i].msg_hdr.msg_iov = &tx_iov[i];
+      tx_msgs[i].msg_hdr.msg_iovlen = 1;
+    }
+  }
+
+  // Creates, configures and binds a fresh socket. ENETDOWN: the interface exists but is down.
+  std::error_code open_socket() {
+    const unsigned index = ::if_nametoindex(options.interface.c_str());
+    if (index == 0) return errno_code(ENODEV);
+    const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
+    if (fd < 0) return errno_code(errno);
+    auto fail = [fd](int err) {
+      ::close(fd);
+      return errno_code(err);
+    };
+    const int rcvbuf =
+        static_cast<int>(std::min<std::size_t>(options.receive_buffer_bytes, std::size_t{1} << 30));
+    // SO_RCVBUFFORCE ignores net.core.rmem_max but needs CAP_NET_ADMIN; SO_RCVBUF is capped.
+    if (set_int_option(fd, SOL_SOCKET, SO_RCVBUFFORCE, rcvbuf) != 0 &&
+        set_int_option(fd, SOL_SOCKET, SO_RCVBUF, rcvbuf) != 0) {
+      return fail(errno);
+    }
+    if (set_int_option(fd, SOL_SOCKET, SO_TIMESTAMPNS, 1) != 0) return fail(errno);
+    if (set_int_option(fd, SOL_SOCKET, SO_RXQ_OVFL, 1) != 0) return fail(errno);
+    // Loop protection: the bridge must never read back what it wrote, while other sockets on
+    // the interface (candump, the local CANopen stack) must see it. Both are kernel defaults;
+    // set them anyway so no system-wide change can flip them.
+    if (set_int_option(fd, SOL_CAN_RAW, CAN_RAW_RECV_OWN_MSGS, 0) != 0) return fail(errno);
+    if (set_int_option(fd, SOL_CAN_RAW, CAN_RAW_LOOPBACK, 1) != 0) return fail(errno);
+    if (!options.filters.empty()) {
+      std::vector<can_filter> filters;
+      filters.reserve(options.filters.size());
+      for (const CanFilter& f : options.filters) filters.push_back({f.id, f.mask});
+      if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, filters.data(),
+                       static_cast<socklen_t>(filters.size() * sizeof(can_filter))) != 0) {
+        return fail(errno);
+      }
+    }
+    const can_err_mask_t err_mask = options.error_mask & CAN_ERR_MASK;
+    if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &err_mask, sizeof err_mask) != 0) {
+      return fail(errno);
+    }
+    sockaddr_can addr{};
+    addr.can_family = AF_CAN;
+    addr.can_ifindex = static_cast<int>(index);
+    if (::bind(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) return fail(errno);
+    // Binding to a down interface succeeds and leaves ENETDOWN pending: treat it as not open.
+    int pending = 0;
+    socklen_t pending_len = sizeof pending;
+    if (::getsockopt(fd, SOL_SOCKET, SO_ERROR, &pending, &pending_len) != 0) return fail(errno);
+    if (pending != 0) return fail(pending);
+
+    boost::system::error_code ec;
+    socket.assign(fd, ec);
+    if (ec) return fail(ec.value());
+    last_overflow = 0;  // SO_RXQ_OVFL counts per socket
+    return {};
+  }
+
+  // The socket failed with an interface-level error: close it (which aborts the reader's and
+  // writer's waits) and reopen in the background. Queued frames stay queued.
+  void lose_socket() {
+    if (socket.is_open()) {
+      boost::system::error_code ignored;
+      socket.close(ignored);
+    }
+    if (closed || reopening) return;
+    reopening = true;
+    asio::co_spawn(executor, reopen(shared_from_this()), asio::detached);
+  }
+
+  static asio::awaitable<void> reopen(std::shared_ptr<Impl> self) {
+    // First attempt at once: a quick down/up flap may already be over.
+    auto delay = std::chrono::milliseconds(0);
+    while (!self->closed) {
+      if (delay.count() != 0) {
+        self->reopen_timer.expires_after(delay);
+        co_await self->reopen_timer.async_wait(asio::as_tuple(asio::use_awaitable));
+        if (self->closed) break;
+      }
+      if (!self->open_socket()) {
+        ++self->counters.reopens;
+        self->reader_wake.cancel();
+        self->writer_wake.cancel();
+        break;
+      }
+      delay = std::clamp(delay * 2, kReopenBackoffMin, kReopenBackoffMax);
+    }
+    self->reopening = false;
+  }
+
+  asio::awaitable<std::error_code> receive(std::vector<Frame>& out) {
+    auto cancelled = [](const asio::cancellation_state& state) {
+      return state.cancelled() != asio::cancellation_type::none;
+    };
+    const auto canceled = std::make_error_code(std::errc::operation_canceled);
+    // One turn through the scheduler per batch, so a reader on a saturated bus cannot starve
+    // the rest of the loop: the read below may succeed without ever suspending.
+    co_await asio::post(executor, asio::use_awaitable);
+    for (;;) {
+      if (closed || cancelled(co_await asio::this_coro::cancellation_state)) co_return canceled;
+      if (!socket.is_open()) {
+        co_await reader_wake.async_wait(asio::as_tuple(asio::use_awaitable));
+        continue;
+      }
+      // Read before waiting: asio's epoll registration is edge-triggered, so frames that arrived
+      // while no wait was pending would not wake a new wait until yet another frame came.
+      const int err = receive_once(out);
+      if (err == 0) co_return std::error_code{};
+      if (err == EAGAIN || err == EWOULDBLOCK) {
+        co_await socket.async_wait(asio::posix::stream_descriptor::wait_read,
+                                   asio::as_tuple(asio::use_awaitable));
+      } else if (err == -1) {
+        // Only error frames this round: look again, after giving the loop a turn.
+        co_await asio::post(executor, asio::use_awaitable);
+      } else if (err != EINTR) {
+        // ENETDOWN and the rest: reopen. A transient loss reaches the caller only as counters.
+        lose_socket();
+      }
+    }
+  }
+
+  // One recvmmsg. 0: frames were appended; -1: only error frames; else the errno.
+  int receive_once(std::vector<Frame>& out) {
+    const std::size_t batch = options.batch_size;
+    for (std::size_t i = 0; i < batch; ++i) {
+      rx_msgs[i].msg_hdr.msg_controllen = sizeof(ControlBuffer);
+      rx_msgs[i].msg_hdr.msg_flags = 0;
+    }
+    const int n = ::recvmmsg(socket.native_handle(), rx_msgs.data(), static_cast<unsigned>(batch),
+                             MSG_DONTWAIT, nullptr);
+    if (n < 0) return errno;
+    std::size_t delivered = 0;
+    for (int i = 0; i < n; ++i) {
+      msghdr& hdr = rx_msgs[static_cast<std::size_t>(i)].msg_hdr;
+      std::chrono::nanoseconds stamp{0};
+      for (cmsghdr* c = CMSG_FIRSTHDR(&hdr); c != nullptr; c = CMSG_NXTHDR(&hdr, c)) {
+        if (c->cmsg_level != SOL_SOCKET) continue;
+        if (c->cmsg_type == SCM_TIMESTAMPNS) {
+          timespec ts;
+          std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
+          stamp = std::chrono::seconds(ts.tv_sec) + std::chrono::nanoseconds(ts.tv_nsec);
+        } else if (c->cmsg_type == SO_RXQ_OVFL) {
+          std::uint32_t drops = 0;
+          std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
+          // The kernel's count is cumulative per socket and wraps at 2^32: add the difference.
+          counters.rx_dropped_kernel += static_cast<std::uint32_t>(drops - last_overflow);
+          last_overflow = drops;
+        }
+      }
+      // CAN FD frames never reach a socket without CAN_RAW_FD_FRAMES; anything not a classic
+      // frame is ignored.
+      if (rx_msgs[static_cast<std::size_t>(i)].msg_len != sizeof(can_frame)) continue;
+      const can_frame& cf = rx_frames[static_cast<std::size_t>(i)];
+      if (cf.can_id & CAN_ERR_FLAG) {
+        on_error_frame(cf);
+        continue;
+      }
+      Frame& f = out.emplace_back();
+      from_kernel(cf, f);
+      f.timestamp = stamp;
+      ++delivered;
+    }
+    counters.rx_frames += delivered;
+    return delivered > 0 ? 0 : -1;
+  }
+
+  void on_error_frame(const can_frame& cf) {
+    ++counters.error_frames;
+    Frame f;
+    from_kernel(cf, f);
+    const BusState next = state_after_error_frame(f, counters.state);
+    if (next == counters.state) return;
+    counters.state = next;
+    if (state_handler) state_handler(next);
+  }
+
+  bool send(const Frame& frame) {
+    if (closed) {
+      ++counters.tx_dropped_error;
+      return false;
+    }
+    if (tx_queue.full()) {
+      ++counters.tx_dropped_queue;
+      return false;
+    }
+    tx_queue.push_back(frame);
+    if (writer_idle) {
+      writer_idle = false;
+      writer_wake.cancel();
+    }
+    return true;
+  }
+
+  static asio::awaitable<void> writer(std::shared_ptr<Impl> self) {
+    Impl& s = *self;
+    auto backoff = kTxBackoffMin;
+    while (!s.closed) {
+      if (s.tx_queue.empty() || !s.socket.is_open()) {
+        s.writer_idle = true;
+        co_await s.writer_wake.async_wait(asio::as_tuple(asio::use_awaitable));
+        s.writer_idle = false;
+        continue;
+      }
+      const std::size_t n = std::min(s.tx_queue.size(), s.options.batch_size);
+      for (std::size_t i = 0; i < n; ++i) to_kernel(s.tx_queue.at(i), s.tx_frames[i]);
+      const int sent = ::sendmmsg(s.socket.native_handle(), s.tx_msgs.data(),
+                                  static_cast<unsigned>(n), MSG_DONTWAIT);
+      if (sent > 0) {
+        // Only the head leaves the queue, so order is kept whatever happens to the rest.
+        s.tx_queue.pop_front(static_cast<std::size_t>(sent));
+        s.counters.tx_frames += static_cast<std::uint64_t>(sent);
+        backoff = kTxBackoffMin;
+        // Let the loop breathe between batches of a long queue.
+        if (!s.tx_queue.empty()) co_await asio::post(s.executor, asio::use_awaitable);
+        continue;
+      }
+      const int err = sent < 0 ? errno : EAGAIN;
+      if (err == EINTR) continue;
+      if (err == EAGAIN || err == EWOULDBLOCK) {
+        // The socket's send buffer is full: writable again once the driver frees skbs.
+        ++s.counters.tx_retries;
+        co_await s.socket.async_wait(asio::posix::stream_descriptor::wait_write,
+                                     asio::as_tuple(asio::use_awaitable));
+      } else if (err == ENOBUFS) {
+        // The device queue is full; nothing to poll for, so back off on a timer.
+        ++s.counters.tx_retries;
+        s.writer_backoff.expires_after(backoff);
+        co_await s.writer_backoff.async_wait(asio::as_tuple(asio::use_awaitable));
+        backoff = std::min(backoff * 2, kTxBackoffMax);
+      } else if (interface_lost(err)) {
+        s.lose_socket();
+      } else {
+        // The kernel refused the head frame itself (EINVAL, EPERM, ...): retrying cannot help.
+        s.tx_queue.pop_front(1);
+        ++s.counters.tx_dropped_error;
+      }
+    }
+  }
+
+  void close() {
+    if (closed) return;
+    closed = true;
+    counters.tx_dropped_error += tx_queue.size();
+    tx_queue.clear();
+    boost::system::error_code ignored;
+    socket.close(ignored);
+    reader_wake.cancel();
+    writer_wake.cancel();
+    writer_backoff.cancel();
+    reopen_timer.cancel();
+  }
+
+  asio::any_io_executor executor;
+  SocketCanOptions options;
+  asio::posix::stream_descriptor socket;  // closed while the interface is lost
+  asio::steady_timer reader_wake;         // notified when the socket is reopened or closed
+  asio::steady_timer writer_wake;         // notified on send(), reopen and close
+  asio::steady_timer writer_backoff;
+  asio::steady_timer reopen_timer;
+  FrameRing tx_queue;
+  BusCounters counters;
+  std::function<void(BusState)> state_handler;
+  std::uint32_t last_overflow = 0;
+  bool closed = false;
+  bool reopening = false;
+  bool writer_idle = false;
+
+  // Per-batch system call buffers, allocated once: no allocation per frame.
+  std::vector<mmsghdr> rx_msgs;
+  std::vector<iovec> rx_iov;
+  std::vector<can_frame> rx_frames;
+  std::vector<ControlBuffer> rx_control;
+  std::vector<mmsghdr> tx_msgs;
+  std::vector<iovec> tx_iov;
+  std::vector<can_frame> tx_frames;
+};
+
+std::unique_ptr<SocketCanBus> SocketCanBus::open(asio::any_io_executor executor,
+                                                 SocketCanOptions options, std::error_code& ec) {
+  ec.clear();
+  if (options.interface.empty() || options.interface.size() >= IFNAMSIZ ||
+      options.batch_size == 0 || options.batch_size > kMaxBatch ||
+      options.transmit_queue_frames == 0) {
+    ec = std::make_error_code(std::errc::invalid_argument);
+    return nullptr;
+  }
+  auto impl = std::make_shared<Impl>(executor, std::move(options));
+  const std::error_code opened = impl->open_socket();
+  if (opened && opened.value() != ENETDOWN) {
+    ec = opened;
+    return nullptr;
+  }
+  asio::co_spawn(executor, Impl::writer(impl), asio::detached);
+  if (opened) impl->lose_socket();  // down at startup: open it once it comes up
+  return std::unique_ptr<SocketCanBus>(new SocketCanBus(std::move(impl)));
+}
+
+std::unique_ptr<SocketCanBus> SocketCanBus::open(asio::any_io_executor executor,
+                                                 SocketCanOptions options) {
+  std::error_code ec;
+  std::string interface = options.interface;
+  auto bus = open(std::move(executor), std::move(options), ec);
+  if (!bus) throw std::system_error(ec, "cannot open CAN interface '" + interface + "'");
+  return bus;
+}
+
+SocketCanBus::SocketCanBus(std::shared_ptr<Impl> impl) : impl_(std::move(impl)) {}
+
+SocketCanBus::~SocketCanBus() {
+  impl_->close();
+}
+
+const std::string& SocketCanBus::name() const {
+  return impl_->options.interface;
+}
+
+asio::awaitable<std::error_code> SocketCanBus::receive_batch(std::vector<Frame>& out) {
+  auto impl = impl_;  // the bus may be destroyed while this waits
+  co_return co_await impl->receive(out);
+}
+
+bool SocketCanBus::send(const Frame& frame) {
+  return impl_->send(frame);
+}
+
+BusCounters SocketCanBus::counters() const {
+  return impl_->counters;
+}
+
+void SocketCanBus::on_state_change(std::function<void(BusState)> handler) {
+  impl_->state_handler = std::move(handler);
+}
+
+void SocketCanBus::close() {
+  impl_->close();
+}
+
+std::size_t SocketCanBus::queued() const {
+  return impl_->tx_queue.size();
+}
+
+bool SocketCanBus::interface_up() const {
+  return impl_->socket.is_open();
+}
+
+BusState state_after_error_frame(const Frame& frame, BusState current) {
+  if (!frame.is_error()) return current;
+  if (frame.id & CAN_ERR_BUSOFF) return BusState::bus_off;
+  if (frame.id & CAN_ERR_RESTARTED) return BusState::error_active;
+  if (frame.id & CAN_ERR_CRTL) {
+    const std::uint8_t ctrl = frame.data[1];
+    if (ctrl & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE)) return BusState::error_passive;
+    if (ctrl & (CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING)) return BusState::error_warning;
+    if (ctrl & CAN_ERR_CRTL_ACTIVE) return BusState::error_active;
+  }
+  return current;
+}
+
+}  // namespace canbridge::can
