@@ -1,0 +1,222 @@
+#include "backbone/message_link.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/error.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/this_coro.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <boost/asio/write.hpp>
+#include <exception>
+
+namespace canbridge::backbone {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+
+namespace {
+
+constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+
+// Past this, the write buffer is released after use so one burst does not pin memory forever.
+constexpr std::size_t kRetainedWriteCapacity = std::size_t{1} << 20;
+
+// A peer that sends garbage usually keeps doing so on every reconnect: say it once per process
+// (counters keep the exact numbers), details of later occurrences go to debug.
+bool first_time(std::atomic<bool>& flag) {
+  return !flag.exchange(true, std::memory_order_relaxed);
+}
+std::atomic<bool> warned_malformed{false};
+std::atomic<bool> warned_oversize{false};
+
+std::string describe(const tcp::endpoint& endpoint) {
+  return endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
+}
+
+}  // namespace
+
+std::shared_ptr<MessageLink> MessageLink::create(tcp::socket socket, LinkOptions options) {
+  return std::shared_ptr<MessageLink>(new MessageLink(std::move(socket), options));
+}
+
+MessageLink::MessageLink(tcp::socket socket, LinkOptions options)
+    : socket_(std::move(socket)),
+      options_(options),
+      decoder_(options.max_message_size),
+      read_buffer_(std::max<std::size_t>(options.read_buffer_size, 1)),
+      wake_(socket_.get_executor(), asio::steady_timer::time_point::max()),
+      closed_(socket_.get_executor(), asio::steady_timer::time_point::max()) {
+  boost::system::error_code ec;
+  remote_ = socket_.remote_endpoint(ec);
+  // Small, latency-bound messages: the writer already batches, so Nagle would only add delay.
+  socket_.set_option(tcp::no_delay(true), ec);
+  if (ec) spdlog::warn("backbone: TCP_NODELAY on {} failed: {}", describe(remote_), ec.message());
+  if (options_.socket_buffer_size > 0) {
+    socket_.set_option(asio::socket_base::send_buffer_size(options_.socket_buffer_size), ec);
+    socket_.set_option(asio::socket_base::receive_buffer_size(options_.socket_buffer_size), ec);
+  }
+}
+
+MessageLink::~MessageLink() = default;
+
+void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler on_closed) {
+  if (started_) {
+    spdlog::error("backbone: MessageLink::start called twice on {}", describe(remote_));
+    return;
+  }
+  started_ = true;
+  if (finished_) {
+    // Closed before it was started: still honour "on_closed exactly once", but not reentrantly.
+    if (on_closed) {
+      asio::post(socket_.get_executor(), [handler = std::move(on_closed),
+                                          reason = counters_.close_reason] { handler(reason); });
+    }
+    return;
+  }
+  on_message_ = std::move(on_message);
+  source_ = std::move(source);
+  on_closed_ = std::move(on_closed);
+  loops_running_ = 2;
+  auto self = shared_from_this();
+  auto done = [self](std::exception_ptr error) { self->loop_done(error); };
+  asio::co_spawn(socket_.get_executor(), read_loop(), done);
+  asio::co_spawn(socket_.get_executor(), write_loop(), done);
+}
+
+void MessageLink::wake_writer() {
+  wake_requested_ = true;
+  if (writer_sleeping_) {
+    writer_sleeping_ = false;  // one cancel per sleep, however many wakes
+    wake_.cancel();
+  }
+}
+
+void MessageLink::close() {
+  end(make_error_code(errc::closed));
+}
+
+asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
+  auto self = shared_from_this();
+  while (!finished_) {
+    co_await closed_.async_wait(kNoError);
+    // The timer is a condition variable: cancel() means "finished". A cancellation requested by
+    // our caller must still end the wait.
+    auto state = co_await asio::this_coro::cancellation_state;
+    if (state.cancelled() != asio::cancellation_type::none && !finished_) {
+      co_return std::make_error_code(std::errc::operation_canceled);
+    }
+  }
+  co_return counters_.close_reason;
+}
+
+asio::awaitable<void> MessageLink::read_loop() {
+  while (!closing_) {
+    auto [ec, n] = co_await socket_.async_read_some(asio::buffer(read_buffer_), kNoError);
+    if (closing_) break;
+    if (ec) {
+      if (ec == asio::error::eof) {
+        if (!decoder_.at_message_boundary()) {
+          spdlog::debug("backbone: {} closed in the middle of a message", describe(remote_));
+        }
+        end(make_error_code(errc::peer_closed));
+      } else {
+        end(ec);
+      }
+      break;
+    }
+    counters_.rx_bytes += n;
+    std::span<const std::uint8_t> input(read_buffer_.data(), n);
+    // Pull one message at a time so that a handler calling close() stops delivery at once.
+    while (!closing_) {
+      auto message = decoder_.next(input);
+      if (!message) break;
+      ++counters_.rx_messages;
+      if (on_message_) on_message_(*message);
+    }
+    if (!closing_ && decoder_.error()) {
+      report_decode_error(decoder_.error());
+      end(decoder_.error());
+    }
+  }
+}
+
+asio::awaitable<void> MessageLink::write_loop() {
+  while (!closing_) {
+    write_buffer_.clear();
+    wake_requested_ = false;
+    if (source_) source_(write_buffer_);
+    if (closing_) break;
+    if (write_buffer_.empty()) {
+      if (wake_requested_) continue;  // woken from inside the source: ask again
+      writer_sleeping_ = true;
+      wake_.expires_at(asio::steady_timer::time_point::max());
+      co_await wake_.async_wait(kNoError);
+      writer_sleeping_ = false;
+      continue;
+    }
+    auto [ec, n] = co_await asio::async_write(socket_, asio::buffer(write_buffer_), kNoError);
+    if (closing_) break;
+    if (ec) {
+      end(ec);
+      break;
+    }
+    ++counters_.tx_writes;
+    counters_.tx_bytes += n;
+    if (write_buffer_.capacity() > kRetainedWriteCapacity) std::string().swap(write_buffer_);
+  }
+}
+
+void MessageLink::report_decode_error(std::error_code error) {
+  const bool malformed = error == errc::malformed_length;
+  ++(malformed ? counters_.malformed : counters_.oversize);
+  if (first_time(malformed ? warned_malformed : warned_oversize)) {
+    spdlog::warn("backbone: dropping {} after {} (first occurrence; further ones are only counted)",
+                 describe(remote_), error.message());
+  } else {
+    spdlog::debug("backbone: dropping {} after {}", describe(remote_), error.message());
+  }
+}
+
+void MessageLink::end(std::error_code reason) {
+  if (closing_) return;
+  closing_ = true;
+  counters_.close_reason = reason;
+  spdlog::debug("backbone: link {} ends: {}", describe(remote_), reason.message());
+  boost::system::error_code ignored;
+  socket_.close(ignored);  // aborts a pending read or write
+  writer_sleeping_ = false;
+  wake_.cancel();
+  if (loops_running_ == 0) finish();  // never started
+}
+
+void MessageLink::loop_done(std::exception_ptr error) {
+  if (error) {
+    try {
+      std::rethrow_exception(error);
+    } catch (const std::exception& e) {
+      spdlog::error("backbone: handler on link {} threw: {}", describe(remote_), e.what());
+    } catch (...) {
+      spdlog::error("backbone: handler on link {} threw", describe(remote_));
+    }
+    end(make_error_code(errc::handler_failed));
+  }
+  if (--loops_running_ == 0) finish();
+}
+
+void MessageLink::finish() {
+  if (finished_) return;
+  finished_ = true;
+  // Both loops are gone, so no handler is executing and dropping them is safe; this also breaks
+  // reference cycles through handlers that captured the link.
+  on_message_ = nullptr;
+  source_ = nullptr;
+  auto on_closed = std::move(on_closed_);
+  on_closed_ = nullptr;
+  closed_.cancel();
+  if (on_closed) on_closed(counters_.close_reason);
+}
+
+}  // namespace canbridge::backbone

@@ -1,0 +1,144 @@
+#include "backbone/tcp_client.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/connect.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <exception>
+
+namespace canbridge::backbone {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+
+namespace {
+constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+}
+
+std::shared_ptr<TcpClient> TcpClient::create(asio::any_io_executor executor, std::string host,
+                                             std::uint16_t port, ClientOptions options) {
+  return std::shared_ptr<TcpClient>(
+      new TcpClient(std::move(executor), std::move(host), port, options));
+}
+
+TcpClient::TcpClient(asio::any_io_executor executor, std::string host, std::uint16_t port,
+                     ClientOptions options)
+    : executor_(std::move(executor)),
+      host_(std::move(host)),
+      port_(port),
+      options_(options),
+      resolver_(executor_),
+      socket_(executor_),
+      deadline_(executor_),
+      backoff_timer_(executor_),
+      backoff_(options.backoff_min) {
+  options_.backoff_min = std::max(options_.backoff_min, std::chrono::milliseconds{1});
+  options_.backoff_max = std::max(options_.backoff_max, options_.backoff_min);
+  backoff_ = options_.backoff_min;
+}
+
+TcpClient::~TcpClient() = default;
+
+void TcpClient::start(ConnectedHandler on_connected) {
+  if (started_ || stopped_) return;
+  started_ = true;
+  on_connected_ = std::move(on_connected);
+  // The loop holds the client alive until stop() lets it finish.
+  // A throwing handler is a programming error: let it surface from io_context::run().
+  asio::co_spawn(
+      executor_, [self = shared_from_this()] { return self->run(); },
+      [](std::exception_ptr error) {
+        if (error) std::rethrow_exception(error);
+      });
+}
+
+void TcpClient::stop() {
+  if (stopped_) return;
+  stopped_ = true;
+  resolver_.cancel();
+  boost::system::error_code ignored;
+  socket_.close(ignored);
+  deadline_.cancel();
+  backoff_timer_.cancel();
+  if (link_) link_->close();
+}
+
+asio::awaitable<void> TcpClient::run() {
+  while (!stopped_) {
+    const std::error_code ec = co_await connect_once();
+    if (stopped_) break;
+    if (ec) {
+      ++counters_.connect_failures;
+      if (!failing_) {
+        spdlog::warn("backbone: cannot connect to {}:{}: {} (retrying up to every {} ms)", host_,
+                     port_, ec.message(), options_.backoff_max.count());
+      } else {
+        spdlog::debug("backbone: connect to {}:{} failed: {}", host_, port_, ec.message());
+      }
+      failing_ = true;
+      co_await back_off();
+      continue;
+    }
+
+    ++counters_.connects;
+    failing_ = false;
+    backoff_ = options_.backoff_min;
+    auto link = MessageLink::create(std::move(socket_), options_.link);
+    socket_ = tcp::socket(executor_);
+    spdlog::info("backbone: connected to {}:{}", host_, port_);
+    link_ = link;
+    if (on_connected_) on_connected_(link);
+    if (!link->started()) {
+      spdlog::error("backbone: connected handler did not start the link to {}:{}", host_, port_);
+      link->close();
+    }
+    const std::error_code reason = co_await link->async_wait_closed();
+    link_.reset();
+    if (stopped_) break;
+    spdlog::info("backbone: link to {}:{} lost: {}", host_, port_, reason.message());
+    // Even after a good connection, wait backoff_min: a peer that accepts and drops at once must
+    // not turn this into a busy loop.
+    co_await back_off();
+  }
+  on_connected_ = nullptr;  // drops anything the handler captured, e.g. the client itself
+}
+
+asio::awaitable<std::error_code> TcpClient::connect_once() {
+  // One deadline for resolve + connect: on expiry it aborts whichever is pending.
+  const std::uint64_t attempt = ++attempt_;
+  deadline_.expires_after(options_.connect_timeout);
+  deadline_.async_wait([weak = weak_from_this(), attempt](boost::system::error_code ec) {
+    auto self = weak.lock();
+    if (ec || !self || self->attempt_ != attempt) return;
+    self->resolver_.cancel();
+    boost::system::error_code ignored;
+    self->socket_.close(ignored);
+  });
+
+  auto [resolve_ec, endpoints] = co_await resolver_.async_resolve(
+      host_, std::to_string(port_), tcp::resolver::numeric_service, kNoError);
+  std::error_code result = resolve_ec;
+  if (!resolve_ec && !stopped_) {
+    socket_ = tcp::socket(executor_);
+    ++counters_.attempts;
+    auto [connect_ec, endpoint] = co_await asio::async_connect(socket_, endpoints, kNoError);
+    result = connect_ec;
+  }
+  ++attempt_;  // a deadline expiry already queued must not touch the next attempt's socket
+  deadline_.cancel();
+  if (result == std::errc::operation_canceled && !stopped_) {
+    result = std::make_error_code(std::errc::timed_out);
+  }
+  co_return result;
+}
+
+asio::awaitable<void> TcpClient::back_off() {
+  backoff_timer_.expires_after(backoff_);
+  backoff_ = std::min(backoff_ * 2, options_.backoff_max);
+  co_await backoff_timer_.async_wait(kNoError);
+}
+
+}  // namespace canbridge::backbone

@@ -1,0 +1,85 @@
+// Keeps one outgoing backbone connection up: connects, hands each new MessageLink to the user,
+// and reconnects with exponential backoff whenever the link or the connection attempt fails.
+#pragma once
+
+#include <boost/asio/any_io_executor.hpp>
+#include <boost/asio/awaitable.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "backbone/message_link.hpp"
+
+namespace canbridge::backbone {
+
+struct ClientOptions {
+  // Wait before the next attempt: starts at backoff_min, doubles after every failed attempt or
+  // lost link up to backoff_max, and returns to backoff_min after a successful connect.
+  std::chrono::milliseconds backoff_min{100};
+  std::chrono::milliseconds backoff_max{5000};
+  // Bounds resolve + connect, so a silently dropped SYN does not stall reconnection for minutes.
+  std::chrono::milliseconds connect_timeout{5000};
+  LinkOptions link;
+};
+
+struct ClientCounters {
+  std::uint64_t attempts = 0;  // connects begun (after a successful resolve)
+  std::uint64_t connects = 0;
+  std::uint64_t connect_failures = 0;  // failed resolves, refused/timed-out connects
+};
+
+// Not thread-safe: call every member on the executor's thread.
+class TcpClient : public std::enable_shared_from_this<TcpClient> {
+ public:
+  // Called with every new link; the handler must call link->start(...) (a link it does not start
+  // is closed). The client reconnects once that link has closed.
+  using ConnectedHandler = std::function<void(std::shared_ptr<MessageLink> link)>;
+
+  static std::shared_ptr<TcpClient> create(boost::asio::any_io_executor executor, std::string host,
+                                           std::uint16_t port, ClientOptions options = {});
+  ~TcpClient();
+  TcpClient(const TcpClient&) = delete;
+  TcpClient& operator=(const TcpClient&) = delete;
+
+  // Begins connecting; call once.
+  void start(ConnectedHandler on_connected);
+
+  // Cancels the pending resolve/connect or backoff and closes the current link (its on_closed
+  // runs with errc::closed); nothing of the client stays pending afterwards. Idempotent.
+  void stop();
+
+  ClientCounters counters() const { return counters_; }
+  // The current link, or null while disconnected.
+  std::shared_ptr<MessageLink> link() const { return link_; }
+
+ private:
+  TcpClient(boost::asio::any_io_executor executor, std::string host, std::uint16_t port,
+            ClientOptions options);
+
+  boost::asio::awaitable<void> run();
+  boost::asio::awaitable<std::error_code> connect_once();
+  boost::asio::awaitable<void> back_off();
+
+  boost::asio::any_io_executor executor_;
+  std::string host_;
+  std::uint16_t port_;
+  ClientOptions options_;
+  boost::asio::ip::tcp::resolver resolver_;
+  boost::asio::ip::tcp::socket socket_;  // the connection being attempted
+  boost::asio::steady_timer deadline_;   // connect_timeout of the current attempt
+  boost::asio::steady_timer backoff_timer_;
+  std::chrono::milliseconds backoff_;
+  ConnectedHandler on_connected_;
+  std::shared_ptr<MessageLink> link_;
+  ClientCounters counters_;
+  std::uint64_t attempt_ = 0;  // tells a stale deadline expiry from the current one
+  bool started_ = false;
+  bool stopped_ = false;
+  bool failing_ = false;  // in a run of failed attempts (log the first one only)
+};
+
+}  // namespace canbridge::backbone

@@ -1,0 +1,353 @@
+#include "backbone/message_link.hpp"
+
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sys/socket.h>
+
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/detached.hpp>
+#include <boost/asio/read.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <boost/asio/write.hpp>
+#include <deque>
+#include <stdexcept>
+
+#include "tests/backbone/test_support.hpp"
+
+namespace canbridge::backbone {
+namespace {
+
+namespace asio = boost::asio;
+using namespace std::chrono_literals;
+using testing::bytes;
+using testing::run_until;
+using testing::to_string;
+
+// Message i of a test stream: its index, then a deterministic, variable-length body.
+std::string numbered(std::uint32_t i) {
+  std::string s(4 + i % 300, '\0');
+  for (int b = 0; b < 4; ++b) s[static_cast<std::size_t>(b)] = static_cast<char>(i >> (8 * b));
+  for (std::size_t k = 4; k < s.size(); ++k) s[k] = static_cast<char>((i * 7 + k) & 0xFF);
+  return s;
+}
+
+// A sender side: messages queued here go out through the link's pull-model source.
+struct Outbox {
+  std::deque<std::string> pending;
+  int source_calls = 0;
+  MessageLink::Source source() {
+    return [this](std::string& out) {
+      ++source_calls;
+      for (const auto& m : pending) append_delimited(out, bytes(m));
+      pending.clear();
+    };
+  }
+};
+
+struct Inbox {
+  std::vector<std::string> messages;
+  int closed_calls = 0;
+  std::error_code reason;
+  MessageLink::MessageHandler on_message() {
+    return [this](std::span<const std::uint8_t> m) { messages.push_back(to_string(m)); };
+  }
+  MessageLink::ClosedHandler on_closed() {
+    return [this](std::error_code ec) {
+      ++closed_calls;
+      reason = ec;
+    };
+  }
+};
+
+int tcp_nodelay(int fd) {
+  int value = 0;
+  socklen_t length = sizeof value;
+  EXPECT_EQ(::getsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &value, &length), 0);
+  return value;
+}
+
+class MessageLinkTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto sockets = testing::connected_sockets(io);
+    a = MessageLink::create(std::move(sockets.client));
+    b = MessageLink::create(std::move(sockets.server));
+  }
+  void TearDown() override {
+    if (a) a->close();
+    if (b) b->close();
+    EXPECT_TRUE(testing::drains_within(io, 2s));
+  }
+
+  asio::io_context io;
+  std::shared_ptr<MessageLink> a;
+  std::shared_ptr<MessageLink> b;
+  Outbox a_out, b_out;
+  Inbox a_in, b_in;
+};
+
+TEST_F(MessageLinkTest, TenThousandMessagesArriveInOrderAndIntact) {
+  constexpr std::uint32_t kCount = 10'000;
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  for (std::uint32_t i = 0; i < kCount; ++i) {
+    a_out.pending.push_back(numbered(i));
+    a->wake_writer();
+    if (i % 97 == 0) io.poll();  // let writes happen while messages keep coming
+  }
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == kCount; }));
+  for (std::uint32_t i = 0; i < kCount; ++i) {
+    ASSERT_EQ(b_in.messages[i], numbered(i)) << "message " << i;
+  }
+  ASSERT_TRUE(run_until(io, [&] { return a->counters().tx_bytes == b->counters().rx_bytes; }));
+  EXPECT_EQ(b->counters().rx_messages, kCount);
+  EXPECT_LT(a->counters().tx_writes, kCount);  // batched
+  EXPECT_GT(a->counters().tx_writes, 0u);
+  EXPECT_TRUE(a->is_open());
+  EXPECT_EQ(b_in.closed_calls, 0);
+}
+
+TEST_F(MessageLinkTest, MessagesQueuedDuringAWriteGoOutInOneWrite) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle, nothing to send
+
+  a_out.pending.push_back(numbered(0));
+  a->wake_writer();
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 2; }));
+  // The source has just handed over message 0 and the writer started its write; everything
+  // queued now, however many wakes, must wait for that write and then go out together.
+  for (std::uint32_t i = 1; i <= 100; ++i) {
+    a_out.pending.push_back(numbered(i));
+    a->wake_writer();
+  }
+  ASSERT_TRUE(run_until(io, [&] {
+    return b_in.messages.size() == 101 && a->counters().tx_writes == 2 && a_out.source_calls == 4;
+  }));
+  io.poll();
+  EXPECT_EQ(a->counters().tx_writes, 2u);
+  EXPECT_EQ(a_out.source_calls, 4);  // the 100 wakes did not cause 100 source calls
+  for (std::uint32_t i = 0; i <= 100; ++i) EXPECT_EQ(b_in.messages[i], numbered(i));
+}
+
+TEST_F(MessageLinkTest, BothDirectionsAtOnce) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  for (std::uint32_t i = 0; i < 1000; ++i) {
+    a_out.pending.push_back(numbered(i));
+    b_out.pending.push_back(numbered(i + 5000));
+    a->wake_writer();
+    b->wake_writer();
+  }
+  ASSERT_TRUE(
+      run_until(io, [&] { return a_in.messages.size() == 1000 && b_in.messages.size() == 1000; }));
+  EXPECT_EQ(b_in.messages.back(), numbered(999));
+  EXPECT_EQ(a_in.messages.back(), numbered(5999));
+}
+
+TEST_F(MessageLinkTest, SourceIsCalledOnStartSoQueuedMessagesGoOut) {
+  a_out.pending.push_back("hello");
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());  // no wake_writer()
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 1; }));
+  EXPECT_EQ(b_in.messages[0], "hello");
+}
+
+TEST_F(MessageLinkTest, ZeroLengthMessagesAreDelivered) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  a_out.pending = {"", "x", ""};
+  a->wake_writer();
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 3; }));
+  EXPECT_EQ(b_in.messages, (std::vector<std::string>{"", "x", ""}));
+}
+
+TEST_F(MessageLinkTest, PeerCloseEndsTheLinkOnceWithPeerClosed) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  std::error_code waited;
+  bool wait_done = false;
+  asio::co_spawn(
+      io,
+      [&, link = b]() -> asio::awaitable<void> {
+        waited = co_await link->async_wait_closed();
+        wait_done = true;
+      },
+      asio::detached);
+  io.poll();
+  EXPECT_FALSE(wait_done);
+
+  a->close();
+  ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1 && wait_done; }));
+  EXPECT_EQ(b_in.reason, errc::peer_closed);
+  EXPECT_EQ(waited, errc::peer_closed);
+  EXPECT_EQ(b->counters().close_reason, errc::peer_closed);
+  EXPECT_FALSE(b->is_open());
+  EXPECT_EQ(a_in.closed_calls, 1);
+  EXPECT_EQ(a_in.reason, errc::closed);
+  a->close();  // idempotent
+  b->close();
+  EXPECT_TRUE(testing::drains_within(io, 2s));
+  EXPECT_EQ(a_in.closed_calls, 1);
+  EXPECT_EQ(b_in.closed_calls, 1);
+  EXPECT_EQ(b->counters().close_reason, errc::peer_closed);  // the first reason sticks
+}
+
+TEST_F(MessageLinkTest, CloseFromInsideTheMessageHandlerStopsDelivery) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  int delivered = 0;
+  b->start(
+      [&](std::span<const std::uint8_t>) {
+        ++delivered;
+        b->close();
+        b->close();
+      },
+      b_out.source(), b_in.on_closed());
+  a_out.pending = {"1", "2", "3"};
+  a->wake_writer();
+  ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
+  EXPECT_EQ(delivered, 1);
+  EXPECT_EQ(b_in.reason, errc::closed);
+}
+
+TEST_F(MessageLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  b->close();
+  ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
+  std::error_code waited;
+  asio::co_spawn(
+      io, [&, link = b]() -> asio::awaitable<void> { waited = co_await link->async_wait_closed(); },
+      asio::detached);
+  ASSERT_TRUE(run_until(io, [&] { return bool(waited); }));
+  EXPECT_EQ(waited, errc::closed);
+}
+
+TEST_F(MessageLinkTest, ClosingBeforeStartStillReportsOnce) {
+  b->close();
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
+  EXPECT_EQ(b_in.reason, errc::closed);
+  EXPECT_EQ(b_out.source_calls, 0);
+}
+
+TEST_F(MessageLinkTest, ThrowingHandlerDropsTheLink) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start([](std::span<const std::uint8_t>) { throw std::runtime_error("parse failed"); },
+           b_out.source(), b_in.on_closed());
+  a_out.pending = {"boom"};
+  a->wake_writer();
+  ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1 && a_in.closed_calls == 1; }));
+  EXPECT_EQ(b_in.reason, errc::handler_failed);
+  EXPECT_EQ(a_in.reason, errc::peer_closed);
+}
+
+TEST_F(MessageLinkTest, HandlersCapturingTheLinkDoNotKeepItAlive) {
+  std::weak_ptr<MessageLink> weak = b;
+  b->start([link = b](std::span<const std::uint8_t>) { link->wake_writer(); },
+           [link = b](std::string&) {}, [link = b](std::error_code) {});
+  b->close();
+  b.reset();
+  EXPECT_TRUE(run_until(io, [&] { return weak.expired(); }));
+}
+
+TEST_F(MessageLinkTest, TcpNoDelayIsSetOnBothEnds) {
+  EXPECT_NE(tcp_nodelay(a->native_handle()), 0);
+  EXPECT_NE(tcp_nodelay(b->native_handle()), 0);
+}
+
+// A raw peer talks to a MessageLink that has a small maximum message size.
+class RawPeerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    auto sockets = testing::connected_sockets(io);
+    raw = std::make_unique<asio::ip::tcp::socket>(std::move(sockets.client));
+    LinkOptions options;
+    options.max_message_size = 1024;
+    link = MessageLink::create(std::move(sockets.server), options);
+    link->start(in.on_message(), out.source(), in.on_closed());
+  }
+  void TearDown() override {
+    link->close();
+    raw->close();
+    EXPECT_TRUE(testing::drains_within(io, 2s));
+  }
+
+  // True once the raw peer sees the connection end (EOF or reset).
+  bool raw_peer_sees_close() {
+    bool ended = false;
+    asio::co_spawn(
+        io,
+        [&]() -> asio::awaitable<void> {
+          std::array<char, 64> buf;
+          for (;;) {
+            auto [ec, n] = co_await raw->async_read_some(asio::buffer(buf),
+                                                         asio::as_tuple(asio::use_awaitable));
+            if (ec) break;
+          }
+          ended = true;
+        },
+        asio::detached);
+    return run_until(io, [&] { return ended; });
+  }
+
+  asio::io_context io;
+  std::unique_ptr<asio::ip::tcp::socket> raw;
+  std::shared_ptr<MessageLink> link;
+  Outbox out;
+  Inbox in;
+};
+
+TEST_F(RawPeerTest, GarbageIsCountedAndDropsTheLink) {
+  std::string stream;
+  append_delimited(stream, bytes(std::string("ok")));
+  stream += std::string(16, '\xFF');  // a length prefix that never ends
+  asio::write(*raw, asio::buffer(stream));
+  ASSERT_TRUE(run_until(io, [&] { return in.closed_calls == 1; }));
+  EXPECT_EQ(in.reason, errc::malformed_length);
+  EXPECT_EQ(in.messages, std::vector<std::string>{"ok"});  // what came before is still delivered
+  EXPECT_EQ(link->counters().malformed, 1u);
+  EXPECT_EQ(link->counters().oversize, 0u);
+  EXPECT_EQ(link->counters().close_reason, errc::malformed_length);
+  EXPECT_TRUE(raw_peer_sees_close());
+  io.poll();
+  EXPECT_EQ(in.closed_calls, 1);
+}
+
+TEST_F(RawPeerTest, OversizeAnnouncedLengthDropsTheLink) {
+  std::string prefix;
+  append_delimited(prefix, bytes(std::string(1025, 'x')));
+  prefix.resize(2);  // only the prefix: the link must not wait for the body
+  asio::write(*raw, asio::buffer(prefix));
+  ASSERT_TRUE(run_until(io, [&] { return in.closed_calls == 1; }));
+  EXPECT_EQ(in.reason, errc::message_too_large);
+  EXPECT_EQ(link->counters().oversize, 1u);
+  EXPECT_EQ(link->counters().malformed, 0u);
+  EXPECT_TRUE(in.messages.empty());
+  EXPECT_TRUE(raw_peer_sees_close());
+}
+
+TEST_F(RawPeerTest, MessageAtTheLimitIsAccepted) {
+  std::string stream;
+  append_delimited(stream, bytes(std::string(1024, 'y')));
+  asio::write(*raw, asio::buffer(stream));
+  ASSERT_TRUE(run_until(io, [&] { return in.messages.size() == 1; }));
+  EXPECT_EQ(in.messages[0], std::string(1024, 'y'));
+  EXPECT_TRUE(link->is_open());
+}
+
+TEST_F(RawPeerTest, MessageTrickledByteByByteIsReassembled) {
+  std::string stream;
+  append_delimited(stream, bytes(std::string(300, 'z')));
+  for (char c : stream) {
+    asio::write(*raw, asio::buffer(&c, 1));
+    io.poll();
+  }
+  ASSERT_TRUE(run_until(io, [&] { return in.messages.size() == 1; }));
+  EXPECT_EQ(in.messages[0], std::string(300, 'z'));
+  EXPECT_EQ(link->counters().rx_bytes, stream.size());
+}
+
+}  // namespace
+}  // namespace canbridge::backbone

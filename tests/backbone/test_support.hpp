@@ -1,0 +1,65 @@
+// Helpers for backbone tests: drive one io_context until a condition holds, never by sleeping.
+#pragma once
+
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <chrono>
+#include <cstdint>
+#include <span>
+#include <string>
+
+namespace canbridge::backbone::testing {
+
+using namespace std::chrono_literals;
+
+// Runs handlers one at a time until pred() holds or `timeout` passes; returns pred().
+template <typename Pred>
+bool run_until(boost::asio::io_context& io, Pred pred, std::chrono::milliseconds timeout = 5s) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+    if (io.stopped()) io.restart();
+    io.run_one_for(10ms);
+  }
+  return true;
+}
+
+// Runs the io_context until it has no work left; true if that happened within `timeout`, i.e.
+// nothing was left pending.
+inline bool drains_within(boost::asio::io_context& io, std::chrono::milliseconds timeout) {
+  io.restart();
+  io.run_for(timeout);
+  return io.stopped();
+}
+
+inline std::span<const std::uint8_t> bytes(const std::string& s) {
+  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
+}
+
+inline std::string to_string(std::span<const std::uint8_t> s) {
+  return {reinterpret_cast<const char*>(s.data()), s.size()};
+}
+
+// A connected pair of loopback sockets on `io`.
+struct SocketPair {
+  boost::asio::ip::tcp::socket client;
+  boost::asio::ip::tcp::socket server;
+};
+
+inline SocketPair connected_sockets(boost::asio::io_context& io) {
+  using boost::asio::ip::tcp;
+  tcp::acceptor acceptor(io, tcp::endpoint(boost::asio::ip::address_v4::loopback(), 0));
+  tcp::socket client(io);
+  client.connect(acceptor.local_endpoint());  // completes from the listen backlog
+  tcp::socket server = acceptor.accept();
+  return {std::move(client), std::move(server)};
+}
+
+// A port on 127.0.0.1 where nothing listens (it was free a moment ago).
+inline std::uint16_t unused_port(boost::asio::io_context& io) {
+  using boost::asio::ip::tcp;
+  tcp::acceptor acceptor(io, tcp::endpoint(boost::asio::ip::address_v4::loopback(), 0));
+  return acceptor.local_endpoint().port();
+}
+
+}  // namespace canbridge::backbone::testing
