@@ -1,0 +1,98 @@
+#include "sim/object_dictionary.hpp"
+
+#include <algorithm>
+#include <stdexcept>
+
+#include "bridge/canopen/sdo_abort.hpp"
+
+namespace canbridge::sim {
+
+using canopen::SdoAbort;
+
+std::vector<std::uint8_t> le_bytes(std::uint32_t value, std::size_t size) {
+  std::vector<std::uint8_t> out(size);
+  for (std::size_t i = 0; i < size && i < 4; ++i)
+    out[i] = static_cast<std::uint8_t>(value >> (8 * i));
+  return out;
+}
+
+void ObjectDictionary::add(std::uint16_t index, std::uint8_t sub, Access access,
+                           std::vector<std::uint8_t> value) {
+  if (value.empty()) throw std::invalid_argument("object dictionary values are 1 byte or longer");
+  OdEntry entry{index, sub, access, value, value};
+  entries_.insert_or_assign(key(index, sub), std::move(entry));
+}
+
+void ObjectDictionary::add_unsigned(std::uint16_t index, std::uint8_t sub, Access access,
+                                    std::uint32_t value, std::size_t size) {
+  if (size != 1 && size != 2 && size != 4) {
+    throw std::invalid_argument("UNSIGNED entries are 1, 2 or 4 bytes");
+  }
+  add(index, sub, access, le_bytes(value, size));
+}
+
+const OdEntry* ObjectDictionary::find(std::uint16_t index, std::uint8_t sub) const {
+  const auto it = entries_.find(key(index, sub));
+  return it == entries_.end() ? nullptr : &it->second;
+}
+
+OdEntry* ObjectDictionary::find_mutable(std::uint16_t index, std::uint8_t sub) {
+  const auto it = entries_.find(key(index, sub));
+  return it == entries_.end() ? nullptr : &it->second;
+}
+
+bool ObjectDictionary::has_object(std::uint16_t index) const {
+  const auto it = entries_.lower_bound(key(index, 0));
+  return it != entries_.end() && it->second.index == index;
+}
+
+std::error_code ObjectDictionary::locate(std::uint16_t index, std::uint8_t sub) const {
+  if (find(index, sub) != nullptr) return {};
+  return has_object(index) ? SdoAbort::no_sub_index : SdoAbort::no_object;
+}
+
+ObjectDictionary::Read ObjectDictionary::read(std::uint16_t index, std::uint8_t sub) const {
+  if (const auto error = locate(index, sub)) return {error, {}};
+  const OdEntry& entry = *find(index, sub);
+  if (entry.access == Access::wo) return {SdoAbort::read_write_only, {}};
+  return {{}, entry.value};
+}
+
+std::error_code ObjectDictionary::write(std::uint16_t index, std::uint8_t sub,
+                                        std::span<const std::uint8_t> data) {
+  if (const auto error = locate(index, sub)) return error;
+  OdEntry& entry = *find_mutable(index, sub);
+  if (entry.access == Access::ro || entry.access == Access::constant) {
+    return SdoAbort::write_read_only;
+  }
+  if (data.size() != entry.value.size()) return SdoAbort::length_mismatch;
+  std::copy(data.begin(), data.end(), entry.value.begin());
+  return {};
+}
+
+std::optional<std::uint32_t> ObjectDictionary::get_unsigned(std::uint16_t index,
+                                                            std::uint8_t sub) const {
+  const OdEntry* entry = find(index, sub);
+  if (entry == nullptr || entry->value.size() > 4) return std::nullopt;
+  std::uint32_t v = 0;
+  for (std::size_t i = 0; i < entry->value.size(); ++i) {
+    v |= static_cast<std::uint32_t>(entry->value[i]) << (8 * i);
+  }
+  return v;
+}
+
+bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint32_t value) {
+  OdEntry* entry = find_mutable(index, sub);
+  if (entry == nullptr) return false;
+  entry->value = le_bytes(value, entry->value.size());
+  return true;
+}
+
+void ObjectDictionary::restore_initial(std::uint16_t first, std::uint16_t last) {
+  for (auto it = entries_.lower_bound(key(first, 0));
+       it != entries_.end() && it->second.index <= last; ++it) {
+    it->second.value = it->second.initial;
+  }
+}
+
+}  // namespace canbridge::sim
