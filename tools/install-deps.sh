@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages canbridge needs to build, test and benchmark (as root).
+# Does nothing when everything is already there.
+set -euo pipefail
+packages=(
+  cmake ninja-build g++ clang clang-format libclang-rt-14-dev
+  libboost1.81-dev protobuf-compiler libprotobuf-dev
+  libgtest-dev libgmock-dev libyaml-cpp-dev libspdlog-dev
+  can-utils iproute2 kmod user-mode-linux
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  echo "install-deps: installing ${missing[*]}"
+  sudo=""
+  [[ $(id -u) -ne 0 ]] && sudo=sudo
+  $sudo apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Quick start 2: the whole test suite from scratch. Installs what is missing, checks formatting,
+# builds and runs the unit tests under ASan+UBSan, then builds the plain tree and runs every test
+# (unit tests on the host, system tests on real vcan in the rig), ending with ctest's summary.
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+jobs=$(nproc)
+"$root/tools/install-deps.sh"
+"$root/tools/format.sh" --check
+
+echo "=== sanitizer build (ASan+UBSan): unit tests"
+rm -rf "$root/build-asan"
+cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCANBRIDGE_SANITIZE=ON \
+  -DCANBRIDGE_SYSTEM_TESTS=OFF >/dev/null
+cmake --build "$root/build-asan" -j "$jobs"
+ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
+
+echo "=== build: every test"
+rm -rf "$root/build"
+cmake -S "$root" -B "$root/build" -G Ninja >/dev/null
+cmake --build "$root/build" -j "$jobs"
+ctest --test-dir "$root/build" -j "$jobs" --output-on-failure
