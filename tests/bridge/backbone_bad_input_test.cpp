@@ -116,10 +116,13 @@ TEST_F(SurfaceBadInput, RecoverableGarbageIsCountedAndTheLinkStaysUp) {
 
   std::vector<can::Frame> seen;
   bool received = false;
-  asio::co_spawn(io, [&]() -> asio::awaitable<void> {
-    co_await observer->receive_batch(seen);
-    received = true;
-  }, asio::detached);
+  asio::co_spawn(
+      io,
+      [&]() -> asio::awaitable<void> {
+        co_await observer->receive_batch(seen);
+        received = true;
+      },
+      asio::detached);
   ASSERT_TRUE(run_until(io, [&] { return received; }));
   ASSERT_EQ(seen.size(), 1u);
   EXPECT_EQ(seen[0], can::Frame::standard(0x1A1, {3}));
@@ -195,13 +198,17 @@ TEST(GatewayBadInput, GarbageFromTheSurfaceDropsTheLinkAndTheGatewayReconnects) 
   asio::write(first, asio::buffer(delimited(hello(v1::Hello::ROLE_SURFACE, 1, {}))));
   ASSERT_TRUE(run_until(io, [&] { return gateway.connected(); }));
   // A surface frame for surface node 40 = module 1 node 8 reaches the module bus as 0x608.
-  asio::write(first, asio::buffer(delimited(frames(kAnyModule, {can::Frame::standard(0x628, {7})}))));
+  asio::write(first,
+              asio::buffer(delimited(frames(kAnyModule, {can::Frame::standard(0x628, {7})}))));
   std::vector<can::Frame> at_node;
   bool got = false;
-  asio::co_spawn(io, [&]() -> asio::awaitable<void> {
-    co_await node->receive_batch(at_node);
-    got = true;
-  }, asio::detached);
+  asio::co_spawn(
+      io,
+      [&]() -> asio::awaitable<void> {
+        co_await node->receive_batch(at_node);
+        got = true;
+      },
+      asio::detached);
   ASSERT_TRUE(run_until(io, [&] { return got; }));
   EXPECT_EQ(at_node.at(0), can::Frame::standard(0x608, {7}));
 
