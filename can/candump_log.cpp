@@ -24,7 +24,10 @@ bool is_blank(char c) {
 }
 
 std::string quoted(std::string_view s) {
-  return "'" + std::string(s) + "'";
+  std::string out;
+  out.reserve(s.size() + 2);
+  out.append(1, '\'').append(s).append(1, '\'');
+  return out;
 }
 
 // The next blank-separated field of `rest`, consuming it and the blanks before it.

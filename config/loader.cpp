@@ -14,7 +14,7 @@ namespace canbridge::config {
 
 std::string ConfigProblem::to_string() const {
   std::string s = file;
-  if (line > 0) s += ":" + std::to_string(line);
+  if (line > 0) s.append(":").append(std::to_string(line));
   s += ": ";
   if (!field.empty()) s += field + ": ";
   return s + message;
