@@ -12,15 +12,17 @@
 
 #include "can/candump_log.hpp"
 #include "can/socketcan_bus.hpp"
-#include "tests/can_system/rig_support.hpp"
+#include "tests/support/event_loop.hpp"
+#include "tests/support/process.hpp"
+#include "tests/support/raw_can.hpp"
 
 namespace canbridge::can {
 namespace {
 
 namespace asio = boost::asio;
 using namespace std::chrono_literals;
-using can_system::Child;
-using can_system::run_until;
+using test::ChildProcess;
+using test::run_until;
 
 SocketCanOptions options_for(std::string interface) {
   SocketCanOptions o;
@@ -63,7 +65,7 @@ struct Collector {
 
 // Runs a can-utils command while the event loop keeps running, so the bus reads as it sends.
 int run_with_io(asio::io_context& io, std::vector<std::string> argv) {
-  Child child(std::move(argv));
+  ChildProcess child(std::move(argv));
   EXPECT_TRUE(run_until(
       io, [&] { return child.finished(); }, 10s))
       << child.output();
@@ -167,9 +169,9 @@ TEST(SocketCanSystem, SentFramesAppearInCandumpExactlyAndAreNotEchoedToTheSender
   io.poll();
 
   const auto variety = frame_variety();
-  const int before = can_system::receivers_on("vcan0");
-  Child candump({"candump", "-L", "-n", std::to_string(variety.size()), "vcan0"});
-  ASSERT_TRUE(can_system::wait_for_receivers("vcan0", before)) << candump.output();
+  const int before = test::receivers_on("vcan0");
+  ChildProcess candump({"candump", "-L", "-n", std::to_string(variety.size()), "vcan0"});
+  ASSERT_TRUE(test::wait_for_receivers("vcan0", before)) << candump.output();
   for (const auto& entry : variety) ASSERT_TRUE(bus->send(entry.second));
   ASSERT_TRUE(run_until(
       io, [&] { return candump.finished() && other.frames.size() >= variety.size(); }, 10s))
@@ -230,8 +232,8 @@ TEST(SocketCanSystem, CangenBurstOf100000FramesIsReceivedInOrderOrDropsAreCounte
   io.poll();
 
   const auto start = std::chrono::steady_clock::now();
-  Child cangen({"cangen", "vcan0", "-g", "0", "-n", std::to_string(kFrames), "-I", "123", "-L", "8",
-                "-D", "i"});
+  ChildProcess cangen({"cangen", "vcan0", "-g", "0", "-n", std::to_string(kFrames), "-I", "123",
+                       "-L", "8", "-D", "i"});
   const bool complete = run_until(
       io,
       [&] { return cangen.finished() && received + bus->counters().rx_dropped_kernel >= kFrames; },
@@ -336,7 +338,7 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   auto bus = SocketCanBus::open(io.get_executor(), o);
   Collector rx;
   rx.start(io, *bus);
-  can_system::RawSocket observer("vcan1");  // stays bound across down/up
+  test::RawCanSocket observer("vcan1");  // stays bound across down/up
 
   ASSERT_TRUE(bus->send(make(0x111, 0, {1})));
   ASSERT_TRUE(run_until(
@@ -345,7 +347,7 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   ASSERT_TRUE(before);
   EXPECT_EQ(*before, make(0x111, 0, {1}));
 
-  ASSERT_EQ(can_system::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
   // The pending receive sees ENETDOWN and the bus starts reopening.
   ASSERT_TRUE(run_until(
       io, [&] { return !bus->interface_up(); }, 5s));
@@ -360,7 +362,7 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   EXPECT_EQ(bus->queued(), 16u);
   EXPECT_FALSE(rx.ended);  // a transient down is not an error for the reader
 
-  ASSERT_EQ(can_system::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
   ASSERT_TRUE(run_until(
       io, [&] { return bus->interface_up() && bus->queued() == 0; }, 5s));
   EXPECT_GE(bus->counters().reopens, 1u);
@@ -380,14 +382,14 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
 
 TEST(SocketCanSystem, OpensAnInterfaceThatIsDownAndUsesItOnceUp) {
   asio::io_context io(1);
-  ASSERT_EQ(can_system::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
   std::error_code ec;
   auto bus = SocketCanBus::open(io.get_executor(), options_for("vcan1"), ec);
   ASSERT_TRUE(bus) << ec.message();
   EXPECT_FALSE(bus->interface_up());
   ASSERT_TRUE(bus->send(make(0x444, 0, {4})));
-  can_system::RawSocket observer("vcan1");
-  ASSERT_EQ(can_system::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
+  test::RawCanSocket observer("vcan1");
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
   ASSERT_TRUE(run_until(
       io, [&] { return bus->queued() == 0; }, 5s));
   auto got = observer.receive(2s);

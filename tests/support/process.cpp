@@ -1,109 +1,133 @@
 #include "tests/support/process.hpp"
 
 #include <fcntl.h>
-#include <poll.h>
 #include <signal.h>
+#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <cerrno>
-#include <stdexcept>
+#include <string_view>
+#include <system_error>
+
+extern char** environ;
 
 namespace canbridge::test {
 
-ChildProcess::ChildProcess(std::vector<std::string> argv) {
+ChildProcess::ChildProcess(std::vector<std::string> argv, Capture capture) {
   int fds[2];
-  if (pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error("pipe failed");
-  pid_ = fork();
-  if (pid_ < 0) throw std::runtime_error("fork failed");
-  if (pid_ == 0) {
-    dup2(fds[1], STDOUT_FILENO);
-    dup2(fds[1], STDERR_FILENO);
-    std::vector<char*> args;
-    for (auto& a : argv) args.push_back(a.data());
-    args.push_back(nullptr);
-    execvp(args[0], args.data());
-    _exit(127);
+  if (::pipe2(fds, O_CLOEXEC) != 0) throw std::system_error(errno, std::system_category(), "pipe");
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, STDIN_FILENO, "/dev/null", O_RDONLY, 0);
+  if (capture == Capture::stderr_only) {
+    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+  } else {
+    posix_spawn_file_actions_adddup2(&actions, fds[1], STDOUT_FILENO);
   }
-  close(fds[1]);
+  posix_spawn_file_actions_adddup2(&actions, fds[1], STDERR_FILENO);
+  std::vector<char*> args;
+  for (std::string& a : argv) args.push_back(a.data());
+  args.push_back(nullptr);
+  const int rc = ::posix_spawnp(&pid_, args[0], &actions, nullptr, args.data(), environ);
+  posix_spawn_file_actions_destroy(&actions);
+  ::close(fds[1]);
+  if (rc != 0) {
+    ::close(fds[0]);
+    throw std::system_error(rc, std::system_category(), "posix_spawnp " + argv[0]);
+  }
   out_fd_ = fds[0];
+  reader_ = std::thread([this] {
+    char buf[65536];
+    for (;;) {
+      const ssize_t n = ::read(out_fd_, buf, sizeof buf);
+      if (n < 0 && errno == EINTR) continue;
+      {
+        std::lock_guard lock(mutex_);
+        if (n <= 0) {
+          eof_ = true;
+        } else {
+          output_.append(buf, static_cast<std::size_t>(n));
+        }
+      }
+      changed_.notify_all();
+      if (n <= 0) return;
+    }
+  });
 }
 
 ChildProcess::~ChildProcess() {
-  if (!status_) stop(std::chrono::milliseconds(1000));
-  if (out_fd_ >= 0) close(out_fd_);
-}
-
-bool ChildProcess::read_some(std::chrono::steady_clock::time_point deadline) {
-  const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
-      deadline - std::chrono::steady_clock::now());
-  if (left.count() <= 0 || out_fd_ < 0) return false;
-  pollfd p{out_fd_, POLLIN, 0};
-  if (poll(&p, 1, static_cast<int>(left.count())) <= 0) return false;
-  char buf[4096];
-  const ssize_t n = read(out_fd_, buf, sizeof buf);
-  if (n <= 0) {
-    close(out_fd_);
-    out_fd_ = -1;
-    return false;
+  if (!status_) {
+    ::kill(pid_, SIGKILL);
+    reap();
   }
-  output_.append(buf, static_cast<std::size_t>(n));
-  return true;
+  if (reader_.joinable()) reader_.join();
+  ::close(out_fd_);
 }
 
 bool ChildProcess::wait_for_line(const std::string& needle, std::chrono::milliseconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  for (;;) {
-    if (output_.find(needle, scanned_) != std::string::npos) {
-      scanned_ = output_.find(needle, scanned_) + needle.size();
+  std::unique_lock lock(mutex_);
+  bool found = false;
+  const auto match = [&] {
+    // Only complete lines count, unless the child is gone: then whatever it left is final.
+    const std::size_t complete = eof_ ? output_.size() : output_.rfind('\n') + 1;
+    if (complete <= scanned_) return eof_;
+    const std::string_view text(output_.data() + scanned_, complete - scanned_);
+    const std::size_t at = text.find(needle);
+    if (at != std::string_view::npos) {
+      const std::size_t line_end = text.find('\n', at);
+      scanned_ += line_end == std::string_view::npos ? text.size() : line_end + 1;
+      found = true;
       return true;
     }
-    if (!read_some(deadline)) return false;
-  }
+    return eof_;
+  };
+  changed_.wait_for(lock, timeout, match);
+  return found;
 }
 
-void ChildProcess::drain(std::chrono::milliseconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (read_some(deadline)) {
+bool ChildProcess::finished() const {
+  std::lock_guard lock(mutex_);
+  return eof_;
+}
+
+std::optional<int> ChildProcess::reap() {
+  if (status_) return status_;
+  int status = 0;
+  while (::waitpid(pid_, &status, 0) < 0) {
+    if (errno != EINTR) return std::nullopt;
   }
+  status_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return status_;
 }
 
 std::optional<int> ChildProcess::wait(std::chrono::milliseconds timeout) {
   if (status_) return status_;
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  for (;;) {
-    int st = 0;
-    const pid_t r = waitpid(pid_, &st, WNOHANG);
-    if (r == pid_) {
-      status_ = WIFEXITED(st) ? WEXITSTATUS(st) : 128 + WTERMSIG(st);
-      drain(std::chrono::milliseconds(200));
-      return status_;
-    }
-    if (std::chrono::steady_clock::now() >= deadline) return std::nullopt;
-    // Reading output doubles as the wait: it blocks until the child writes or closes its pipe.
-    if (!read_some(
-            std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(20)))) {
-      if (out_fd_ < 0) usleep(2000);  // pipe closed: the exit is imminent
-    }
+  {
+    std::unique_lock lock(mutex_);
+    if (!changed_.wait_for(lock, timeout, [this] { return eof_; })) return std::nullopt;
   }
+  return reap();
 }
 
 int ChildProcess::stop(std::chrono::milliseconds grace) {
   if (status_) return *status_;
-  kill(pid_, SIGTERM);
-  if (auto st = wait(grace)) return *st;
-  kill(pid_, SIGKILL);
-  int st = 0;
-  waitpid(pid_, &st, 0);
-  status_ = 128 + SIGKILL;
-  return *status_;
+  ::kill(pid_, SIGTERM);
+  if (auto s = wait(grace)) return *s;
+  ::kill(pid_, SIGKILL);
+  return reap().value_or(-1);
 }
 
-RunResult run(std::vector<std::string> argv, std::chrono::milliseconds timeout) {
-  ChildProcess child(std::move(argv));
+std::string ChildProcess::output() const {
+  std::lock_guard lock(mutex_);
+  return output_;
+}
+
+RunResult run(std::vector<std::string> argv, std::chrono::milliseconds timeout, Capture capture) {
+  ChildProcess child(std::move(argv), capture);
   RunResult r;
-  auto st = child.wait(timeout);
-  r.status = st ? *st : child.stop();
+  auto status = child.wait(timeout);
+  r.status = status ? *status : child.stop();
   r.output = child.output();
   return r;
 }

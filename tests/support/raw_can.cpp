@@ -7,25 +7,52 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cerrno>
 #include <cstring>
-#include <stdexcept>
+#include <fstream>
+#include <sstream>
+#include <system_error>
+#include <thread>
 
 namespace canbridge::test {
 
+using namespace std::chrono_literals;
+
+namespace {
+
+// Waits for `events` on `fd` until `deadline`; false once it has passed.
+bool poll_until(int fd, short events, std::chrono::steady_clock::time_point deadline) {
+  const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+      deadline - std::chrono::steady_clock::now());
+  if (left.count() <= 0) return false;
+  pollfd p{fd, events, 0};
+  ::poll(&p, 1, static_cast<int>(left.count()));
+  return true;
+}
+
+}  // namespace
+
 RawCanSocket::RawCanSocket(const std::string& interface) {
-  fd_ = socket(PF_CAN, SOCK_RAW, CAN_RAW);
-  if (fd_ < 0) throw std::runtime_error("socket(PF_CAN) failed: " + std::string(strerror(errno)));
+  fd_ = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
+  if (fd_ < 0) throw std::system_error(errno, std::system_category(), "socket(PF_CAN)");
   sockaddr_can addr{};
   addr.can_family = AF_CAN;
-  addr.can_ifindex = static_cast<int>(if_nametoindex(interface.c_str()));
-  if (addr.can_ifindex == 0 || bind(fd_, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    close(fd_);
-    throw std::runtime_error("cannot bind to " + interface);
+  addr.can_ifindex = static_cast<int>(::if_nametoindex(interface.c_str()));
+  int error = 0;
+  if (addr.can_ifindex == 0) {
+    error = ENODEV;
+  } else if (::bind(fd_, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) {
+    error = errno;
+  }
+  if (error != 0) {
+    ::close(fd_);
+    throw std::system_error(error, std::system_category(), "bind " + interface);
   }
 }
 
 RawCanSocket::~RawCanSocket() {
-  close(fd_);
+  ::close(fd_);
 }
 
 void RawCanSocket::send(const can::Frame& frame) {
@@ -33,25 +60,64 @@ void RawCanSocket::send(const can::Frame& frame) {
   cf.can_id = frame.id;
   if (frame.is_extended()) cf.can_id |= CAN_EFF_FLAG;
   if (frame.is_remote()) cf.can_id |= CAN_RTR_FLAG;
-  cf.can_dlc = frame.len;
-  std::memcpy(cf.data, frame.data.data(), frame.len);
-  if (write(fd_, &cf, sizeof cf) != static_cast<ssize_t>(sizeof cf)) {
-    throw std::runtime_error("CAN write failed: " + std::string(strerror(errno)));
+  if (frame.is_error()) cf.can_id |= CAN_ERR_FLAG;
+  cf.len = frame.len;
+  std::memcpy(cf.data, frame.data.data(), std::min<std::size_t>(frame.len, sizeof cf.data));
+  const auto deadline = std::chrono::steady_clock::now() + 1s;
+  for (;;) {
+    const ssize_t n = ::write(fd_, &cf, sizeof cf);
+    if (n == static_cast<ssize_t>(sizeof cf)) return;
+    if (n >= 0 || (errno != EAGAIN && errno != ENOBUFS && errno != EINTR) ||
+        !poll_until(fd_, POLLOUT, deadline)) {
+      throw std::system_error(n < 0 ? errno : EIO, std::system_category(),
+                              "CAN write " + can::to_string(frame));
+    }
   }
 }
 
 std::optional<can::Frame> RawCanSocket::receive(std::chrono::milliseconds timeout) {
-  pollfd p{fd_, POLLIN, 0};
-  if (poll(&p, 1, static_cast<int>(timeout.count())) <= 0) return std::nullopt;
-  can_frame cf{};
-  if (read(fd_, &cf, sizeof cf) != static_cast<ssize_t>(sizeof cf)) return std::nullopt;
-  can::Frame f;
-  f.flags = static_cast<std::uint8_t>(((cf.can_id & CAN_EFF_FLAG) ? can::FrameFlags::extended : 0) |
-                                      ((cf.can_id & CAN_RTR_FLAG) ? can::FrameFlags::remote : 0));
-  f.id = cf.can_id & ((cf.can_id & CAN_EFF_FLAG) ? CAN_EFF_MASK : CAN_SFF_MASK);
-  f.len = cf.can_dlc > 8 ? 8 : cf.can_dlc;
-  std::memcpy(f.data.data(), cf.data, f.len);
-  return f;
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  for (;;) {
+    can_frame cf;
+    const ssize_t n = ::read(fd_, &cf, sizeof cf);
+    if (n == static_cast<ssize_t>(sizeof cf)) {
+      can::Frame f;
+      f.flags =
+          static_cast<std::uint8_t>(((cf.can_id & CAN_EFF_FLAG) ? can::FrameFlags::extended : 0) |
+                                    ((cf.can_id & CAN_RTR_FLAG) ? can::FrameFlags::remote : 0));
+      f.id = cf.can_id & ((cf.can_id & CAN_EFF_FLAG) ? CAN_EFF_MASK : CAN_SFF_MASK);
+      f.len = std::min<std::uint8_t>(cf.len, 8);
+      std::memcpy(f.data.data(), cf.data, f.len);
+      return f;
+    }
+    if (n < 0 && errno != EAGAIN && errno != ENETDOWN && errno != EINTR) {
+      throw std::system_error(errno, std::system_category(), "CAN read");
+    }
+    if (!poll_until(fd_, POLLIN, deadline)) return std::nullopt;
+  }
+}
+
+int receivers_on(const std::string& interface) {
+  std::ifstream in("/proc/net/can/rcvlist_all");
+  std::string line;
+  int count = 0;
+  while (std::getline(in, line)) {
+    std::istringstream fields(line);
+    std::string first;
+    fields >> first;
+    if (first == interface) ++count;
+  }
+  return count;
+}
+
+bool wait_for_receivers(const std::string& interface, int baseline,
+                        std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  while (receivers_on(interface) <= baseline) {
+    if (std::chrono::steady_clock::now() > deadline) return false;
+    std::this_thread::sleep_for(2ms);
+  }
+  return true;
 }
 
 }  // namespace canbridge::test

@@ -1,5 +1,5 @@
-// A plain blocking SocketCAN raw socket for system tests: an independent observer and sender on
-// a real interface, deliberately not the project's own SocketCanBus.
+// Plain SocketCAN access for system tests, deliberately independent of the project's own
+// SocketCanBus: a raw socket to observe and send, and the kernel's list of receivers.
 #pragma once
 
 #include <chrono>
@@ -10,6 +10,8 @@
 
 namespace canbridge::test {
 
+// A nonblocking CAN_RAW socket without filters. It stays bound across an interface down/up; it
+// reports ENETDOWN once, which receive() skips.
 class RawCanSocket {
  public:
   explicit RawCanSocket(const std::string& interface);
@@ -17,12 +19,22 @@ class RawCanSocket {
   RawCanSocket(const RawCanSocket&) = delete;
   RawCanSocket& operator=(const RawCanSocket&) = delete;
 
+  // Writes one frame (waiting up to a second for room in the socket's queue); throws on error.
   void send(const can::Frame& frame);
-  // Next frame, or nullopt when none arrives before the timeout.
+  // Next frame, or nullopt when none arrives within `timeout` (poll(2), no sleeping).
   std::optional<can::Frame> receive(std::chrono::milliseconds timeout);
 
  private:
   int fd_ = -1;
 };
+
+// Receivers registered on `interface` in the kernel's rx_all list (/proc/net/can/rcvlist_all):
+// every CAN_RAW socket without filters, candump's included.
+int receivers_on(const std::string& interface);
+// Bounded poll (every 2 ms, up to `timeout`) until more than `baseline` receivers are registered:
+// the only readiness signal candump gives is that its socket is bound, and /proc offers no change
+// notification.
+bool wait_for_receivers(const std::string& interface, int baseline,
+                        std::chrono::milliseconds timeout = std::chrono::milliseconds(5000));
 
 }  // namespace canbridge::test

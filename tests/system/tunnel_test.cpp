@@ -1,13 +1,11 @@
-// End-to-end: the surface on vcan0 and a gateway on vcan1 + vcan2 run as real processes; frames
-// are injected with can-utils' cansend and observed on independent raw sockets.
-#include <arpa/inet.h>
+// End-to-end: the surface on vcan0 and a gateway on vcan1 + vcan2 run as real processes, started
+// once for the suite; frames are injected with can-utils' cansend and observed on independent raw
+// sockets opened per test. Startup errors are checked against processes of their own.
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <sys/socket.h>
-#include <unistd.h>
 
 #include <fstream>
 #include <memory>
+#include <regex>
 
 #include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
@@ -17,20 +15,9 @@ namespace {
 
 using namespace std::chrono_literals;
 using can::Frame;
+using test::Capture;
 using test::ChildProcess;
 using test::RawCanSocket;
-
-std::uint16_t free_tcp_port() {
-  int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in a{};
-  a.sin_family = AF_INET;
-  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
-  socklen_t len = sizeof a;
-  getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
-  close(fd);
-  return ntohs(a.sin_port);
-}
 
 std::string write_file(const std::string& name, const std::string& text) {
   const std::string path = ::testing::TempDir() + name;
@@ -55,34 +42,116 @@ std::vector<Frame> until(RawCanSocket& socket, const Frame& marker) {
   return seen;
 }
 
+std::string last_line(const std::string& text) {
+  const std::size_t end = text.find_last_not_of('\n');
+  if (end == std::string::npos) return "";
+  const std::size_t begin = text.rfind('\n', end);
+  return text.substr(begin == std::string::npos ? 0 : begin + 1, end + 1 - (begin + 1));
+}
+
 class Tunnel : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const std::uint16_t port = free_tcp_port();
-    const std::string surface_cfg = write_file(
-        "surface.yaml",
-        "role: surface\nname: test-surface\nbus: vcan0\nbackbone:\n  listen: 127.0.0.1:" +
-            std::to_string(port) + "\nlog:\n  level: info\n");
-    const std::string gateway_cfg =
-        write_file("gateway.yaml",
-                   "role: gateway\nname: test-gateway\nbackbone:\n  connect: 127.0.0.1:" +
-                       std::to_string(port) +
-                       "\n  reconnect_min_ms: 20\nmodules:\n  - id: 1\n    bus: vcan1\n  - id: 2\n"
-                       "    bus: vcan2\n");
+  static void SetUpTestSuite() {
+    // Port 0: the surface picks a free port and logs it, so nothing can take it in between.
+    const std::string surface_cfg =
+        write_file("surface.yaml",
+                   "role: surface\nname: test-surface\nbus: vcan0\nbackbone:\n  listen: "
+                   "127.0.0.1:0\nlog:\n  level: info\n");
     surface_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{CANBRIDGE_BIN, "surface", "--config", surface_cfg});
-    ASSERT_TRUE(surface_->wait_for_line("listening", 10s)) << surface_->output();
+    ASSERT_TRUE(surface_->wait_for_line("listening on 127.0.0.1:", 10s)) << surface_->output();
+    std::smatch port;
+    const std::string out = surface_->output();
+    ASSERT_TRUE(std::regex_search(out, port, std::regex("listening on 127\\.0\\.0\\.1:([0-9]+)")))
+        << out;
+    const std::string gateway_cfg =
+        write_file("gateway.yaml",
+                   "role: gateway\nname: test-gateway\nbackbone:\n  connect: "
+                   "127.0.0.1:" +
+                       port[1].str() +
+                       "\n  reconnect_min_ms: 20\nmodules:\n  - id: 1\n    bus: "
+                       "vcan1\n  - id: 2\n    bus: vcan2\n");
     gateway_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{CANBRIDGE_BIN, "gateway", "--config", gateway_cfg});
     ASSERT_TRUE(surface_->wait_for_line("gateway 'test-gateway' ready", 10s))
         << surface_->output() << gateway_->output();
     ASSERT_TRUE(gateway_->wait_for_line("surface 'test-surface' ready", 10s)) << gateway_->output();
+    ready_ = true;
   }
-  void TearDown() override {
-    EXPECT_EQ(gateway_->stop(), 0) << gateway_->output();
-    EXPECT_EQ(surface_->stop(), 0) << surface_->output();
+
+  // On SIGTERM both processes exit 0, and the last thing each prints is its counter line, with
+  // the traffic of the whole suite (at least the fences) counted.
+  static void TearDownTestSuite() {
+    if (gateway_) {
+      EXPECT_EQ(gateway_->stop(), 0) << gateway_->output();
+      const std::string line = last_line(gateway_->output());
+      std::smatch m;
+      EXPECT_TRUE(std::regex_search(
+          line, m,
+          std::regex("gateway test-gateway: link (up|down), bus->backbone ([0-9]+) frames")))
+          << "final line: " << line;
+      if (!m.empty()) {
+        EXPECT_GT(std::stoull(m[2].str()), 0u) << line;
+      }
+      EXPECT_NE(line.find("; vcan1 rx "), std::string::npos) << line;
+      EXPECT_NE(line.find("; vcan2 rx "), std::string::npos) << line;
+    }
+    if (surface_) {
+      EXPECT_EQ(surface_->stop(), 0) << surface_->output();
+      const std::string line = last_line(surface_->output());
+      std::smatch m;
+      EXPECT_TRUE(std::regex_search(line, m,
+                                    std::regex("surface test-surface: [0-9]+ gateway\\(s\\), "
+                                               "bus->backbone ([0-9]+) frames, backbone->bus "
+                                               "([0-9]+),")))
+          << "final line: " << line;
+      if (!m.empty()) {
+        EXPECT_GT(std::stoull(m[1].str()), 0u) << line;
+        EXPECT_GT(std::stoull(m[2].str()), 0u) << line;
+      }
+      EXPECT_NE(line.find("; vcan0 rx "), std::string::npos) << line;
+    }
+    gateway_.reset();
+    surface_.reset();
+    ready_ = false;
   }
-  std::unique_ptr<ChildProcess> surface_, gateway_;
+
+  void SetUp() override {
+    ASSERT_TRUE(ready_) << "the surface and gateway did not start";
+    ASSERT_FALSE(surface_->finished()) << surface_->output();
+    ASSERT_FALSE(gateway_->finished()) << gateway_->output();
+    ASSERT_TRUE(fence());
+  }
+
+  // The processes outlive each test, so frames of an earlier test may still be in flight. Sends
+  // a fresh marker through every direction and reads up to it: each direction of each bus is FIFO
+  // through the tunnel, so whatever an earlier test left arrives before the markers.
+  bool fence() {
+    const std::uint8_t seq = ++fence_seq_;
+    const Frame down = Frame::standard(0x000, {0x80, 0x00, seq});  // NMT broadcast: every module
+    const Frame up1 = Frame::standard(0x701, {seq});               // heartbeat, module 1 node 1
+    const Frame up2 = Frame::standard(0x702, {seq});               // heartbeat, module 2 node 2
+    vcan0_.send(down);
+    vcan1_.send(up1);
+    vcan2_.send(up2);
+    if (until(vcan1_, down).empty() || until(vcan2_, down).empty()) return false;
+    // On the surface: module 1 node 1 = surface node 33, module 2 node 2 = surface node 66.
+    bool seen1 = false, seen2 = false;
+    while (!(seen1 && seen2)) {
+      auto f = vcan0_.receive(5000ms);
+      if (!f) {
+        ADD_FAILURE() << "fence heartbeats never reached vcan0\n" << gateway_->output();
+        return false;
+      }
+      seen1 = seen1 || *f == Frame::standard(0x721, {seq});
+      seen2 = seen2 || *f == Frame::standard(0x742, {seq});
+    }
+    return true;
+  }
+
+  static inline std::unique_ptr<ChildProcess> surface_, gateway_;
+  static inline bool ready_ = false;
+  static inline std::uint8_t fence_seq_ = 0;
   RawCanSocket vcan0_{"vcan0"}, vcan1_{"vcan1"}, vcan2_{"vcan2"};
 };
 
@@ -134,15 +203,53 @@ TEST_F(Tunnel, EveryModuleFrameKindCrossesAndUnmappedFramesDoNot) {
 }
 
 TEST_F(Tunnel, CandumpOnTheModuleBusSeesTheTranslatedFrame) {
+  // candump is ready once its socket is bound: wait for it in the kernel's receiver list, so
+  // one frame is enough.
+  const int before = test::receivers_on("vcan1");
   ChildProcess candump({"candump", "-L", "-n", "1", "vcan1"});
-  // candump is ready once its socket is bound; a frame sent before that would be missed, so
-  // repeat the request until candump reports it (bounded by the deadline).
-  const auto deadline = std::chrono::steady_clock::now() + 10s;
-  while (!candump.wait(50ms)) {
-    ASSERT_LT(std::chrono::steady_clock::now(), deadline) << candump.output();
-    cansend("vcan0", "23F#CAFE");  // RPDO1 of surface node 63 = module 1 node 31
-  }
+  ASSERT_TRUE(test::wait_for_receivers("vcan1", before, 10s)) << candump.output();
+  cansend("vcan0", "23F#CAFE");  // RPDO1 of surface node 63 = module 1 node 31
+  ASSERT_TRUE(candump.wait(10s)) << candump.output();
   EXPECT_NE(candump.output().find("vcan1 21F#CAFE"), std::string::npos) << candump.output();
+}
+
+// Startup errors: each run is a gateway of its own that must refuse to start.
+TEST(TunnelStartup, BadConfigExitsWithStatus2NamingFileLineAndFieldOfEveryProblem) {
+  const std::string path = write_file("gateway_bad.yaml",
+                                      "role: gateway\n"           // 1
+                                      "name: bad-gateway\n"       // 2
+                                      "backbone:\n"               // 3
+                                      "  connect: 127.0.0.1:1\n"  // 4
+                                      "  reconect_min_ms: 20\n"   // 5: unknown key (typo)
+                                      "modules:\n"                // 6
+                                      "  - id: 1\n"               // 7
+                                      "    bus: vcan1\n"          // 8
+                                      "  - id: 2\n"               // 9
+                                      "    bus: vcan1\n");        // 10: vcan1 again
+  auto r = test::run({CANBRIDGE_BIN, "gateway", "--config", path}, 10s, Capture::stderr_only);
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find(path + ":5: backbone.reconect_min_ms: unknown key"), std::string::npos)
+      << r.output;
+  EXPECT_NE(r.output.find(path + ":10: modules[1].bus: bus 'vcan1' is used by two modules"),
+            std::string::npos)
+      << r.output;
+}
+
+TEST(TunnelStartup, MissingConfigFileExitsNonZeroWithAClearMessage) {
+  auto r =
+      test::run({CANBRIDGE_BIN, "gateway", "--config", "/nonexistent"}, 10s, Capture::stderr_only);
+  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("/nonexistent: cannot open the file"), std::string::npos) << r.output;
+}
+
+TEST(TunnelStartup, MissingCanInterfaceExitsNonZeroNamingIt) {
+  const std::string path =
+      write_file("gateway_vcan9.yaml",
+                 "role: gateway\nname: vcan9-gateway\nbackbone:\n  connect: 127.0.0.1:1\n"
+                 "modules:\n  - id: 1\n    bus: vcan1\n  - id: 2\n    bus: vcan9\n");
+  auto r = test::run({CANBRIDGE_BIN, "gateway", "--config", path}, 10s, Capture::stderr_only);
+  EXPECT_NE(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("'vcan9'"), std::string::npos) << r.output;
 }
 
 }  // namespace
