@@ -1,0 +1,151 @@
+#!/usr/bin/env bash
+# Builds the canbridge image with podman, without any registry: makes a local Debian 12 base with
+# debootstrap when it is missing, then builds docker/Dockerfile from the repository root.
+#
+#   docker/build.sh [--rebuild-base] [-- EXTRA PODMAN BUILD ARGS...]
+#
+# Environment: BASE_IMAGE (default localhost/debian-bookworm-base), IMAGE (default canbridge:dev),
+# MIRROR (default: the host's Debian mirror from /etc/apt), ISOLATION (default chroot).
+# Idempotent: an existing base is reused; podman's layer cache makes a repeated build quick.
+# Needs root (debootstrap, podman import), podman and debootstrap (apt-get install podman
+# debootstrap).
+set -euo pipefail
+
+root=$(cd "$(dirname "$0")/.." && pwd)
+base_image=${BASE_IMAGE:-localhost/debian-bookworm-base}
+image=${IMAGE:-canbridge:dev}
+isolation=${ISOLATION:-chroot}
+rebuild_base=0
+extra=()
+while (($#)); do
+  case $1 in
+    --rebuild-base) rebuild_base=1 ;;
+    --) shift; extra=("$@"); break ;;
+    -h|--help) sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "build.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+
+say() { echo "build.sh: $*"; }
+die() { echo "build.sh: error: $*" >&2; exit 1; }
+
+command -v podman >/dev/null || die "podman not found (apt-get install podman)"
+
+# Every URI named by one apt source file (one-line .list or deb822 .sources format).
+source_uris() {
+  case $1 in
+    *.sources) awk 'tolower($1)=="uris:" { for (i = 2; i <= NF; i++) print $i }' "$1" ;;
+    *) sed -nE 's/^[[:space:]]*deb(-src)?[[:space:]]+(\[[^]]*\][[:space:]]+)?([^[:space:]]+).*/\3/p' "$1" ;;
+  esac
+}
+
+# The host's enabled apt source files (apt ignores other names, e.g. *.disabled).
+host_source_files() {
+  local f
+  for f in /etc/apt/sources.list /etc/apt/sources.list.d/*.list /etc/apt/sources.list.d/*.sources; do
+    [[ -s $f ]] && printf '%s\n' "$f"
+  done
+  return 0
+}
+
+# The host's Debian archive mirror (not -security/-updates), else deb.debian.org.
+host_mirror() {
+  local f uri
+  while read -r f; do
+    while read -r uri; do
+      [[ $uri =~ /debian/?$ ]] && { echo "${uri%/}"; return; }
+    done < <(source_uris "$f")
+  done < <(host_source_files)
+  echo http://deb.debian.org/debian
+}
+
+make_base() {
+  [[ $(id -u) -eq 0 ]] || die "making the base needs root (debootstrap); run as root or build it once as root"
+  command -v debootstrap >/dev/null || die "debootstrap not found (apt-get install debootstrap)"
+  local mirror=${MIRROR:-$(host_mirror)}
+  local mirror_host=${mirror#*://}; mirror_host=${mirror_host%%/*}
+  local dir; dir=$(mktemp -d /tmp/canbridge-base.XXXXXX)
+  trap "rm -rf '$dir'" EXIT
+  local include=()
+  [[ $mirror == https:* ]] && include=(--include=ca-certificates)
+
+  say "debootstrap --variant=minbase bookworm $dir $mirror  (a few minutes)"
+  debootstrap --variant=minbase "${include[@]}" bookworm "$dir" "$mirror" >"$dir.log" 2>&1 ||
+    { tail -20 "$dir.log" >&2; die "debootstrap failed (full log: $dir.log)"; }
+  rm -f "$dir.log"
+
+  # Apt inside the build uses the host's mirror configuration: copy the host's Debian source
+  # files (those whose keyrings exist in the new rootfs, or that name only Debian hosts) and any
+  # apt.conf.d settings for proxies and snapshot validity.
+  local f uri copied=0 keyring ok
+  while read -r f; do
+    ok=1
+    while read -r keyring; do
+      [[ -e $dir$keyring ]] || ok=0
+    done < <(sed -nE 's/.*[Ss]igned-[Bb]y[:=][[:space:]]*([^][:space:]]+).*/\1/p' "$f")
+    if ! grep -qiE 'signed-by' "$f"; then
+      while read -r uri; do
+        [[ $uri =~ ://([^/]*\.)?debian\.org/ || $uri == *"://$mirror_host/"* ]] || ok=0
+      done < <(source_uris "$f")
+    fi
+    if ((ok)); then
+      mkdir -p "$dir$(dirname "$f")"
+      cp "$f" "$dir$f"
+      say "  apt source from host: $f"
+      copied=1
+    else
+      say "  skipped host apt source $f (non-Debian repository or keyring missing in the base)"
+    fi
+  done < <(host_source_files)
+  if ((copied)); then
+    # debootstrap wrote sources.list for its mirror; drop it unless the host's own one was copied.
+    [[ -s /etc/apt/sources.list ]] || rm -f "$dir/etc/apt/sources.list"
+  fi
+  for f in /etc/apt/apt.conf /etc/apt/apt.conf.d/*; do
+    [[ -f $f ]] && grep -qE 'Acquire::([^[:space:]]*::)?([Pp]roxy|Check-Valid-Until|Check-Date)' "$f" || continue
+    mkdir -p "$dir$(dirname "$f")"
+    cp "$f" "$dir$f"
+    say "  apt setting from host: $f"
+  done
+  # Like Debian's slim images: no documentation, manual pages or translations (copyright files
+  # stay), in the base and for every package the image builds install later.
+  [[ -n $dir && $dir == /tmp/canbridge-base.* && -x $dir/usr/bin/dpkg ]] || die "bad rootfs dir '$dir'"
+  mkdir -p "$dir/etc/dpkg/dpkg.cfg.d"
+  printf '%s\n' 'path-exclude /usr/share/doc/*' 'path-include /usr/share/doc/*/copyright' \
+    'path-exclude /usr/share/man/*' 'path-exclude /usr/share/info/*' \
+    'path-exclude /usr/share/locale/*' 'path-include /usr/share/locale/locale.alias' \
+    >"$dir/etc/dpkg/dpkg.cfg.d/canbridge-slim"
+  find "$dir/usr/share/doc" -mindepth 1 ! -type d ! -name copyright -delete
+  find "$dir/usr/share/doc" -mindepth 1 -type d -empty -delete
+  find "$dir/usr/share/man" "$dir/usr/share/info" -mindepth 1 -delete
+  find "$dir/usr/share/locale" -mindepth 1 -maxdepth 1 ! -name locale.alias -exec rm -rf {} +
+  chroot "$dir" apt-get clean
+  rm -rf "$dir"/var/lib/apt/lists/* "$dir"/var/cache/apt/*.bin
+
+  say "podman import $dir -> $base_image"
+  tar --numeric-owner -C "$dir" -c . |
+    podman import \
+      --change 'ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin' \
+      --change 'CMD ["/bin/bash"]' \
+      --message "debian bookworm minbase from $mirror (canbridge docker/build.sh)" \
+      - "$base_image" >/dev/null
+  rm -rf "$dir"
+  trap - EXIT
+}
+
+if ((rebuild_base)) || ! podman image exists "$base_image"; then
+  ((rebuild_base)) && say "--rebuild-base: replacing $base_image"
+  ((rebuild_base)) || say "base image $base_image is missing: creating it"
+  make_base
+else
+  say "base image $base_image exists: reusing it (--rebuild-base to recreate)"
+fi
+
+cd "$root"
+cmd=(podman build --isolation="$isolation" --ignorefile docker/Dockerfile.dockerignore
+     --build-arg BASE="$base_image" -f docker/Dockerfile -t "$image" "${extra[@]}" .)
+say "in $root: ${cmd[*]}"
+"${cmd[@]}"
+say "built $image ($(podman image inspect --format '{{.Size}}' "$image" | numfmt --to=iec) uncompressed)"
+say "run: podman run --rm $image   |   see docs/containers.md"
