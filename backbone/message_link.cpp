@@ -1,6 +1,7 @@
 #include "backbone/message_link.hpp"
 
 #include <spdlog/spdlog.h>
+#include <sys/socket.h>
 
 #include <atomic>
 #include <boost/asio/as_tuple.hpp>
@@ -10,6 +11,7 @@
 #include <boost/asio/this_coro.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <boost/asio/write.hpp>
+#include <cerrno>
 #include <exception>
 
 namespace canbridge::backbone {
@@ -88,10 +90,59 @@ void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler 
 
 void MessageLink::wake_writer() {
   wake_requested_ = true;
-  if (writer_sleeping_) {
-    writer_sleeping_ = false;  // one cancel per sleep, however many wakes
-    wake_.cancel();
+  if (!writer_sleeping_) return;  // busy: it calls the source again once its write completes
+  writer_sleeping_ = false;       // one wake per sleep, however many wakes
+  if (write_inline()) return;     // nothing to send after all: the writer sleeps on
+  wake_.cancel();
+}
+
+// The writer is asleep, so no write is in flight and the buffer is free: rather than resume the
+// writer (a turn through the scheduler, then the send), ask the source and send right here. The
+// writer is still resumed afterwards, as if this send were its own write completing: it finishes
+// what the socket did not take and calls the source again, so that wakes until then coalesce
+// into its next write exactly as they do behind any write. Returns true when the source had
+// nothing (the writer may sleep on) or the link ended.
+bool MessageLink::write_inline() {
+  write_buffer_.clear();
+  write_offset_ = 0;
+  wake_requested_ = false;
+  try {
+    if (source_) source_(write_buffer_);
+  } catch (...) {
+    // What the coroutine writer would report through loop_done(); on_closed still comes once,
+    // after both loops have stopped.
+    report_handler_error(std::current_exception());
+    end(make_error_code(errc::handler_failed));
+    return true;
   }
+  if (closing_) return true;
+  if (write_buffer_.empty()) {
+    if (wake_requested_) return false;  // woken from inside the source: let the writer ask again
+    writer_sleeping_ = true;
+    return true;
+  }
+  const ssize_t sent = ::send(socket_.native_handle(), write_buffer_.data(), write_buffer_.size(),
+                              MSG_DONTWAIT | MSG_NOSIGNAL);
+  if (sent >= 0) {
+    write_offset_ = static_cast<std::size_t>(sent);
+    if (write_offset_ == write_buffer_.size()) write_done();
+  } else if (errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR) {
+    end(std::error_code(errno, std::system_category()));
+    return true;
+  }
+  return false;  // the writer sends the rest, if any, then calls the source again
+}
+
+// The whole write buffer has reached the socket.
+void MessageLink::write_done() {
+  ++counters_.tx_writes;
+  counters_.tx_bytes += write_buffer_.size();
+  if (write_buffer_.capacity() > kRetainedWriteCapacity) {
+    std::string().swap(write_buffer_);
+  } else {
+    write_buffer_.clear();
+  }
+  write_offset_ = 0;
 }
 
 void MessageLink::close() {
@@ -145,27 +196,38 @@ asio::awaitable<void> MessageLink::read_loop() {
 
 asio::awaitable<void> MessageLink::write_loop() {
   while (!closing_) {
-    write_buffer_.clear();
-    wake_requested_ = false;
-    if (source_) source_(write_buffer_);
-    if (closing_) break;
-    if (write_buffer_.empty()) {
-      if (wake_requested_) continue;  // woken from inside the source: ask again
-      writer_sleeping_ = true;
-      wake_.expires_at(asio::steady_timer::time_point::max());
-      co_await wake_.async_wait(kNoError);
-      writer_sleeping_ = false;
-      continue;
+    if (write_buffer_.empty()) {  // else: the rest of an inline send (write_inline) is pending
+      write_offset_ = 0;
+      wake_requested_ = false;
+      if (source_) source_(write_buffer_);
+      if (closing_) break;
+      if (write_buffer_.empty()) {
+        if (wake_requested_) continue;  // woken from inside the source: ask again
+        writer_sleeping_ = true;
+        wake_.expires_at(asio::steady_timer::time_point::max());
+        co_await wake_.async_wait(kNoError);
+        writer_sleeping_ = false;
+        continue;
+      }
     }
-    auto [ec, n] = co_await asio::async_write(socket_, asio::buffer(write_buffer_), kNoError);
+    auto [ec, n] =
+        co_await asio::async_write(socket_, asio::buffer(write_buffer_) + write_offset_, kNoError);
     if (closing_) break;
     if (ec) {
       end(ec);
       break;
     }
-    ++counters_.tx_writes;
-    counters_.tx_bytes += n;
-    if (write_buffer_.capacity() > kRetainedWriteCapacity) std::string().swap(write_buffer_);
+    write_done();
+  }
+}
+
+void MessageLink::report_handler_error(std::exception_ptr error) {
+  try {
+    std::rethrow_exception(error);
+  } catch (const std::exception& e) {
+    spdlog::error("backbone: handler on link {} threw: {}", describe(remote_), e.what());
+  } catch (...) {
+    spdlog::error("backbone: handler on link {} threw", describe(remote_));
   }
 }
 
@@ -194,13 +256,7 @@ void MessageLink::end(std::error_code reason) {
 
 void MessageLink::loop_done(std::exception_ptr error) {
   if (error) {
-    try {
-      std::rethrow_exception(error);
-    } catch (const std::exception& e) {
-      spdlog::error("backbone: handler on link {} threw: {}", describe(remote_), e.what());
-    } catch (...) {
-      spdlog::error("backbone: handler on link {} threw", describe(remote_));
-    }
+    report_handler_error(error);
     end(make_error_code(errc::handler_failed));
   }
   if (--loops_running_ == 0) finish();

@@ -30,7 +30,7 @@ struct LinkOptions {
 struct LinkCounters {
   std::uint64_t rx_messages = 0;
   std::uint64_t rx_bytes = 0;
-  std::uint64_t tx_writes = 0;  // completed async_writes; each carries one or more messages
+  std::uint64_t tx_writes = 0;  // completed writes; each carries one or more messages
   std::uint64_t tx_bytes = 0;
   std::uint64_t malformed = 0;   // malformed length prefixes (the link was dropped)
   std::uint64_t oversize = 0;    // announced lengths above max_message_size (the link was dropped)
@@ -60,6 +60,8 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   void start(MessageHandler on_message, Source source, ClosedHandler on_closed);
 
   // Tells an idle writer that the source has something. Cheap; call it as often as you like.
+  // When the writer is idle this calls the source and sends right away (one non-blocking send);
+  // further wakes coalesce until that write has "completed" on a later turn of the loop.
   void wake_writer();
 
   // Ends the link (reason errc::closed unless it already ended); both loops stop promptly and
@@ -88,6 +90,9 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   void end(std::error_code reason);
   void finish();
   void report_decode_error(std::error_code error);
+  void report_handler_error(std::exception_ptr error);
+  bool write_inline();
+  void write_done();
 
   boost::asio::ip::tcp::socket socket_;
   LinkOptions options_;
@@ -95,6 +100,7 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   DelimitedDecoder decoder_;
   std::vector<std::uint8_t> read_buffer_;
   std::string write_buffer_;
+  std::size_t write_offset_ = 0;      // bytes of write_buffer_ already sent by an inline send
   boost::asio::steady_timer wake_;    // condition variable for the idle writer
   boost::asio::steady_timer closed_;  // condition variable for async_wait_closed()
   MessageHandler on_message_;

@@ -201,7 +201,8 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     boost::system::error_code ec;
     socket.assign(fd, ec);
     if (ec) return fail(ec.value());
-    last_overflow = 0;  // SO_RXQ_OVFL counts per socket
+    last_overflow = 0;   // SO_RXQ_OVFL counts per socket
+    rx_drained = false;  // a fresh socket: read before the first wait
     return {};
   }
 
@@ -242,25 +243,37 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       return state.cancelled() != asio::cancellation_type::none;
     };
     const auto canceled = std::make_error_code(std::errc::operation_canceled);
-    // One turn through the scheduler per batch, so a reader on a saturated bus cannot starve
-    // the rest of the loop: the read below may succeed without ever suspending.
-    co_await asio::post(executor, asio::use_awaitable);
+    // A reader on a saturated bus could read batch after batch without ever suspending and
+    // starve the rest of the loop: after a full batch, give the loop one turn first. Otherwise
+    // go straight on; a turn costs an extra epoll_wait and a frame's worth of latency.
+    if (rx_batch_was_full) co_await asio::post(executor, asio::use_awaitable);
     for (;;) {
       if (closed || cancelled(co_await asio::this_coro::cancellation_state)) co_return canceled;
       if (!socket.is_open()) {
         co_await reader_wake.async_wait(asio::as_tuple(asio::use_awaitable));
         continue;
       }
-      // Read before waiting: asio's epoll registration is edge-triggered, so frames that arrived
-      // while no wait was pending would not wake a new wait until yet another frame came.
+      if (rx_drained) {
+        // The last recvmmsg emptied the kernel queue, so reading again now would most likely
+        // return EAGAIN: wait first. asio's registration is edge-triggered, but async_wait
+        // re-arms it with EPOLL_CTL_MOD, and the kernel's ep_modify re-polls the socket and
+        // queues it as ready if frames arrived since that read: none is left without a wakeup.
+        rx_drained = false;
+        co_await socket.async_wait(asio::posix::stream_descriptor::wait_read,
+                                   asio::as_tuple(asio::use_awaitable));
+        continue;  // closed, cancelled or lost meanwhile: checked above
+      }
+      // Otherwise read before waiting: frames that arrived while no wait was pending produced
+      // their edge already (a fresh socket, a full last batch, an interrupted wait).
       const int err = receive_once(out);
       if (err == 0) co_return std::error_code{};
       if (err == EAGAIN || err == EWOULDBLOCK) {
         co_await socket.async_wait(asio::posix::stream_descriptor::wait_read,
                                    asio::as_tuple(asio::use_awaitable));
       } else if (err == -1) {
-        // Only error frames this round: look again, after giving the loop a turn.
-        co_await asio::post(executor, asio::use_awaitable);
+        // Only error frames this round: look again (after a wait if the queue was drained, else
+        // after giving the loop a turn).
+        if (!rx_drained) co_await asio::post(executor, asio::use_awaitable);
       } else if (err != EINTR) {
         // ENETDOWN and the rest: reopen. A transient loss reaches the caller only as counters.
         lose_socket();
@@ -277,7 +290,14 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     }
     const int n = ::recvmmsg(socket.native_handle(), rx_msgs.data(), static_cast<unsigned>(batch),
                              MSG_DONTWAIT, nullptr);
-    if (n < 0) return errno;
+    if (n < 0) {
+      rx_drained = rx_batch_was_full = false;
+      return errno;
+    }
+    // Fewer messages than asked for: the kernel queue was empty when recvmmsg returned, so the
+    // next receive waits for readiness instead of reading first (see receive()).
+    rx_batch_was_full = static_cast<std::size_t>(n) == batch;
+    rx_drained = !rx_batch_was_full;
     std::size_t delivered = 0;
     for (int i = 0; i < n; ++i) {
       msghdr& hdr = rx_msgs[static_cast<std::size_t>(i)].msg_hdr;
@@ -413,6 +433,8 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   bool closed = false;
   bool reopening = false;
   bool writer_idle = false;
+  bool rx_drained = false;         // the last recvmmsg returned fewer frames than asked for
+  bool rx_batch_was_full = false;  // the last recvmmsg filled the whole batch
 
   // Per-batch system call buffers, allocated once: no allocation per frame.
   std::vector<mmsghdr> rx_msgs;

@@ -132,6 +132,37 @@ TEST_F(MessageLinkTest, MessagesQueuedDuringAWriteGoOutInOneWrite) {
   for (std::uint32_t i = 0; i <= 100; ++i) EXPECT_EQ(b_in.messages[i], numbered(i));
 }
 
+TEST_F(MessageLinkTest, AnIdleWriterSendsFromWakeWriterWithoutATurnOfTheLoop) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle
+  a_out.pending.push_back("now");
+  a->wake_writer();
+  EXPECT_EQ(a_out.source_calls, 2);
+  EXPECT_EQ(a->counters().tx_writes, 1u);  // sent before any handler ran
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 1; }));
+  EXPECT_EQ(b_in.messages[0], "now");
+}
+
+TEST_F(MessageLinkTest, SourceThrowingInsideWakeWriterDropsTheLinkOnce) {
+  int calls = 0;
+  a->start(
+      a_in.on_message(),
+      [&](std::string&) {
+        if (++calls > 1) throw std::runtime_error("fill failed");
+      },
+      a_in.on_closed());
+  b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return calls == 1; }));
+  EXPECT_NO_THROW(a->wake_writer());  // the caller is not the one that failed
+  EXPECT_EQ(a_in.closed_calls, 0);    // never from inside wake_writer()
+  ASSERT_TRUE(run_until(io, [&] { return a_in.closed_calls == 1 && b_in.closed_calls == 1; }));
+  EXPECT_EQ(a_in.reason, errc::handler_failed);
+  EXPECT_EQ(b_in.reason, errc::peer_closed);
+  a->wake_writer();  // harmless once closed
+  EXPECT_EQ(calls, 2);
+}
+
 TEST_F(MessageLinkTest, BothDirectionsAtOnce) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
