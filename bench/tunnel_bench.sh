@@ -25,7 +25,7 @@ fi
 counter=$build/bench/can_counter
 canbridge=$build/bridge/canbridge
 work=$(mktemp -d /tmp/canbridge-bench.XXXXXX)
-trap 'kill $(jobs -p) 2>/dev/null; rm -rf "$work"' EXIT
+trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
 burst=100000
 paced=2000
 
