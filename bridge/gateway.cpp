@@ -5,15 +5,9 @@
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
 
-#include "bridge/warn_once.hpp"
-
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
-
-namespace {
-enum WarnKind : std::size_t { kUnknownModule, kNoLink, kBusRefused, kKinds };
-}
 
 Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                  std::vector<GatewayModule> modules, std::size_t max_backlog)
@@ -65,7 +59,6 @@ void Gateway::stop() {
 }
 
 asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
-  static WarnOnce<kKinds> warn;
   can::Bus& bus = *modules_[module_index].bus;
   std::vector<can::Frame> batch;
   batch.reserve(512);
@@ -82,7 +75,8 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       if (!surface) continue;
       if (!up) {
         ++counters_.dropped_no_link;
-        warn.warn(kNoLink, "gateway: backbone not connected: module frames are dropped (counted)");
+        warn_.warn(Warn::kNoLink,
+                   "gateway: backbone not connected: module frames are dropped (counted)");
         continue;
       }
       session_->queue(module_index, *surface);
@@ -92,14 +86,13 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
 }
 
 void Gateway::on_backbone_frames(std::uint32_t module_id, std::span<const can::Frame> frames) {
-  static WarnOnce<kKinds> warn;
   std::optional<std::size_t> only;
   if (module_id != kAnyModule) {
     only = map_.index_of(module_id);
     if (!only) {
       ++counters_.backbone.unknown_module;
-      warn.warn(kUnknownModule, "gateway: surface sent frames for unknown module {} (counted)",
-                module_id);
+      warn_.warn(Warn::kUnknownModule,
+                 "gateway: surface sent frames for unknown module {} (counted)", module_id);
       return;
     }
   }
@@ -110,8 +103,9 @@ void Gateway::on_backbone_frames(std::uint32_t module_id, std::span<const can::F
         ++counters_.to_buses;
       } else {
         ++counters_.bus_refused;
-        warn.warn(kBusRefused, "gateway: bus {} refused a frame (transmit queue full; counted)",
-                  modules_[m].bus->name());
+        warn_.warn(Warn::kBusRefused,
+                   "gateway: bus {} refused a frame (transmit queue full; counted)",
+                   modules_[m].bus->name());
       }
     });
   }

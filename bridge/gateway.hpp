@@ -11,6 +11,7 @@
 #include "bridge/backbone_session.hpp"
 #include "bridge/cob_id_translator.hpp"
 #include "bridge/node_map.hpp"
+#include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
 namespace canbridge::bridge {
@@ -52,6 +53,8 @@ class Gateway {
   boost::asio::awaitable<void> read_bus(std::size_t module_index);
   void on_backbone_frames(std::uint32_t module_id, std::span<const can::Frame> frames);
 
+  enum Warn : std::size_t { kUnknownModule, kNoLink, kBusRefused, kWarnKinds };
+
   boost::asio::any_io_executor executor_;
   std::string name_;
   NodeMap map_;
@@ -60,6 +63,7 @@ class Gateway {
   std::size_t max_backlog_;
   std::shared_ptr<BackboneSession> session_;
   GatewayCounters counters_;
+  WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
 };
 

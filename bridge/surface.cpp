@@ -7,16 +7,10 @@
 #include <boost/asio/detached.hpp>
 
 #include "bridge/frame_batch_codec.hpp"
-#include "bridge/warn_once.hpp"
 
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
-
-namespace {
-enum WarnKind : std::size_t { kUnknownModule, kNoLink, kBusRefused, kKinds };
-WarnOnce<kKinds> g_warn;
-}  // namespace
 
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
                  std::size_t max_backlog)
@@ -84,7 +78,8 @@ asio::awaitable<void> Surface::read_bus() {
     }
     if (!any) {
       counters_.dropped_no_link += batch.size();
-      g_warn.warn(kNoLink, "surface: no gateway connected: surface frames are dropped (counted)");
+      warn_.warn(Warn::kNoLink,
+                 "surface: no gateway connected: surface frames are dropped (counted)");
     }
   }
 }
@@ -94,9 +89,9 @@ void Surface::on_gateway_frames(const BackboneSession& from, std::uint32_t modul
   const auto& ids = from.peer_hello().module_ids();
   if (std::find(ids.begin(), ids.end(), module_id) == ids.end()) {
     ++counters_.backbone.unknown_module;
-    g_warn.warn(kUnknownModule,
-                "surface: gateway '{}' sent frames for module {} it did not announce (counted)",
-                from.peer_hello().name(), module_id);
+    warn_.warn(Warn::kUnknownModule,
+               "surface: gateway '{}' sent frames for module {} it did not announce (counted)",
+               from.peer_hello().name(), module_id);
     return;
   }
   for (const can::Frame& frame : frames) {
@@ -104,8 +99,8 @@ void Surface::on_gateway_frames(const BackboneSession& from, std::uint32_t modul
       ++counters_.to_bus;
     } else {
       ++counters_.bus_refused;
-      g_warn.warn(kBusRefused, "surface: bus {} refused a frame (transmit queue full; counted)",
-                  bus_->name());
+      warn_.warn(Warn::kBusRefused,
+                 "surface: bus {} refused a frame (transmit queue full; counted)", bus_->name());
     }
   }
 }

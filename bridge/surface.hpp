@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "bridge/backbone_session.hpp"
+#include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
 namespace canbridge::bridge {
@@ -42,12 +43,15 @@ class Surface {
   void on_gateway_frames(const BackboneSession& from, std::uint32_t module_id,
                          std::span<const can::Frame> frames);
 
+  enum Warn : std::size_t { kUnknownModule, kNoLink, kBusRefused, kWarnKinds };
+
   boost::asio::any_io_executor executor_;
   std::string name_;
   std::unique_ptr<can::Bus> bus_;
   std::size_t max_backlog_;
   std::vector<std::shared_ptr<BackboneSession>> sessions_;
   SurfaceCounters counters_;
+  WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
 };
 

@@ -37,13 +37,15 @@ struct Frame {
   bool is_error() const { return (flags & FrameFlags::error) != 0; }
   std::span<const std::uint8_t> payload() const { return {data.data(), is_remote() ? 0u : len}; }
 
-  // Standard-id data frame; bytes beyond kMaxPayload are ignored.
+  // A frame of any kind from its parts; the id is masked to 11 or 29 bits by `flags`, bytes
+  // beyond kMaxPayload are ignored.
+  static Frame make(std::uint32_t id, std::uint8_t flags,
+                    std::initializer_list<std::uint8_t> bytes) {
+    return from_span(id, std::span<const std::uint8_t>(bytes.begin(), bytes.size()), flags);
+  }
+  // Standard-id data frame.
   static Frame standard(std::uint32_t id, std::initializer_list<std::uint8_t> bytes) {
-    Frame f;
-    f.id = id & kMaxStandardId;
-    f.len = static_cast<std::uint8_t>(std::min(bytes.size(), kMaxPayload));
-    std::copy_n(bytes.begin(), f.len, f.data.begin());
-    return f;
+    return make(id, 0, bytes);
   }
   static Frame from_span(std::uint32_t id, std::span<const std::uint8_t> bytes,
                          std::uint8_t flags = 0) {

@@ -8,21 +8,13 @@
 #include <span>
 #include <string>
 
+#include "tests/support/event_loop.hpp"
+
 namespace canbridge::backbone::testing {
 
 using namespace std::chrono_literals;
 
-// Runs handlers one at a time until pred() holds or `timeout` passes; returns pred().
-template <typename Pred>
-bool run_until(boost::asio::io_context& io, Pred pred, std::chrono::milliseconds timeout = 5s) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!pred()) {
-    if (std::chrono::steady_clock::now() >= deadline) return false;
-    if (io.stopped()) io.restart();
-    io.run_one_for(10ms);
-  }
-  return true;
-}
+using canbridge::test::run_until;
 
 // Runs the io_context until it has no work left; true if that happened within `timeout`, i.e.
 // nothing was left pending.

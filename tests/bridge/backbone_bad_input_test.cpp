@@ -19,6 +19,7 @@
 #include "bridge/gateway.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
+#include "tests/support/event_loop.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -27,14 +28,21 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 using namespace std::chrono_literals;
 
-bool run_until(asio::io_context& io, const std::function<bool()>& done,
-               std::chrono::milliseconds timeout = 5000ms) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!done()) {
-    if (std::chrono::steady_clock::now() >= deadline) return false;
-    io.run_one_for(10ms);
-  }
-  return true;
+using test::run_until;
+
+// Receives one batch on `bus`, running the loop until it arrives (bounded).
+std::vector<can::Frame> receive_one_batch(asio::io_context& io, can::Bus& bus) {
+  std::vector<can::Frame> frames;
+  bool done = false;
+  asio::co_spawn(
+      io,
+      [&]() -> asio::awaitable<void> {
+        co_await bus.receive_batch(frames);
+        done = true;
+      },
+      asio::detached);
+  EXPECT_TRUE(run_until(io, [&] { return done; }));
+  return frames;
 }
 
 std::string delimited(const v1::Envelope& e) {
@@ -114,16 +122,7 @@ TEST_F(SurfaceBadInput, RecoverableGarbageIsCountedAndTheLinkStaysUp) {
   send(s, delimited(frames(9, {can::Frame::standard(0x181, {2})})));  // never announced
   send(s, delimited(frames(1, {can::Frame::standard(0x1A1, {3})})));
 
-  std::vector<can::Frame> seen;
-  bool received = false;
-  asio::co_spawn(
-      io,
-      [&]() -> asio::awaitable<void> {
-        co_await observer->receive_batch(seen);
-        received = true;
-      },
-      asio::detached);
-  ASSERT_TRUE(run_until(io, [&] { return received; }));
+  const std::vector<can::Frame> seen = receive_one_batch(io, *observer);
   ASSERT_EQ(seen.size(), 1u);
   EXPECT_EQ(seen[0], can::Frame::standard(0x1A1, {3}));
   const SurfaceCounters c = surface.counters();
@@ -200,16 +199,7 @@ TEST(GatewayBadInput, GarbageFromTheSurfaceDropsTheLinkAndTheGatewayReconnects) 
   // A surface frame for surface node 40 = module 1 node 8 reaches the module bus as 0x608.
   asio::write(first,
               asio::buffer(delimited(frames(kAnyModule, {can::Frame::standard(0x628, {7})}))));
-  std::vector<can::Frame> at_node;
-  bool got = false;
-  asio::co_spawn(
-      io,
-      [&]() -> asio::awaitable<void> {
-        co_await node->receive_batch(at_node);
-        got = true;
-      },
-      asio::detached);
-  ASSERT_TRUE(run_until(io, [&] { return got; }));
+  const std::vector<can::Frame> at_node = receive_one_batch(io, *node);
   EXPECT_EQ(at_node.at(0), can::Frame::standard(0x608, {7}));
 
   asio::write(first, asio::buffer(std::string(6, '\xFF')));

@@ -9,15 +9,6 @@ namespace {
 
 using namespace std::chrono_literals;
 
-Frame make(std::uint32_t id, std::uint8_t flags, std::initializer_list<std::uint8_t> bytes) {
-  Frame f;
-  f.id = id;
-  f.flags = flags;
-  f.len = static_cast<std::uint8_t>(bytes.size());
-  std::copy(bytes.begin(), bytes.end(), f.data.begin());
-  return f;
-}
-
 Frame remote(std::uint32_t id, std::uint8_t extra_flags, std::uint8_t dlc) {
   Frame f;
   f.id = id;
@@ -34,19 +25,20 @@ struct Case {
 
 TEST(CandumpLog, ParsesAndFormatsWhatCandumpPrints) {
   const Case cases[] = {
-      {"(1795317925.521798) vcan0 123#DEADBEEF", make(0x123, 0, {0xDE, 0xAD, 0xBE, 0xEF})},
-      {"(1795317925.561581) vcan0 12345678#01", make(0x12345678, FrameFlags::extended, {1})},
+      {"(1795317925.521798) vcan0 123#DEADBEEF", Frame::make(0x123, 0, {0xDE, 0xAD, 0xBE, 0xEF})},
+      {"(1795317925.561581) vcan0 12345678#01", Frame::make(0x12345678, FrameFlags::extended, {1})},
       {"(1795317925.598677) vcan0 7FF#R", remote(0x7FF, 0, 0)},
       {"(1795317925.635128) vcan0 7FF#R3", remote(0x7FF, 0, 3)},
-      {"(1795317925.671956) vcan0 100#", make(0x100, 0, {})},
+      {"(1795317925.671956) vcan0 100#", Frame::make(0x100, 0, {})},
       {"(1795317925.707685) vcan0 00000001#R", remote(1, FrameFlags::extended, 0)},
       {"(1795318459.581371) vcan0 123#R8", remote(0x123, 0, 8)},
       {"(1795317925.743269) vcan0 1FFFFFFF#1122334455667788",
-       make(0x1FFFFFFF, FrameFlags::extended, {0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88})},
+       Frame::make(0x1FFFFFFF, FrameFlags::extended,
+                   {0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88})},
       {"(1795318459.432384) vcan0 20000004#0004000000000000",
-       make(0x4, FrameFlags::error, {0, 4, 0, 0, 0, 0, 0, 0})},
-      {"(1795318459.475057) vcan0 20000040#", make(0x40, FrameFlags::error, {})},
-      {"(0000000012.000001) can1 000#00", make(0, 0, {0})},
+       Frame::make(0x4, FrameFlags::error, {0, 4, 0, 0, 0, 0, 0, 0})},
+      {"(1795318459.475057) vcan0 20000040#", Frame::make(0x40, FrameFlags::error, {})},
+      {"(0000000012.000001) can1 000#00", Frame::make(0, 0, {0})},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.line);
@@ -78,7 +70,7 @@ TEST(CandumpLog, AcceptsWhatCansendAcceptsBeyondCandumpOutput) {
   // Dots between bytes, lower-case hex, candump's padding of short interface names, a CR.
   auto p = parse_candump_line("(1.5)   vcan0  5a1#11.2233.44556677.88\r");
   ASSERT_TRUE(p) << p.error;
-  EXPECT_EQ(p.value.frame, make(0x5A1, 0, {0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88}));
+  EXPECT_EQ(p.value.frame, Frame::make(0x5A1, 0, {0x11, 0x22, 0x33, 0x44, 0x55, 0x66, 0x77, 0x88}));
   EXPECT_EQ(p.value.frame.timestamp, 1500ms);
   EXPECT_EQ(format_cansend_frame(p.value.frame), "5A1#1122334455667788");
 
@@ -88,7 +80,7 @@ TEST(CandumpLog, AcceptsWhatCansendAcceptsBeyondCandumpOutput) {
   EXPECT_EQ(format_cansend_frame(r.value), "00000123#R");
   auto trailing_dot = parse_cansend_frame("123#11.");
   ASSERT_TRUE(trailing_dot) << trailing_dot.error;
-  EXPECT_EQ(trailing_dot.value, make(0x123, 0, {0x11}));
+  EXPECT_EQ(trailing_dot.value, Frame::make(0x123, 0, {0x11}));
 }
 
 TEST(CandumpLog, RoundTripsEveryKindOfFrame) {
@@ -102,7 +94,7 @@ TEST(CandumpLog, RoundTripsEveryKindOfFrame) {
     frames.push_back(remote(len, 0, len));
     frames.push_back(remote(0x10000 + len, FrameFlags::extended, len));
   }
-  frames.push_back(make(0x1FFFFFFF, FrameFlags::error, {1, 2, 3, 4, 5, 6, 7, 8}));
+  frames.push_back(Frame::make(0x1FFFFFFF, FrameFlags::error, {1, 2, 3, 4, 5, 6, 7, 8}));
   std::stringstream log;
   std::int64_t us = 1'700'000'000'000'000;
   for (Frame& f : frames) {

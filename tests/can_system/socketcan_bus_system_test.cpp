@@ -74,22 +74,13 @@ int run_with_io(asio::io_context& io, std::vector<std::string> argv) {
   return status.value_or(-1);
 }
 
-Frame make(std::uint32_t id, std::uint8_t flags, std::initializer_list<std::uint8_t> bytes) {
-  Frame f;
-  f.id = id;
-  f.flags = flags;
-  f.len = static_cast<std::uint8_t>(bytes.size());
-  std::copy(bytes.begin(), bytes.end(), f.data.begin());
-  return f;
-}
-
 // Standard and extended ids, 0..8 bytes, remote frames with and without DLC: with the text
 // cansend takes for each, written out independently of the project's own formatter.
 std::vector<std::pair<std::string, Frame>> frame_variety() {
   std::vector<std::pair<std::string, Frame>> v;
   for (std::uint8_t len = 0; len <= 8; ++len) {
-    Frame s = make(0x100u + len, 0, {});
-    Frame e = make(0x1ABCDE0u + len, FrameFlags::extended, {});
+    Frame s = Frame::make(0x100u + len, 0, {});
+    Frame e = Frame::make(0x1ABCDE0u + len, FrameFlags::extended, {});
     s.len = e.len = len;
     char text_s[40], text_e[40];
     int ns = std::snprintf(text_s, sizeof text_s, "%03X#", s.id);
@@ -105,17 +96,18 @@ std::vector<std::pair<std::string, Frame>> frame_variety() {
     v.emplace_back(text_s, s);
     v.emplace_back(text_e, e);
   }
-  Frame r = make(0x7FF, FrameFlags::remote, {});
+  Frame r = Frame::make(0x7FF, FrameFlags::remote, {});
   v.emplace_back("7FF#R", r);
   r.len = 3;
   v.emplace_back("7FF#R3", r);
-  Frame re = make(0x123, FrameFlags::remote | FrameFlags::extended, {});
+  Frame re = Frame::make(0x123, FrameFlags::remote | FrameFlags::extended, {});
   v.emplace_back("00000123#R", re);
   re.len = 8;
   v.emplace_back("00000123#R8", re);
-  v.emplace_back("000#00", make(0, 0, {0}));
-  v.emplace_back("1FFFFFFF#FFFFFFFFFFFFFFFF",
-                 make(0x1FFFFFFF, FrameFlags::extended, {255, 255, 255, 255, 255, 255, 255, 255}));
+  v.emplace_back("000#00", Frame::make(0, 0, {0}));
+  v.emplace_back(
+      "1FFFFFFF#FFFFFFFFFFFFFFFF",
+      Frame::make(0x1FFFFFFF, FrameFlags::extended, {255, 255, 255, 255, 255, 255, 255, 255}));
   return v;
 }
 
@@ -276,8 +268,8 @@ TEST(SocketCanSystem, SendsLeaveInStrictFifoOrder) {
   std::vector<Frame> sent;
   for (std::uint32_t i = 0; i < kFrames; ++i) {
     // Mixed kinds and lengths, so nothing but the queue can keep them in order.
-    Frame f = (i % 3 == 0) ? make(0x10000000u + i % 7, FrameFlags::extended, {})
-                           : make(0x200u + i % 16, 0, {});
+    Frame f = (i % 3 == 0) ? Frame::make(0x10000000u + i % 7, FrameFlags::extended, {})
+                           : Frame::make(0x200u + i % 16, 0, {});
     f.len = static_cast<std::uint8_t>(4 + i % 5);
     for (int b = 0; b < 4; ++b) f.data[static_cast<std::size_t>(b)] = (i >> (8 * b)) & 0xFF;
     sent.push_back(f);
@@ -315,7 +307,7 @@ TEST(SocketCanSystem, FullTransmitQueueRefusesAndCounts) {
   std::vector<Frame> accepted;
   int refused = 0;
   for (std::uint8_t i = 0; i < 20; ++i) {
-    const Frame f = make(0x300, 0, {i});
+    const Frame f = Frame::make(0x300, 0, {i});
     if (sender->send(f)) {
       accepted.push_back(f);
     } else {
@@ -328,7 +320,7 @@ TEST(SocketCanSystem, FullTransmitQueueRefusesAndCounts) {
   ASSERT_TRUE(run_until(
       io, [&] { return rx.frames.size() >= 8 && sender->queued() == 0; }, 5s));
   EXPECT_EQ(rx.frames, accepted);  // the first eight, in order
-  EXPECT_TRUE(sender->send(make(0x301, 0, {})));
+  EXPECT_TRUE(sender->send(Frame::make(0x301, 0, {})));
 }
 
 TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
@@ -340,12 +332,12 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   rx.start(io, *bus);
   test::RawCanSocket observer("vcan1");  // stays bound across down/up
 
-  ASSERT_TRUE(bus->send(make(0x111, 0, {1})));
+  ASSERT_TRUE(bus->send(Frame::make(0x111, 0, {1})));
   ASSERT_TRUE(run_until(
       io, [&] { return bus->counters().tx_frames == 1; }, 5s));
   auto before = observer.receive(2s);
   ASSERT_TRUE(before);
-  EXPECT_EQ(*before, make(0x111, 0, {1}));
+  EXPECT_EQ(*before, Frame::make(0x111, 0, {1}));
 
   ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
   // The pending receive sees ENETDOWN and the bus starts reopening.
@@ -353,7 +345,7 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
       io, [&] { return !bus->interface_up(); }, 5s));
   std::vector<Frame> queued;
   for (std::uint8_t i = 0; i < 20; ++i) {
-    const Frame f = make(0x222, 0, {i});
+    const Frame f = Frame::make(0x222, 0, {i});
     if (bus->send(f)) queued.push_back(f);
   }
   EXPECT_EQ(queued.size(), 16u);  // kept while down, up to the capacity
@@ -375,7 +367,7 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   run_with_io(io, {"cansend", "vcan1", "333#CAFE"});
   ASSERT_TRUE(run_until(
       io, [&] { return !rx.frames.empty(); }, 5s));
-  EXPECT_EQ(rx.frames.back(), make(0x333, 0, {0xCA, 0xFE}));
+  EXPECT_EQ(rx.frames.back(), Frame::make(0x333, 0, {0xCA, 0xFE}));
   EXPECT_FALSE(rx.ended);
   std::printf("[down/up] reopens=%llu\n", static_cast<unsigned long long>(bus->counters().reopens));
 }
@@ -387,14 +379,14 @@ TEST(SocketCanSystem, OpensAnInterfaceThatIsDownAndUsesItOnceUp) {
   auto bus = SocketCanBus::open(io.get_executor(), options_for("vcan1"), ec);
   ASSERT_TRUE(bus) << ec.message();
   EXPECT_FALSE(bus->interface_up());
-  ASSERT_TRUE(bus->send(make(0x444, 0, {4})));
+  ASSERT_TRUE(bus->send(Frame::make(0x444, 0, {4})));
   test::RawCanSocket observer("vcan1");
   ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
   ASSERT_TRUE(run_until(
       io, [&] { return bus->queued() == 0; }, 5s));
   auto got = observer.receive(2s);
   ASSERT_TRUE(got);
-  EXPECT_EQ(*got, make(0x444, 0, {4}));
+  EXPECT_EQ(*got, Frame::make(0x444, 0, {4}));
 }
 
 TEST(SocketCanSystem, KernelFilterDeliversOnlyMatchingIds) {
@@ -409,13 +401,13 @@ TEST(SocketCanSystem, KernelFilterDeliversOnlyMatchingIds) {
   io.poll();
 
   const std::vector<Frame> traffic = {
-      make(0x123, 0, {1}),
-      make(0x124, 0, {2}),
-      make(0x123, FrameFlags::extended, {3}),  // same number, extended: no match
-      make(0x1234567, FrameFlags::extended, {4}),
-      make(0x1234568, FrameFlags::extended, {5}),
-      make(0x7FF, 0, {6}),
-      make(0x123, 0, {7}),  // last: once it arrived, everything before was filtered
+      Frame::make(0x123, 0, {1}),
+      Frame::make(0x124, 0, {2}),
+      Frame::make(0x123, FrameFlags::extended, {3}),  // same number, extended: no match
+      Frame::make(0x1234567, FrameFlags::extended, {4}),
+      Frame::make(0x1234568, FrameFlags::extended, {5}),
+      Frame::make(0x7FF, 0, {6}),
+      Frame::make(0x123, 0, {7}),  // last: once it arrived, everything before was filtered
   };
   for (const Frame& f : traffic) ASSERT_TRUE(sender->send(f));
   ASSERT_TRUE(run_until(
@@ -437,14 +429,14 @@ TEST(SocketCanSystem, ErrorFramesChangeStateAndNeverReachTheReader) {
   // CAN_ERR_CRTL (0x04) with TX warning (0x08) / TX passive (0x20) in data[1], CAN_ERR_BUSOFF
   // (0x40), CAN_ERR_RESTARTED (0x100), then a protocol error (0x08) that changes nothing.
   const std::vector<Frame> errors = {
-      make(0x04, FrameFlags::error, {0, 0x08, 0, 0, 0, 0, 0, 0}),
-      make(0x04, FrameFlags::error, {0, 0x20, 0, 0, 0, 0, 0, 0}),
-      make(0x40, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
-      make(0x100, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
-      make(0x08, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
+      Frame::make(0x04, FrameFlags::error, {0, 0x08, 0, 0, 0, 0, 0, 0}),
+      Frame::make(0x04, FrameFlags::error, {0, 0x20, 0, 0, 0, 0, 0, 0}),
+      Frame::make(0x40, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
+      Frame::make(0x100, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
+      Frame::make(0x08, FrameFlags::error, {0, 0, 0, 0, 0, 0, 0, 0}),
   };
   for (const Frame& f : errors) ASSERT_TRUE(sender->send(f));
-  const Frame sentinel = make(0x555, 0, {0xAA});
+  const Frame sentinel = Frame::make(0x555, 0, {0xAA});
   ASSERT_TRUE(sender->send(sentinel));
   // An error frame from can-utils too.
   run_with_io(io, {"cansend", "vcan0", "20000004#0004000000000000"});
@@ -470,7 +462,7 @@ TEST(SocketCanSystem, CloseEndsAPendingReceiveAndRefusesSends) {
   ASSERT_TRUE(run_until(
       io, [&] { return rx.ended; }, 2s));
   EXPECT_EQ(rx.end, std::errc::operation_canceled);
-  EXPECT_FALSE(bus->send(make(0x100, 0, {})));
+  EXPECT_FALSE(bus->send(Frame::make(0x100, 0, {})));
   bus.reset();
   io.run_for(10ms);  // nothing left to resume after the bus is gone
 }
