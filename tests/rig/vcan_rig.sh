@@ -81,8 +81,17 @@ trap 'rm -rf "$work"' EXIT
 } >"$work/init"
 chmod +x "$work/init"
 
+# UML 6.1 cannot restore FPU state on hosts with AMX without this shim (see its comment).
+preload=()
+shim_src=$(dirname "${BASH_SOURCE[0]}")/uml_xstate_shim.c
+if command -v cc >/dev/null && cc -O2 -shared -fPIC -o "$work/uml_xstate_shim.so" "$shim_src" -ldl; then
+  preload=(env "LD_PRELOAD=$work/uml_xstate_shim.so")
+else
+  echo "vcan_rig: could not build $shim_src; booting UML without it" >&2
+fi
+
 rc=0
-timeout --kill-after=10 "$timeout_s" "$uml" mem="$mem" root=/dev/root rootfstype=hostfs rootflags=/ rw \
+timeout --kill-after=10 "$timeout_s" "${preload[@]}" "$uml" mem="$mem" root=/dev/root rootfstype=hostfs rootflags=/ rw \
   init="$work/init" con=null con0=fd:0,fd:1 </dev/null >"$work/console.log" 2>&1 || rc=$?
 
 [[ -f $work/output ]] && cat "$work/output"
