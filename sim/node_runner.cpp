@@ -9,14 +9,14 @@
 namespace canbridge::sim {
 
 namespace asio = boost::asio;
-using Clock = ResponderNode::Clock;
+using Clock = SimNode::Clock;
 
 NodeRunner::NodeRunner(asio::any_io_executor executor, can::Bus& bus)
     : bus_(bus), timer_(std::move(executor)) {}
 
-ResponderNode& NodeRunner::add(const ResponderConfig& config) {
-  nodes_.push_back(std::make_unique<ResponderNode>(config));
-  ResponderNode& node = *nodes_.back();
+SimNode& NodeRunner::add(const NodeSpec& spec) {
+  nodes_.push_back(std::make_unique<SimNode>(spec));
+  SimNode& node = *nodes_.back();
   if (running_) {
     boot(node);
     reschedule();
@@ -24,7 +24,7 @@ ResponderNode& NodeRunner::add(const ResponderConfig& config) {
   return node;
 }
 
-void NodeRunner::boot(ResponderNode& node) {
+void NodeRunner::boot(SimNode& node) {
   send_all(node.boot(Clock::now()));
 }
 
@@ -34,8 +34,8 @@ void NodeRunner::send_all(const std::vector<can::Frame>& frames) {
   }
 }
 
-ResponderNode::TimePoint NodeRunner::earliest_deadline() const {
-  auto earliest = ResponderNode::TimePoint::max();
+SimNode::TimePoint NodeRunner::earliest_deadline() const {
+  auto earliest = SimNode::TimePoint::max();
   for (const auto& node : nodes_) earliest = std::min(earliest, node->next_deadline());
   return earliest;
 }

@@ -16,11 +16,84 @@ std::vector<std::uint8_t> le_bytes(std::uint32_t value, std::size_t size) {
   return out;
 }
 
+namespace {
+
+struct TypeName {
+  DataType type;
+  const char* name;
+  std::size_t size;
+};
+
+constexpr TypeName kTypes[] = {
+    {DataType::boolean, "boolean", 1},
+    {DataType::integer8, "integer8", 1},
+    {DataType::integer16, "integer16", 2},
+    {DataType::integer32, "integer32", 4},
+    {DataType::integer64, "integer64", 8},
+    {DataType::unsigned8, "unsigned8", 1},
+    {DataType::unsigned16, "unsigned16", 2},
+    {DataType::unsigned32, "unsigned32", 4},
+    {DataType::unsigned64, "unsigned64", 8},
+    {DataType::real32, "real32", 4},
+    {DataType::real64, "real64", 8},
+    {DataType::visible_string, "visible_string", 0},
+    {DataType::octet_string, "octet_string", 0},
+    {DataType::domain, "domain", 0},
+};
+
+}  // namespace
+
+std::size_t fixed_size(DataType type) {
+  for (const auto& t : kTypes) {
+    if (t.type == type) return t.size;
+  }
+  return 0;
+}
+
+std::optional<DataType> parse_data_type(std::string_view name) {
+  for (const auto& t : kTypes) {
+    if (name == t.name) return t.type;
+  }
+  return std::nullopt;
+}
+
+const char* to_string(DataType type) {
+  for (const auto& t : kTypes) {
+    if (t.type == type) return t.name;
+  }
+  return "?";
+}
+
+void ObjectDictionary::add(std::uint16_t index, std::uint8_t sub, Access access, DataType type,
+                           std::vector<std::uint8_t> value) {
+  const std::size_t size = fixed_size(type);
+  if (size != 0 && value.size() != size) {
+    throw std::invalid_argument("object dictionary value does not have its type's size");
+  }
+  OdEntry entry{index, sub, access, type, value, value};
+  entries_.insert_or_assign(key(index, sub), std::move(entry));
+}
+
 void ObjectDictionary::add(std::uint16_t index, std::uint8_t sub, Access access,
                            std::vector<std::uint8_t> value) {
-  if (value.empty()) throw std::invalid_argument("object dictionary values are 1 byte or longer");
-  OdEntry entry{index, sub, access, value, value};
-  entries_.insert_or_assign(key(index, sub), std::move(entry));
+  DataType type = DataType::octet_string;
+  switch (value.size()) {
+    case 1:
+      type = DataType::unsigned8;
+      break;
+    case 2:
+      type = DataType::unsigned16;
+      break;
+    case 4:
+      type = DataType::unsigned32;
+      break;
+    case 8:
+      type = DataType::unsigned64;
+      break;
+    default:
+      break;
+  }
+  add(index, sub, access, type, std::move(value));
 }
 
 void ObjectDictionary::add_unsigned(std::uint16_t index, std::uint8_t sub, Access access,
@@ -65,8 +138,15 @@ std::error_code ObjectDictionary::write(std::uint16_t index, std::uint8_t sub,
   if (entry.access == Access::ro || entry.access == Access::constant) {
     return SdoAbort::write_read_only;
   }
-  if (data.size() != entry.value.size()) return SdoAbort::length_mismatch;
-  std::copy(data.begin(), data.end(), entry.value.begin());
+  const std::size_t size = fixed_size(entry.type);
+  if (size != 0 && data.size() > size) return SdoAbort::length_too_high;
+  if (size != 0 && data.size() < size) return SdoAbort::length_too_low;
+  if (size == 0 && data.size() > kMaxVariableBytes) return SdoAbort::out_of_memory;
+  if (guard_) {
+    if (const auto refused = guard_(entry, data)) return refused;
+  }
+  entry.value.assign(data.begin(), data.end());
+  if (listener_) listener_(entry);
   return {};
 }
 
@@ -85,6 +165,14 @@ bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::
   OdEntry* entry = find_mutable(index, sub);
   if (entry == nullptr) return false;
   entry->value = le_bytes(value, entry->value.size());
+  return true;
+}
+
+bool ObjectDictionary::set_bytes(std::uint16_t index, std::uint8_t sub,
+                                 std::vector<std::uint8_t> value) {
+  OdEntry* entry = find_mutable(index, sub);
+  if (entry == nullptr) return false;
+  entry->value = std::move(value);
   return true;
 }
 

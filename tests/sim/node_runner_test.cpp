@@ -30,8 +30,9 @@ using Bytes = std::vector<std::uint8_t>;
 
 constexpr auto kTestLimit = 10s;
 
-ResponderConfig config(canopen::NodeId id) {
-  ResponderConfig c;
+NodeSpec config(canopen::NodeId id) {
+  NodeSpec c;
+  c.kind = NodeKind::microcanopen;
   c.node_id = id;
   c.identity = {0x000001A2, 0x00000100u + id, 0x00010000, 0x1000u + id};
   return c;

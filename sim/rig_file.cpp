@@ -1,0 +1,1373 @@
+#include "sim/rig_file.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <optional>
+#include <set>
+#include <sstream>
+
+namespace canbridge::sim {
+
+namespace {
+
+struct KindName {
+  NodeKind kind;
+  const char* name;
+};
+
+constexpr KindName kKinds[] = {
+    {NodeKind::microcanopen, "microcanopen"},
+    {NodeKind::qd, "qd"},
+    {NodeKind::fpga, "fpga"},
+    {NodeKind::cia301, "cia301"},
+};
+
+}  // namespace
+
+std::optional<NodeKind> parse_node_kind(std::string_view name) {
+  for (const auto& k : kKinds) {
+    if (name == k.name) return k.kind;
+  }
+  return std::nullopt;
+}
+
+const char* to_string(NodeKind kind) {
+  for (const auto& k : kKinds) {
+    if (k.kind == kind) return k.name;
+  }
+  return "?";
+}
+
+namespace {
+
+using config::ConfigError;
+using config::ConfigProblem;
+
+// Highest node id of the kinds that take the identifiers of nodes N+32, N+64 and N+96 (qd: the
+// extended connection set of seeds/003; fpga: the t and c bits of PDO Packets, seeds/000).
+constexpr int kMaxShortNodeId = 31;
+constexpr int kMaxQdTpdos = 34;
+constexpr int kMaxStandardPdos = 4;
+constexpr int kMaxPdoBits = 64;
+constexpr std::size_t kMaxPdopPacketBytes = 524280;  // docs/pdop.md section 5
+constexpr std::size_t kMaxInterfaceName = 15;        // IFNAMSIZ - 1
+
+std::string hex(std::uint64_t value, int digits) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%0*llX", digits, static_cast<unsigned long long>(value));
+  return buf;
+}
+
+// "6000:01", as objects are written in PDO maps and counters.
+std::string object_name(std::uint16_t index, std::uint8_t sub) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "%04X:%02X", index, sub);
+  return buf;
+}
+
+std::uint32_t object_key(std::uint16_t index, std::uint8_t sub) {
+  return static_cast<std::uint32_t>(index) << 8 | sub;
+}
+
+// An integer as written: sign and magnitude, so that the whole of INTEGER64 and UNSIGNED64 can
+// be checked without a wider type.
+struct Integer {
+  bool negative = false;
+  std::uint64_t magnitude = 0;
+  bool overflow = false;  // more than 64 bits of magnitude
+  bool hex = false;
+
+  bool fits(std::int64_t min, std::uint64_t max) const {
+    if (overflow) return false;
+    if (!negative)
+      return magnitude <= max && (min <= 0 || magnitude >= static_cast<std::uint64_t>(min));
+    if (min >= 0) return false;
+    return magnitude <= static_cast<std::uint64_t>(-(min + 1)) + 1;
+  }
+  // Two's complement; only meaningful after fits().
+  std::uint64_t bits() const { return negative ? ~magnitude + 1 : magnitude; }
+  std::int64_t as_signed() const { return static_cast<std::int64_t>(bits()); }
+};
+
+// Decimal or 0x hexadecimal, with an optional sign.
+std::optional<Integer> parse_integer(std::string_view s) {
+  Integer v;
+  if (!s.empty() && (s[0] == '-' || s[0] == '+')) {
+    v.negative = s[0] == '-';
+    s.remove_prefix(1);
+  }
+  int base = 10;
+  if (s.size() > 2 && s[0] == '0' && (s[1] == 'x' || s[1] == 'X')) {
+    base = 16;
+    v.hex = true;
+    s.remove_prefix(2);
+  }
+  if (s.empty()) return std::nullopt;
+  auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v.magnitude, base);
+  if (ptr != s.data() + s.size()) return std::nullopt;
+  if (ec == std::errc::result_out_of_range) {
+    v.overflow = true;
+  } else if (ec != std::errc{}) {
+    return std::nullopt;
+  }
+  if (v.magnitude == 0 && !v.overflow) v.negative = false;
+  return v;
+}
+
+// A floating-point number: decimal, integer (also hex) or YAML's .inf / -.inf / .nan.
+std::optional<double> parse_real(std::string_view s) {
+  if (auto i = parse_integer(s); i && !i->overflow) {
+    const double m = static_cast<double>(i->magnitude);
+    return i->negative ? -m : m;
+  }
+  static const std::map<std::string_view, double> kSpecial = {
+      {".inf", HUGE_VAL},   {".Inf", HUGE_VAL},     {".INF", HUGE_VAL},     {"+.inf", HUGE_VAL},
+      {"+.Inf", HUGE_VAL},  {"+.INF", HUGE_VAL},    {"-.inf", -HUGE_VAL},   {"-.Inf", -HUGE_VAL},
+      {"-.INF", -HUGE_VAL}, {".nan", std::nan("")}, {".NaN", std::nan("")}, {".NAN", std::nan("")},
+  };
+  if (auto it = kSpecial.find(s); it != kSpecial.end()) return it->second;
+  if (!s.empty() && s[0] == '+') s.remove_prefix(1);
+  double v = 0;
+  auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (s.empty() || ec != std::errc{} || ptr != s.data() + s.size()) return std::nullopt;
+  return v;
+}
+
+std::vector<std::uint8_t> le(std::uint64_t value, std::size_t size) {
+  std::vector<std::uint8_t> out(size);
+  for (std::size_t i = 0; i < size; ++i) out[i] = static_cast<std::uint8_t>(value >> (8 * i));
+  return out;
+}
+
+bool is_signed_integer(DataType t) {
+  return t == DataType::integer8 || t == DataType::integer16 || t == DataType::integer32 ||
+         t == DataType::integer64;
+}
+bool is_unsigned_integer(DataType t) {
+  return t == DataType::unsigned8 || t == DataType::unsigned16 || t == DataType::unsigned32 ||
+         t == DataType::unsigned64;
+}
+
+using ObjectRef = std::pair<std::uint16_t, std::uint8_t>;
+
+// "6000:01": hex index of 1..4 digits, hex sub-index of 1..2 digits.
+std::optional<ObjectRef> parse_object_ref(std::string_view s) {
+  const auto colon = s.find(':');
+  if (colon == std::string_view::npos || colon == 0 || colon > 4) return std::nullopt;
+  const std::size_t sub_len = s.size() - colon - 1;
+  if (sub_len == 0 || sub_len > 2) return std::nullopt;
+  unsigned index = 0;
+  unsigned sub = 0;
+  auto [p1, e1] = std::from_chars(s.data(), s.data() + colon, index, 16);
+  auto [p2, e2] = std::from_chars(s.data() + colon + 1, s.data() + s.size(), sub, 16);
+  if (e1 != std::errc{} || p1 != s.data() + colon || e2 != std::errc{} ||
+      p2 != s.data() + s.size()) {
+    return std::nullopt;
+  }
+  return ObjectRef{static_cast<std::uint16_t>(index), static_cast<std::uint8_t>(sub)};
+}
+
+std::string join_path(const std::string& path, const std::string& key) {
+  return path.empty() ? key : path + "." + key;
+}
+std::string item_path(const std::string& path, const char* key, std::size_t i) {
+  return join_path(path, key) + "[" + std::to_string(i) + "]";
+}
+
+int line_of(const YAML::Node& node) {
+  return node.IsDefined() && node.Mark().line >= 0 ? node.Mark().line + 1 : 0;
+}
+
+// Walks the document collecting problems instead of stopping at the first one (the style of
+// config/loader.cpp, whose reader is private to that file).
+class Reader {
+ public:
+  explicit Reader(std::string file) : file_(std::move(file)) {}
+
+  void problem(const YAML::Node& at, const std::string& field, const std::string& message) {
+    problem(line_of(at), field, message);
+  }
+  void problem(int line, const std::string& field, const std::string& message) {
+    problems_.push_back({file_, line, field, message});
+  }
+
+  // Every key must be known: a typo must not silently become a default. A key given twice would
+  // silently lose one of its values, so that is refused too.
+  void only_keys(const YAML::Node& map, const std::string& path,
+                 std::initializer_list<std::string_view> known) {
+    if (!map.IsMap()) return;
+    std::map<std::string, int> seen;
+    for (const auto& kv : map) {
+      const std::string key = kv.first.Scalar();
+      const std::string field = join_path(path, key);
+      bool ok = false;
+      for (std::string_view k : known) ok = ok || key == k;
+      if (!ok) problem(kv.first, field, "unknown key");
+      if (auto [it, fresh] = seen.emplace(key, line_of(kv.first)); !fresh) {
+        problem(kv.first, field, "given twice (first at line " + std::to_string(it->second) + ")");
+      }
+    }
+  }
+
+  // A mapping that is present must be a mapping.
+  bool mapping(const YAML::Node& node, const std::string& field) {
+    if (node.IsMap()) return true;
+    problem(node, field, "must be a mapping");
+    return false;
+  }
+
+  // The list under `key`; nullopt when absent or (reported) not a list.
+  std::optional<YAML::Node> list(const YAML::Node& map, const char* key, const std::string& path) {
+    const YAML::Node node = map[key];
+    if (!node) return std::nullopt;
+    if (!node.IsSequence()) {
+      problem(node, join_path(path, key), "must be a list");
+      return std::nullopt;
+    }
+    return node;
+  }
+
+  std::optional<std::string> string(const YAML::Node& map, const char* key, const std::string& path,
+                                    bool required) {
+    const YAML::Node node = map[key];
+    const std::string field = join_path(path, key);
+    if (!node) {
+      if (required) problem(map, field, "missing (required)");
+      return std::nullopt;
+    }
+    if (!node.IsScalar() || node.Scalar().empty()) {
+      problem(node, field, "must be a non-empty string");
+      return std::nullopt;
+    }
+    return node.Scalar();
+  }
+
+  std::optional<Integer> integer_text(const YAML::Node& node, const std::string& field) {
+    if (!node.IsScalar()) {
+      problem(node, field, "must be an integer");
+      return std::nullopt;
+    }
+    auto v = parse_integer(node.Scalar());
+    if (!v) problem(node, field, "'" + node.Scalar() + "' is not an integer (decimal or 0x hex)");
+    return v;
+  }
+
+  std::optional<std::int64_t> integer(const YAML::Node& node, const std::string& field,
+                                      std::int64_t min, std::int64_t max) {
+    auto v = integer_text(node, field);
+    if (!v) return std::nullopt;
+    if (!v->fits(min, static_cast<std::uint64_t>(max))) {
+      const int digits = max > 0xFFFF ? 8 : max > 0xFF ? 4 : 2;
+      problem(node, field,
+              node.Scalar() + " is out of range " +
+                  (v->hex ? hex(static_cast<std::uint64_t>(min), digits) + ".." +
+                                hex(static_cast<std::uint64_t>(max), digits)
+                          : std::to_string(min) + ".." + std::to_string(max)));
+      return std::nullopt;
+    }
+    return v->as_signed();
+  }
+
+  std::optional<std::int64_t> integer(const YAML::Node& map, const char* key,
+                                      const std::string& path, std::int64_t min, std::int64_t max,
+                                      bool required = false) {
+    const YAML::Node node = map[key];
+    if (!node) {
+      if (required) problem(map, join_path(path, key), "missing (required)");
+      return std::nullopt;
+    }
+    return integer(node, join_path(path, key), min, max);
+  }
+
+  std::optional<bool> boolean(const YAML::Node& map, const char* key, const std::string& path) {
+    const YAML::Node node = map[key];
+    if (!node) return std::nullopt;
+    bool v = false;
+    if (!node.IsScalar() || !YAML::convert<bool>::decode(node, v)) {
+      problem(node, join_path(path, key), "must be true or false");
+      return std::nullopt;
+    }
+    return v;
+  }
+
+  // "6000:01" (hex index, hex sub-index), as in EDS files and CANopen tools.
+  std::optional<ObjectRef> object_ref(const YAML::Node& node, const std::string& field) {
+    std::optional<ObjectRef> ref;
+    if (node.IsScalar()) ref = parse_object_ref(node.Scalar());
+    if (!ref) problem(node, field, "must name an object as index:sub in hex, e.g. \"6000:01\"");
+    return ref;
+  }
+
+  const std::vector<ConfigProblem>& problems() const { return problems_; }
+
+ private:
+  std::string file_;
+  std::vector<ConfigProblem> problems_;
+};
+
+// What later rules need to know about an object the node declares, including one whose value
+// was refused: a PDO mapping it must not also be reported as naming a missing object.
+struct DeclaredObject {
+  std::optional<DataType> type;
+  Access access = Access::rw;
+  std::size_t bytes = 0;  // the value's size (0: unknown)
+  int line = 0;
+};
+using ObjectTable = std::map<std::uint32_t, DeclaredObject>;
+
+struct DeclaredPdo {
+  bool enabled = true;
+  int line = 0;
+};
+
+// One node as read, with what the bus-wide rules need.
+struct NodeRead {
+  std::optional<NodeKind> kind;
+  std::optional<int> node_id;
+  int node_id_line = 0;
+  std::string path;
+  NodeSpec spec;
+  struct ExplicitTpdo {
+    std::uint32_t cob_id;
+    unsigned number;
+    YAML::Node at;
+    std::string field;
+  };
+  std::vector<ExplicitTpdo> explicit_tpdos;
+};
+
+// Objects the node builds itself, from its dedicated keys or its kind (docs/sim-nodes.md): a rig
+// object of the same index would fight them.
+std::optional<std::string> owner_of(std::uint16_t index, std::optional<NodeKind> kind) {
+  switch (index) {
+    case 0x1000:
+      return "1000h comes from device_type";
+    case 0x1001:
+      return "1001h (error register) belongs to the node's EMCY logic";
+    case 0x1003:
+      return "1003h (error history) belongs to the node's EMCY logic";
+    case 0x1014:
+      return "1014h (COB-ID EMCY) is 0x80 + node id";
+    case 0x1015:
+      return "1015h comes from emcy.inhibit_100us";
+    case 0x1017:
+      return "1017h comes from heartbeat_ms";
+    case 0x1018:
+      return "1018h comes from identity";
+    default:
+      break;
+  }
+  if (index >= 0x1400 && index <= 0x1BFF) {
+    return hex(index, 4) + " is a PDO communication or mapping object: use tpdos/rpdos";
+  }
+  if (index < 0x1000) return "0000h-0FFFh hold data type definitions, not values";
+  if (kind == NodeKind::qd && index >= 0x1F50 && index <= 0x1F57) {
+    return hex(index, 4) + " is a qd loader download object (1F50h-1F57h), built by the node";
+  }
+  if (kind == NodeKind::qd && (index == 0x2F00 || index == 0x2F01)) {
+    return hex(index, 4) +
+           " is the qd event reset register (2F00h) or EMCY hold-off (2F01h): use "
+           "emcy.holdoff_ms";
+  }
+  if (kind == NodeKind::fpga && index == 0x5F00) {
+    return "5F00h counts the fpga node's received PDO Packets, built by the node";
+  }
+  return std::nullopt;
+}
+
+// CiA 301 7.3.5: identifiers no PDO may use (NMT, SYNC/EMCY-less low range, TIME, SDO,
+// NMT error control, LSS and the reserved tail).
+bool restricted_cob_id(std::uint32_t id) {
+  return id <= 0x07F || (id >= 0x101 && id <= 0x180) || (id >= 0x581 && id <= 0x5FF) ||
+         (id >= 0x601 && id <= 0x67F) || (id >= 0x6E0 && id <= 0x6FF) || id >= 0x701;
+}
+
+std::uint16_t predefined_pdo_base(bool transmit, unsigned number) {
+  const auto step = static_cast<std::uint16_t>(0x100 * (number - 1));
+  return static_cast<std::uint16_t>((transmit ? 0x180 : 0x200) + step);
+}
+
+class RigReader {
+ public:
+  explicit RigReader(Reader& in) : in_(in) {}
+
+  RigSpec read(const YAML::Node& root) {
+    RigSpec rig;
+    in_.only_keys(root, "", {"rig", "description", "buses"});
+    if (auto name = in_.string(root, "rig", "", false)) rig.name = *name;
+    if (const YAML::Node d = root["description"]) {
+      if (d.IsScalar()) {
+        rig.description = d.Scalar();
+      } else {
+        in_.problem(d, "description", "must be a string");
+      }
+    }
+    const YAML::Node buses = root["buses"];
+    if (!buses) {
+      in_.problem(root, "buses", "missing (required): at least one bus");
+      return rig;
+    }
+    if (!buses.IsSequence() || buses.size() == 0) {
+      in_.problem(buses, "buses", "must be a non-empty list of buses");
+      return rig;
+    }
+    std::map<std::string, int> names;
+    std::map<std::string, int> interfaces;
+    for (std::size_t i = 0; i < buses.size(); ++i) {
+      const YAML::Node b = buses[i];
+      const std::string path = item_path("", "buses", i);
+      if (!b.IsMap()) {
+        in_.problem(b, path, "must be a mapping with name and nodes");
+        continue;
+      }
+      BusSpec bus = read_bus(b, path);
+      if (!bus.name.empty()) {
+        if (auto [it, fresh] = names.emplace(bus.name, line_of(b["name"])); !fresh) {
+          in_.problem(
+              b["name"], path + ".name",
+              "bus '" + bus.name + "' is already defined at line " + std::to_string(it->second));
+        }
+      }
+      if (!bus.interface.empty()) {
+        if (auto [it, fresh] = interfaces.emplace(bus.interface, line_of(b["interface"])); !fresh) {
+          in_.problem(b["interface"], path + ".interface",
+                      "interface '" + bus.interface + "' is already used by the bus at line " +
+                          std::to_string(it->second) + ": two buses cannot share one CAN network");
+        }
+      }
+      rig.buses.push_back(std::move(bus));
+    }
+    return rig;
+  }
+
+ private:
+  BusSpec read_bus(const YAML::Node& b, const std::string& path) {
+    BusSpec bus;
+    in_.only_keys(b, path, {"name", "interface", "nodes"});
+    if (auto name = in_.string(b, "name", path, true)) bus.name = *name;
+    if (auto itf = in_.string(b, "interface", path, false)) {
+      if (itf->size() > kMaxInterfaceName) {
+        in_.problem(b["interface"], path + ".interface",
+                    "interface names are at most 15 characters");
+      } else {
+        bus.interface = *itf;
+      }
+    }
+    auto nodes = in_.list(b, "nodes", path);
+    if (!nodes) return bus;
+    std::vector<NodeRead> read;
+    for (std::size_t i = 0; i < nodes->size(); ++i) {
+      const YAML::Node n = (*nodes)[i];
+      const std::string node_path = item_path(path, "nodes", i);
+      if (!n.IsMap()) {
+        in_.problem(n, node_path, "must be a mapping with name, kind and node_id");
+        continue;
+      }
+      read.push_back(read_node(n, node_path));
+    }
+    check_bus(read);
+    for (auto& r : read) bus.nodes.push_back(std::move(r.spec));
+    return bus;
+  }
+
+  // Rules between the nodes of one bus.
+  void check_bus(const std::vector<NodeRead>& nodes) {
+    std::map<int, const NodeRead*> by_id;
+    for (const auto& n : nodes) {
+      if (!n.node_id) continue;
+      if (auto [it, fresh] = by_id.emplace(*n.node_id, &n); !fresh) {
+        in_.problem(n.node_id_line, n.path + ".node_id",
+                    "node id " + std::to_string(*n.node_id) + " is already used on this bus by " +
+                        describe(*it->second) + " (line " +
+                        std::to_string(it->second->node_id_line) + ")");
+      }
+    }
+    // qd (extended connection set) and fpga (PDO Packet t/c bits) nodes transmit on the
+    // identifiers of nodes N+32, N+64 and N+96 as well as their own.
+    for (const auto& n : nodes) {
+      if (!n.node_id || *n.node_id <= kMaxShortNodeId) continue;
+      auto it = by_id.find(*n.node_id & kMaxShortNodeId);
+      if (it == by_id.end() || !it->second->kind) continue;
+      const NodeKind k = *it->second->kind;
+      if (k != NodeKind::qd && k != NodeKind::fpga) continue;
+      in_.problem(n.node_id_line, n.path + ".node_id",
+                  "node id " + std::to_string(*n.node_id) + " collides with " +
+                      describe(*it->second) + ": " +
+                      (k == NodeKind::qd ? "a qd node takes the PDO and SDO identifiers of "
+                                           "nodes N+32, N+64 and N+96 (seeds/003)"
+                                         : "an fpga node's PDO Packets use the identifiers of "
+                                           "nodes N+32, N+64 and N+96 (t and c bits, seeds/000)"));
+    }
+    // An explicit TPDO COB-ID must have one transmitter: CAN arbitration cannot resolve two
+    // stations sending the same identifier.
+    std::map<std::uint32_t, std::string> users;
+    for (const auto& n : nodes) {
+      if (!n.node_id || !n.kind) continue;
+      const auto id = static_cast<std::uint32_t>(*n.node_id);
+      for (const auto& t : n.spec.tpdos) {
+        if (t.cob_id || t.number > kMaxStandardPdos) continue;
+        const std::uint32_t base = predefined_pdo_base(true, t.number);
+        const std::string who = describe(n) + " TPDO " + std::to_string(t.number);
+        users.emplace(base + id, who);
+        if (*n.kind == NodeKind::fpga) {
+          for (std::uint32_t tc = 0x20; tc <= 0x60; tc += 0x20) {
+            users.emplace(base | tc | id, who + " (PDO Packet fragments)");
+          }
+        }
+      }
+      if (*n.kind == NodeKind::qd) {
+        // Every PDO-range identifier ending in the qd node's id may be one of its 34 TPDOs.
+        // Its own four RPDOs (0x200 + N, ...) are receive identifiers others may send to.
+        for (std::uint32_t cob = 0x180; cob < 0x580; cob += 0x20) {
+          if ((cob & 0x7F) == 0 && (cob & 0x80) == 0) continue;
+          users.emplace(cob | id, describe(n) + " (extended connection set)");
+        }
+      }
+    }
+    for (const auto& n : nodes) {
+      for (const auto& t : n.explicit_tpdos) {
+        auto [it, fresh] =
+            users.emplace(t.cob_id, describe(n) + " TPDO " + std::to_string(t.number));
+        if (!fresh) {
+          in_.problem(t.at, t.field,
+                      hex(t.cob_id, 3) + " is already transmitted by " + it->second +
+                          ": one identifier, one transmitter");
+        }
+      }
+    }
+  }
+
+  static std::string describe(const NodeRead& n) {
+    std::string s = n.kind ? std::string(to_string(*n.kind)) + " node " : "node ";
+    s += n.node_id ? std::to_string(*n.node_id) : "?";
+    if (!n.spec.name.empty()) s += " '" + n.spec.name + "'";
+    return s;
+  }
+
+  NodeRead read_node(const YAML::Node& n, const std::string& path) {
+    NodeRead r;
+    r.path = path;
+    NodeSpec& spec = r.spec;
+    in_.only_keys(
+        n, path,
+        {"name", "kind", "node_id", "device_type", "identity", "heartbeat_ms", "auto_start", "sdo",
+         "objects", "tpdos", "rpdos", "traffic", "pdop", "emcy", "loader"});
+    if (auto name = in_.string(n, "name", path, false)) spec.name = *name;
+    if (auto kind = in_.string(n, "kind", path, true)) {
+      r.kind = parse_node_kind(*kind);
+      if (!r.kind) {
+        in_.problem(n["kind"], path + ".kind",
+                    "'" + *kind + "' is not a node kind: microcanopen, qd, fpga or cia301");
+      } else {
+        spec.kind = *r.kind;
+      }
+    }
+    const bool short_ids = r.kind == NodeKind::qd || r.kind == NodeKind::fpga;
+    const YAML::Node node_id = n["node_id"];
+    r.node_id_line = line_of(node_id);
+    if (!node_id) {
+      in_.problem(n, path + ".node_id", "missing (required)");
+    } else if (auto id = in_.integer_text(node_id, path + ".node_id")) {
+      const int max = short_ids ? kMaxShortNodeId : canopen::kMaxNodeId;
+      if (!id->fits(1, static_cast<std::uint64_t>(max))) {
+        in_.problem(node_id, path + ".node_id",
+                    node_id.Scalar() + " is out of range 1.." + std::to_string(max) +
+                        (short_ids ? std::string(": ") + to_string(*r.kind) +
+                                         " nodes use ids 1..31 (their identifiers borrow those "
+                                         "of nodes 33..127)"
+                                   : ""));
+      } else {
+        r.node_id = static_cast<int>(id->magnitude);
+        spec.node_id = static_cast<canopen::NodeId>(id->magnitude);
+      }
+    }
+    if (auto v = in_.integer(n, "device_type", path, 0, 0xFFFFFFFF)) {
+      if (r.kind == NodeKind::qd && (*v & 0xFFFF) != 0) {
+        in_.problem(n["device_type"], path + ".device_type",
+                    "a qd node has a manufacturer device profile: profile number 0 in the low 16 "
+                    "bits, the profile version in the high 16 (seeds/003), e.g. 0x00010000");
+      } else {
+        spec.device_type = static_cast<std::uint32_t>(*v);
+      }
+    }
+    read_identity(n, path, spec.identity);
+    if (auto v = in_.integer(n, "heartbeat_ms", path, 0, 65535)) {
+      spec.heartbeat_ms = static_cast<std::uint16_t>(*v);
+    }
+    // seeds/002: a MicroCANopen network has no NMT master, so its nodes start themselves.
+    spec.auto_start = r.kind == NodeKind::microcanopen;
+    if (auto v = in_.boolean(n, "auto_start", path)) spec.auto_start = *v;
+    read_sdo(n, path, r.kind, spec);
+
+    ObjectTable objects;
+    read_objects(n, path, r.kind, spec, objects);
+    // 1001h is always present and mappable (a TPDO may carry the error register).
+    objects.emplace(object_key(0x1001, 0), DeclaredObject{DataType::unsigned8, Access::ro, 1, 0});
+
+    std::map<unsigned, DeclaredPdo> tpdos;
+    std::map<unsigned, DeclaredPdo> rpdos;
+    read_pdos(n, path, true, r, objects, tpdos);
+    read_pdos(n, path, false, r, objects, rpdos);
+    const bool pdop_ok = read_pdop(n, path, r.kind, spec.pdop);
+    read_emcy(n, path, r.kind, spec.emcy);
+    read_loader(n, path, r.kind, spec.loader);
+    read_traffic(n, path, r.kind, objects, tpdos, pdop_ok, spec);
+    return r;
+  }
+
+  void read_identity(const YAML::Node& n, const std::string& path, Identity& out) {
+    const YAML::Node id = n["identity"];
+    const std::string p = path + ".identity";
+    if (!id || !in_.mapping(id, p)) return;
+    in_.only_keys(id, p, {"vendor_id", "product_code", "revision", "serial"});
+    if (auto v = in_.integer(id, "vendor_id", p, 0, 0xFFFFFFFF)) {
+      out.vendor_id = static_cast<std::uint32_t>(*v);
+    }
+    if (auto v = in_.integer(id, "product_code", p, 0, 0xFFFFFFFF)) {
+      out.product_code = static_cast<std::uint32_t>(*v);
+    }
+    if (auto v = in_.integer(id, "revision", p, 0, 0xFFFFFFFF)) {
+      out.revision = static_cast<std::uint32_t>(*v);
+    }
+    if (auto v = in_.integer(id, "serial", p, 0, 0xFFFFFFFF)) {
+      out.serial = static_cast<std::uint32_t>(*v);
+    }
+  }
+
+  void read_sdo(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                NodeSpec& out) {
+    const YAML::Node sdo = n["sdo"];
+    const std::string p = path + ".sdo";
+    if (!sdo) return;
+    if (kind == NodeKind::fpga || kind == NodeKind::microcanopen) {
+      in_.problem(sdo, p,
+                  std::string(to_string(*kind)) +
+                      " nodes serve expedited SDO only: there is no segmented or block transfer "
+                      "to time out or size");
+      return;
+    }
+    if (!in_.mapping(sdo, p)) return;
+    in_.only_keys(sdo, p, {"timeout_ms", "block_size"});
+    if (auto v = in_.integer(sdo, "timeout_ms", p, 1, 600000)) {
+      out.sdo_timeout = std::chrono::milliseconds(*v);
+    }
+    if (auto v = in_.integer(sdo, "block_size", p, 1, 127)) {
+      out.sdo_block_size = static_cast<std::uint8_t>(*v);
+    }
+  }
+
+  void read_objects(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                    NodeSpec& spec, ObjectTable& table) {
+    auto objects = in_.list(n, "objects", path);
+    if (!objects) return;
+    for (std::size_t i = 0; i < objects->size(); ++i) {
+      const YAML::Node o = (*objects)[i];
+      const std::string p = item_path(path, "objects", i);
+      if (!o.IsMap()) {
+        in_.problem(o, p, "must be a mapping with index, type and value");
+        continue;
+      }
+      in_.only_keys(o, p, {"index", "sub", "type", "access", "value", "size"});
+      auto index = in_.integer(o, "index", p, 0, 0xFFFF, true);
+      std::int64_t sub = 0;
+      bool sub_ok = true;
+      if (o["sub"]) {
+        // Sub-index FFh describes the object's structure; it never holds a value.
+        auto s = in_.integer(o, "sub", p, 0, 254);
+        sub_ok = s.has_value();
+        if (s) sub = *s;
+      }
+      std::optional<DataType> type;
+      if (auto t = in_.string(o, "type", p, true)) {
+        type = parse_data_type(*t);
+        if (!type) {
+          in_.problem(o["type"], p + ".type",
+                      "'" + *t +
+                          "' is not a data type: boolean, integer8..64, unsigned8..64, real32, "
+                          "real64, visible_string, octet_string or domain");
+        }
+      }
+      Access access = Access::rw;
+      if (auto a = in_.string(o, "access", p, false)) {
+        static const std::map<std::string, Access> kAccess = {{"ro", Access::ro},
+                                                              {"wo", Access::wo},
+                                                              {"rw", Access::rw},
+                                                              {"const", Access::constant}};
+        if (auto it = kAccess.find(*a); it != kAccess.end()) {
+          access = it->second;
+        } else {
+          in_.problem(o["access"], p + ".access", "'" + *a + "' is not ro, wo, rw or const");
+        }
+      }
+      bool placed = index.has_value() && sub_ok;
+      if (index) {
+        const auto idx = static_cast<std::uint16_t>(*index);
+        if (auto owner = owner_of(idx, kind)) {
+          in_.problem(o["index"], p + ".index", "refused: " + *owner);
+          placed = false;
+        } else if (kind == NodeKind::microcanopen && (idx < 0x2000 || idx > 0x9FFF)) {
+          in_.problem(o["index"], p + ".index",
+                      "microcanopen nodes have only 1000h, 1001h and 1018h plus process data "
+                      "(seeds/002): give process objects 2000h-9FFFh");
+          placed = false;
+        }
+      }
+      std::optional<std::vector<std::uint8_t>> value;
+      if (type) value = read_value(o, p, *type);
+      if (type && value) check_kind_size(o, p, kind, *type, value->size());
+      if (!placed) continue;
+      const auto idx = static_cast<std::uint16_t>(*index);
+      const auto sx = static_cast<std::uint8_t>(sub);
+      const std::size_t bytes = value ? value->size() : type ? fixed_size(*type) : 0;
+      auto [it, fresh] = table.emplace(object_key(idx, sx),
+                                       DeclaredObject{type, access, bytes, line_of(o["index"])});
+      if (!fresh) {
+        in_.problem(o["index"], p + ".index",
+                    object_name(idx, sx) + " is already defined at line " +
+                        std::to_string(it->second.line));
+        continue;
+      }
+      if (type && value) spec.objects.push_back({idx, sx, *type, access, std::move(*value)});
+    }
+  }
+
+  // Expedited-only nodes (fpga, microcanopen) cannot move more than 4 bytes in one SDO, and a
+  // MicroCANopen variable is 1 to 4 bytes of number (seeds/002).
+  void check_kind_size(const YAML::Node& o, const std::string& p, std::optional<NodeKind> kind,
+                       DataType type, std::size_t bytes) {
+    if (kind == NodeKind::microcanopen && (is_variable_length(type) || fixed_size(type) > 4)) {
+      in_.problem(o["type"], p + ".type",
+                  std::string(to_string(type)) +
+                      ": a microcanopen process variable is a number of 1 to 4 bytes (seeds/002)");
+    } else if (kind == NodeKind::fpga && bytes > 4) {
+      in_.problem(o["type"], p + ".type",
+                  std::string(to_string(type)) + " of " + std::to_string(bytes) +
+                      " bytes: fpga nodes serve expedited SDO only, at most 4 bytes per object "
+                      "(stream big data as PDO Packets instead)");
+    }
+  }
+
+  std::optional<std::vector<std::uint8_t>> read_value(const YAML::Node& o, const std::string& p,
+                                                      DataType type) {
+    const YAML::Node value = o["value"];
+    const YAML::Node size = o["size"];
+    const std::string vfield = p + ".value";
+    const std::size_t n = fixed_size(type);
+    if (value && size) {
+      in_.problem(size, p + ".size", "give value or size, not both");
+      return std::nullopt;
+    }
+    if (size) {
+      if (type != DataType::octet_string && type != DataType::domain) {
+        in_.problem(size, p + ".size",
+                    "only octet_string and domain objects take a size (a zero-filled value)");
+        return std::nullopt;
+      }
+      auto v = in_.integer(size, p + ".size", 0, static_cast<std::int64_t>(kMaxVariableBytes));
+      if (!v) return std::nullopt;
+      return std::vector<std::uint8_t>(static_cast<std::size_t>(*v), 0);
+    }
+    if (!value) return std::vector<std::uint8_t>(n, 0);
+
+    if (type == DataType::octet_string || type == DataType::domain) {
+      if (!value.IsSequence()) {
+        in_.problem(value, vfield, "must be a list of byte values, e.g. [0x01, 0x02]");
+        return std::nullopt;
+      }
+      std::vector<std::uint8_t> bytes;
+      bool ok = true;
+      for (std::size_t k = 0; k < value.size(); ++k) {
+        auto b = in_.integer(value[k], vfield + "[" + std::to_string(k) + "]", 0, 255);
+        ok = ok && b.has_value();
+        if (b) bytes.push_back(static_cast<std::uint8_t>(*b));
+      }
+      if (!ok) return std::nullopt;
+      return bytes;
+    }
+    if (!value.IsScalar()) {
+      in_.problem(value, vfield,
+                  type == DataType::visible_string
+                      ? "must be a string"
+                      : std::string("must be a number for ") + to_string(type));
+      return std::nullopt;
+    }
+    const std::string& text = value.Scalar();
+    if (type == DataType::visible_string) {
+      if (text.size() > kMaxVariableBytes) {
+        in_.problem(value, vfield, "longer than " + std::to_string(kMaxVariableBytes) + " bytes");
+        return std::nullopt;
+      }
+      return std::vector<std::uint8_t>(text.begin(), text.end());
+    }
+    if (type == DataType::boolean) {
+      bool b = false;
+      if (YAML::convert<bool>::decode(value, b) || text == "0" || text == "1") {
+        return std::vector<std::uint8_t>(1, b || text == "1" ? 1 : 0);
+      }
+      in_.problem(value, vfield, "'" + text + "' is not a boolean: true, false, 0 or 1");
+      return std::nullopt;
+    }
+    if (type == DataType::real32 || type == DataType::real64) {
+      auto d = parse_real(text);
+      if (!d) {
+        in_.problem(value, vfield, "'" + text + "' is not a number");
+        return std::nullopt;
+      }
+      if (type == DataType::real64) return le(std::bit_cast<std::uint64_t>(*d), 8);
+      if (std::isfinite(*d) && std::fabs(*d) > std::numeric_limits<float>::max()) {
+        in_.problem(value, vfield, text + " does not fit real32");
+        return std::nullopt;
+      }
+      return le(std::bit_cast<std::uint32_t>(static_cast<float>(*d)), 4);
+    }
+    auto v = parse_integer(text);
+    if (!v) {
+      in_.problem(value, vfield, "'" + text + "' is not an integer (decimal or 0x hex)");
+      return std::nullopt;
+    }
+    const unsigned bits = static_cast<unsigned>(8 * n);
+    if (is_unsigned_integer(type)) {
+      const std::uint64_t max = bits == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << bits) - 1;
+      if (v->negative) {
+        in_.problem(
+            value, vfield,
+            "negative values are only for integer types, not " + std::string(to_string(type)));
+        return std::nullopt;
+      }
+      if (!v->fits(0, max)) {
+        in_.problem(value, vfield,
+                    text + " does not fit " + to_string(type) + " (0.." +
+                        (v->hex ? hex(max, static_cast<int>(2 * n)) : std::to_string(max)) + ")");
+        return std::nullopt;
+      }
+      return le(v->bits(), n);
+    }
+    if (is_signed_integer(type)) {
+      const std::int64_t max = static_cast<std::int64_t>((std::uint64_t{1} << (bits - 1)) - 1);
+      const std::int64_t min = -max - 1;
+      if (!v->fits(min, static_cast<std::uint64_t>(max))) {
+        in_.problem(value, vfield,
+                    text + " does not fit " + to_string(type) + " (" + std::to_string(min) + ".." +
+                        std::to_string(max) + ")");
+        return std::nullopt;
+      }
+      return le(v->bits(), n);
+    }
+    return std::nullopt;  // every type is handled above
+  }
+
+  void read_pdos(const YAML::Node& n, const std::string& path, bool transmit, NodeRead& r,
+                 const ObjectTable& objects, std::map<unsigned, DeclaredPdo>& declared) {
+    const char* key = transmit ? "tpdos" : "rpdos";
+    const char* what = transmit ? "TPDO" : "RPDO";
+    auto pdos = in_.list(n, key, path);
+    if (!pdos) return;
+    const auto kind = r.kind;
+    const int max_number =
+        transmit && (kind == NodeKind::qd || !kind) ? kMaxQdTpdos : kMaxStandardPdos;
+    for (std::size_t i = 0; i < pdos->size(); ++i) {
+      const YAML::Node d = (*pdos)[i];
+      const std::string p = item_path(path, key, i);
+      if (!d.IsMap()) {
+        in_.problem(d, p, "must be a mapping with number and map");
+        continue;
+      }
+      if (transmit) {
+        in_.only_keys(
+            d, p,
+            {"number", "cob_id", "enabled", "transmission", "inhibit_100us", "event_ms", "map"});
+      } else {
+        for (const char* tx_only : {"inhibit_100us", "event_ms"}) {
+          if (d[tx_only]) {
+            in_.problem(d[tx_only], p + "." + tx_only, "applies to TPDOs only");
+          }
+        }
+        in_.only_keys(
+            d, p,
+            {"number", "cob_id", "enabled", "transmission", "map", "inhibit_100us", "event_ms"});
+      }
+      PdoSpec pdo;
+      const YAML::Node number_at = d["number"];
+      std::optional<std::int64_t> number;
+      if (!number_at) {
+        in_.problem(d, p + ".number", "missing (required)");
+      } else if (auto v = in_.integer_text(number_at, p + ".number")) {
+        if (!v->fits(1, static_cast<std::uint64_t>(max_number))) {
+          std::string why;
+          if (transmit && kind == NodeKind::qd) {
+            why = ": a qd node has 34 TPDOs (extended connection set, seeds/003)";
+          } else if (transmit) {
+            why = std::string(": ") + (kind ? to_string(*kind) : "this") +
+                  " nodes have TPDOs 1..4; only qd nodes have 34";
+          } else {
+            why = ": every kind has RPDOs 1..4";
+          }
+          in_.problem(
+              number_at, p + ".number",
+              number_at.Scalar() + " is out of range 1.." + std::to_string(max_number) + why);
+        } else {
+          number = static_cast<std::int64_t>(v->magnitude);
+        }
+      }
+      if (number) {
+        pdo.number = static_cast<unsigned>(*number);
+        auto [it, fresh] = declared.emplace(pdo.number, DeclaredPdo{true, line_of(number_at)});
+        if (!fresh) {
+          in_.problem(number_at, p + ".number",
+                      std::string(what) + " " + std::to_string(pdo.number) +
+                          " is already defined at line " + std::to_string(it->second.line));
+          number.reset();
+        }
+      }
+      if (const YAML::Node cob = d["cob_id"]) {
+        read_cob_id(cob, p + ".cob_id", transmit, kind, pdo);
+        if (pdo.cob_id && transmit && number) {
+          r.explicit_tpdos.push_back({*pdo.cob_id, pdo.number, cob, p + ".cob_id"});
+        }
+      }
+      if (auto v = in_.boolean(d, "enabled", p)) pdo.enabled = *v;
+      if (number) declared[pdo.number].enabled = pdo.enabled;
+      read_transmission(d, p, transmit, kind, pdo);
+      if (transmit) {
+        if (auto v = in_.integer(d, "inhibit_100us", p, 0, 65535)) {
+          pdo.inhibit_100us = static_cast<std::uint16_t>(*v);
+        }
+        if (auto v = in_.integer(d, "event_ms", p, 0, 65535)) {
+          pdo.event_timer_ms = static_cast<std::uint16_t>(*v);
+        }
+      }
+      read_mapping(d, p, transmit, objects, pdo);
+      if (number) (transmit ? r.spec.tpdos : r.spec.rpdos).push_back(std::move(pdo));
+    }
+  }
+
+  void read_cob_id(const YAML::Node& cob, const std::string& field, bool transmit,
+                   std::optional<NodeKind> kind, PdoSpec& pdo) {
+    if (kind == NodeKind::fpga) {
+      in_.problem(cob, field,
+                  "fpga PDOs are fixed: 4 TPDOs and 4 RPDOs at the predefined COB-IDs, the "
+                  "FPGA's message filter is hard-wired (seeds/000); remove cob_id");
+      return;
+    }
+    if (kind == NodeKind::qd) {
+      in_.problem(cob, field,
+                  "qd PDOs have fixed COB-IDs from the extended connection set (seeds/003: "
+                  "COB-IDs are not changed, only enabled); remove cob_id");
+      return;
+    }
+    if (kind == NodeKind::microcanopen && transmit) {
+      in_.problem(cob, field,
+                  "microcanopen TPDOs transmit on the predefined connection set (seeds/002 "
+                  "table 3); only RPDO COB-IDs can be changed");
+      return;
+    }
+    auto v = in_.integer(cob, field, 0, 0x7FF);
+    if (!v) return;
+    const auto id = static_cast<std::uint32_t>(*v);
+    if (restricted_cob_id(id)) {
+      in_.problem(
+          cob, field,
+          hex(id, 3) + " is restricted by CiA 301 (NMT, SDO, NMT error control, LSS or reserved)");
+      return;
+    }
+    pdo.cob_id = id;
+  }
+
+  void read_transmission(const YAML::Node& d, const std::string& p, bool transmit,
+                         std::optional<NodeKind> kind, PdoSpec& pdo) {
+    const YAML::Node t = d["transmission"];
+    if (!t) return;
+    auto v = in_.integer(t, p + ".transmission", 0, 255);
+    if (!v) return;
+    if (*v > 240 && *v < 254) {
+      in_.problem(t, p + ".transmission",
+                  std::to_string(*v) +
+                      " is not simulated: 0 (acyclic synchronous), 1..240 (every n-th SYNC), "
+                      "254 or 255 (event-driven); 241..251 are reserved and remote-request "
+                      "PDOs (252, 253) are not supported");
+      return;
+    }
+    if (kind == NodeKind::microcanopen && transmit && *v < 254) {
+      in_.problem(t, p + ".transmission",
+                  "microcanopen TPDOs are event-driven only, 254 or 255: timer and change of "
+                  "state, no SYNC (seeds/002)");
+      return;
+    }
+    pdo.transmission_type = static_cast<std::uint8_t>(*v);
+  }
+
+  // map: ["6000:01/16", ...] or [{index: 0x6000, sub: 1, bits: 16}, ...]; bits default to the
+  // whole object.
+  void read_mapping(const YAML::Node& d, const std::string& p, bool transmit,
+                    const ObjectTable& objects, PdoSpec& pdo) {
+    auto map = in_.list(d, "map", p);
+    if (!map) return;
+    int total = 0;
+    bool all_known = true;
+    for (std::size_t k = 0; k < map->size(); ++k) {
+      const YAML::Node e = (*map)[k];
+      const std::string f = p + ".map[" + std::to_string(k) + "]";
+      std::optional<ObjectRef> ref;
+      std::optional<std::int64_t> bits;
+      if (e.IsMap()) {
+        in_.only_keys(e, f, {"index", "sub", "bits"});
+        auto index = in_.integer(e, "index", f, 0, 0xFFFF, true);
+        auto sub = e["sub"] ? in_.integer(e, "sub", f, 0, 254) : std::optional<std::int64_t>(0);
+        if (index && sub) {
+          ref = std::pair{static_cast<std::uint16_t>(*index), static_cast<std::uint8_t>(*sub)};
+        }
+        if (e["bits"]) {
+          bits = in_.integer(e, "bits", f, 0, 255);
+          if (!bits) all_known = false;
+        }
+      } else if (e.IsScalar()) {
+        // "6000:01/16": the length after the slash is decimal bits, as in CiA 301 mappings.
+        const std::string& s = e.Scalar();
+        const auto slash = s.find('/');
+        if (slash == std::string::npos) {
+          ref = in_.object_ref(e, f);
+        } else {
+          const std::string ref_text = s.substr(0, slash);
+          const std::string bits_text = s.substr(slash + 1);
+          auto v = parse_integer(bits_text);
+          if (!v || v->negative || v->hex || !v->fits(0, 255)) {
+            in_.problem(e, f, "'" + bits_text + "' after the slash must be a length in bits");
+            all_known = false;
+          } else {
+            bits = static_cast<std::int64_t>(v->magnitude);
+          }
+          ref = parse_object_ref(ref_text);
+          if (!ref) {
+            in_.problem(e, f, "must be index:sub/bits in hex:hex/decimal, e.g. \"6000:01/16\"");
+          }
+        }
+      } else {
+        in_.problem(e, f, "must be \"index:sub/bits\" or {index, sub, bits}");
+      }
+      if (!ref) {
+        all_known = false;
+        continue;
+      }
+      const std::string name = object_name(ref->first, ref->second);
+      auto it = objects.find(object_key(ref->first, ref->second));
+      if (it == objects.end()) {
+        in_.problem(e, f,
+                    name +
+                        " is not an object of this node: define it in objects (1001h is the "
+                        "only built-in object a PDO may map)");
+        all_known = false;
+        continue;
+      }
+      const DeclaredObject& obj = it->second;
+      if (transmit && obj.access == Access::wo) {
+        in_.problem(e, f, name + " is write-only: a TPDO can only map readable objects");
+      }
+      if (!transmit && (obj.access == Access::ro || obj.access == Access::constant)) {
+        in_.problem(e, f, name + " is read-only: an RPDO can only map writable objects");
+      }
+      if (!obj.type || obj.bytes == 0) {
+        all_known = false;  // its own problem is already reported
+        continue;
+      }
+      const auto object_bits = static_cast<std::int64_t>(8 * obj.bytes);
+      const std::int64_t length = bits.value_or(object_bits);
+      if (length == 0 || length % 8 != 0 || length > kMaxPdoBits) {
+        in_.problem(
+            e, f,
+            std::to_string(length) + " bits: a mapped length is a multiple of 8, from 8 to 64");
+        all_known = false;
+        continue;
+      }
+      if (length > object_bits) {
+        in_.problem(e, f,
+                    std::to_string(length) + " bits is more than " + name + " holds (" +
+                        std::to_string(object_bits) + " bits)");
+        all_known = false;
+        continue;
+      }
+      total += static_cast<int>(length);
+      pdo.mapping.push_back({ref->first, ref->second, static_cast<std::uint8_t>(length)});
+    }
+    if (all_known && total > kMaxPdoBits) {
+      in_.problem(*map, p + ".map",
+                  std::to_string(total) + " bits mapped: a PDO carries at most 64 bits");
+    }
+  }
+
+  // Returns false when the section was refused, so traffic does not also check against it.
+  bool read_pdop(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                 PdopSpec& out) {
+    const YAML::Node pdop = n["pdop"];
+    const std::string p = path + ".pdop";
+    if (!pdop) return true;
+    if (kind && kind != NodeKind::fpga) {
+      in_.problem(pdop, p, "only fpga nodes speak PDO Packets (seeds/000)");
+      return false;
+    }
+    if (!in_.mapping(pdop, p)) return false;
+    in_.only_keys(pdop, p, {"max_packet_bytes", "fragment_timeout_ms", "window"});
+    bool ok = true;
+    if (pdop["max_packet_bytes"]) {
+      auto v = in_.integer(pdop, "max_packet_bytes", p, 1,
+                           static_cast<std::int64_t>(kMaxPdopPacketBytes));
+      ok = v.has_value();
+      if (v) out.max_packet_bytes = static_cast<std::size_t>(*v);
+    }
+    if (auto v = in_.integer(pdop, "fragment_timeout_ms", p, 1, 10000)) {
+      out.fragment_timeout = std::chrono::milliseconds(*v);
+    }
+    if (auto v = in_.integer(pdop, "window", p, 1, 255)) {
+      out.window = static_cast<std::uint8_t>(*v);
+    }
+    return ok;
+  }
+
+  void read_emcy(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                 EmcySpec& out) {
+    const YAML::Node emcy = n["emcy"];
+    const std::string p = path + ".emcy";
+    if (!emcy || !in_.mapping(emcy, p)) return;
+    in_.only_keys(emcy, p, {"inhibit_100us", "holdoff_ms"});
+    if (auto v = in_.integer(emcy, "inhibit_100us", p, 0, 65535)) {
+      out.inhibit_100us = static_cast<std::uint16_t>(*v);
+    }
+    if (const YAML::Node h = emcy["holdoff_ms"]) {
+      if (kind && kind != NodeKind::qd) {
+        in_.problem(h, p + ".holdoff_ms",
+                    "only qd nodes send state-change EMCYs, which the hold-off paces (seeds/003)");
+      } else if (auto v = in_.integer(h, p + ".holdoff_ms", 0, 60000)) {
+        out.holdoff = std::chrono::milliseconds(*v);
+      }
+    }
+  }
+
+  void read_loader(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                   LoaderSpec& out) {
+    const YAML::Node loader = n["loader"];
+    const std::string p = path + ".loader";
+    if (!loader) return;
+    if (kind && kind != NodeKind::qd) {
+      in_.problem(loader, p, "only qd nodes have the CANopen loader (seeds/003)");
+      return;
+    }
+    if (!in_.mapping(loader, p)) return;
+    in_.only_keys(loader, p, {"application_valid", "wait_for_command"});
+    if (auto v = in_.boolean(loader, "application_valid", p)) out.application_valid = *v;
+    if (auto v = in_.boolean(loader, "wait_for_command", p)) out.wait_for_command = *v;
+  }
+
+  void read_traffic(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                    const ObjectTable& objects, const std::map<unsigned, DeclaredPdo>& tpdos,
+                    bool pdop_ok, NodeSpec& spec) {
+    auto traffic = in_.list(n, "traffic", path);
+    if (!traffic) return;
+    const bool tpdos_known = !n["tpdos"] || n["tpdos"].IsSequence();
+    for (std::size_t i = 0; i < traffic->size(); ++i) {
+      const YAML::Node t = (*traffic)[i];
+      const std::string p = item_path(path, "traffic", i);
+      if (!t.IsMap()) {
+        in_.problem(t, p, "must be a mapping with kind and period_ms");
+        continue;
+      }
+      TrafficSpec out;
+      bool ok = true;
+      std::optional<TrafficSpec::Kind> tk;
+      if (auto k = in_.string(t, "kind", p, true)) {
+        static const std::map<std::string, TrafficSpec::Kind> kTrafficKinds = {
+            {"counter", TrafficSpec::Kind::counter},
+            {"pdop_sample", TrafficSpec::Kind::pdop_sample},
+            {"subsystem_event", TrafficSpec::Kind::subsystem_event}};
+        if (auto it = kTrafficKinds.find(*k); it != kTrafficKinds.end()) {
+          tk = it->second;
+        } else {
+          in_.problem(t["kind"], p + ".kind",
+                      "'" + *k +
+                          "' is not a traffic kind: counter, pdop_sample or "
+                          "subsystem_event");
+        }
+      }
+      ok = tk.has_value();
+      if (auto v = in_.integer(t, "period_ms", p, 1, 3600000, true)) {
+        out.period = std::chrono::milliseconds(*v);
+      } else {
+        ok = false;
+      }
+      if (!tk) {
+        in_.only_keys(t, p, {"kind", "period_ms", "object", "step", "pdo", "bytes", "subsystem"});
+        continue;
+      }
+      out.kind = *tk;
+      switch (*tk) {
+        case TrafficSpec::Kind::counter:
+          in_.only_keys(t, p, {"kind", "period_ms", "object", "step"});
+          ok = read_counter(t, p, objects, out) && ok;
+          break;
+        case TrafficSpec::Kind::pdop_sample:
+          in_.only_keys(t, p, {"kind", "period_ms", "pdo", "bytes"});
+          if (kind && kind != NodeKind::fpga) {
+            in_.problem(t["kind"], p + ".kind",
+                        "pdop_sample is for fpga nodes, the ones that send PDO Packets "
+                        "(seeds/000)");
+            ok = false;
+            break;
+          }
+          ok = read_pdop_sample(t, p, tpdos, tpdos_known, pdop_ok, spec.pdop, out) && ok;
+          break;
+        case TrafficSpec::Kind::subsystem_event:
+          in_.only_keys(t, p, {"kind", "period_ms", "subsystem"});
+          if (kind && kind != NodeKind::qd) {
+            in_.problem(t["kind"], p + ".kind",
+                        "subsystem_event is for qd nodes, whose EMCY codes F000h-FFFFh flag "
+                        "subsystem state changes (seeds/003)");
+            ok = false;
+            break;
+          }
+          if (auto v = in_.integer(t, "subsystem", p, 0, 11, true)) {
+            out.subsystem = static_cast<unsigned>(*v);
+          } else {
+            ok = false;
+          }
+          break;
+      }
+      if (ok) spec.traffic.push_back(out);
+    }
+  }
+
+  bool read_counter(const YAML::Node& t, const std::string& p, const ObjectTable& objects,
+                    TrafficSpec& out) {
+    bool ok = true;
+    const YAML::Node object = t["object"];
+    if (!object) {
+      in_.problem(t, p + ".object", "missing (required)");
+      ok = false;
+    } else if (auto ref = in_.object_ref(object, p + ".object")) {
+      const std::string name = object_name(ref->first, ref->second);
+      auto it = objects.find(object_key(ref->first, ref->second));
+      if (it == objects.end() || it->second.line == 0) {
+        in_.problem(object, p + ".object", name + " is not in this node's objects");
+        ok = false;
+      } else if (it->second.type && !is_signed_integer(*it->second.type) &&
+                 !is_unsigned_integer(*it->second.type)) {
+        in_.problem(object, p + ".object",
+                    name + " is " + to_string(*it->second.type) +
+                        ": a counter needs an integer or unsigned object");
+        ok = false;
+      } else if (it->second.access == Access::constant) {
+        in_.problem(object, p + ".object", name + " is const: a counter must be able to change it");
+        ok = false;
+      }
+      out.index = ref->first;
+      out.sub = ref->second;
+    } else {
+      ok = false;
+    }
+    if (const YAML::Node step = t["step"]) {
+      if (auto v = in_.integer_text(step, p + ".step")) {
+        if (!v->fits(std::numeric_limits<std::int64_t>::min(),
+                     std::numeric_limits<std::int64_t>::max())) {
+          in_.problem(step, p + ".step", step.Scalar() + " does not fit 64 signed bits");
+          ok = false;
+        } else if (v->magnitude == 0) {
+          in_.problem(step, p + ".step", "0 would never change the object");
+          ok = false;
+        } else {
+          out.step = v->as_signed();
+        }
+      } else {
+        ok = false;
+      }
+    }
+    return ok;
+  }
+
+  bool read_pdop_sample(const YAML::Node& t, const std::string& p,
+                        const std::map<unsigned, DeclaredPdo>& tpdos, bool tpdos_known,
+                        bool pdop_ok, const PdopSpec& pdop, TrafficSpec& out) {
+    bool ok = true;
+    if (auto v = in_.integer(t, "pdo", p, 1, kMaxStandardPdos, true)) {
+      out.pdo = static_cast<unsigned>(*v);
+      auto it = tpdos.find(out.pdo);
+      if (it == tpdos.end()) {
+        if (tpdos_known) {
+          in_.problem(t["pdo"], p + ".pdo",
+                      "TPDO " + std::to_string(out.pdo) + " is not in this node's tpdos");
+        }
+        ok = false;
+      } else if (!it->second.enabled) {
+        in_.problem(t["pdo"], p + ".pdo",
+                    "TPDO " + std::to_string(out.pdo) + " is disabled (line " +
+                        std::to_string(it->second.line) + ")");
+        ok = false;
+      }
+    } else {
+      ok = false;
+    }
+    if (const YAML::Node bytes = t["bytes"]) {
+      const auto max =
+          static_cast<std::int64_t>(pdop_ok ? pdop.max_packet_bytes : kMaxPdopPacketBytes);
+      if (auto v = in_.integer_text(bytes, p + ".bytes")) {
+        if (!v->fits(1, static_cast<std::uint64_t>(max))) {
+          in_.problem(bytes, p + ".bytes",
+                      bytes.Scalar() + " is out of range 1.." + std::to_string(max) +
+                          " (pdop.max_packet_bytes)");
+          ok = false;
+        } else {
+          out.bytes = static_cast<std::size_t>(v->magnitude);
+        }
+      } else {
+        ok = false;
+      }
+    } else if (out.bytes > pdop.max_packet_bytes) {
+      in_.problem(t, p + ".bytes",
+                  "the default of " + std::to_string(out.bytes) +
+                      " bytes is more than pdop.max_packet_bytes: give bytes");
+      ok = false;
+    }
+    return ok;
+  }
+
+  Reader& in_;
+};
+
+YAML::Node parse_root(std::string_view yaml, const std::string& file) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(std::string(yaml));
+  } catch (const YAML::Exception& e) {
+    throw ConfigError(
+        {{file, e.mark.line >= 0 ? e.mark.line + 1 : 0, "", "YAML syntax error: " + e.msg}});
+  }
+  if (!root.IsMap()) throw ConfigError({{file, 0, "", "the file must be a YAML mapping"}});
+  return root;
+}
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw ConfigError({{path, 0, "", "cannot open the file"}});
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+}  // namespace
+
+RigSpec parse_rig(std::string_view yaml, const std::string& file) {
+  const YAML::Node root = parse_root(yaml, file);
+  Reader in(file);
+  RigSpec rig = RigReader(in).read(root);
+  if (!in.problems().empty()) throw ConfigError(in.problems());
+  return rig;
+}
+
+RigSpec load_rig(const std::string& path) {
+  return parse_rig(read_file(path), path);
+}
+
+}  // namespace canbridge::sim
