@@ -86,17 +86,24 @@ int run_demo(const DemoOptions& options) {
   std::vector<std::unique_ptr<sim::NodeRunner>> runners;
   NodeMap map;
   std::vector<GatewayModule> modules;
+  std::map<std::pair<unsigned, unsigned>, std::string> kinds;  // (module, local id) -> kind
   for (unsigned m = 0; m < options.modules; ++m) {
     module_buses.push_back(std::make_unique<can::VirtualBus>(ex, fmt::format("module{}", m)));
     node_ports.push_back(module_buses.back()->connect("nodes"));
     runners.push_back(std::make_unique<sim::NodeRunner>(ex, *node_ports.back()));
     for (unsigned n = 1; n <= options.nodes_per_module; ++n) {
-      sim::ResponderConfig node;
+      // One of each kind in turn (the seeds' devices); qd and fpga only exist as nodes 1..31.
+      constexpr sim::NodeKind kKinds[] = {sim::NodeKind::cia301, sim::NodeKind::microcanopen,
+                                          sim::NodeKind::qd, sim::NodeKind::fpga};
+      sim::NodeSpec node;
+      node.kind = n <= 31 ? kKinds[(n - 1) % 4] : sim::NodeKind::cia301;
       node.node_id = static_cast<canopen::NodeId>(n);
-      node.device_type = 0x00000191 + m;
+      // qd: profile 0, the version in the high word (the kind's default); others CiA 401 + m.
+      node.device_type = node.kind == sim::NodeKind::qd ? 0 : 0x00000191 + m;
       node.identity = {0x0000ABCD, 0x5EED0000 + m, 0x00010000 + n, 1000 * m + n};
       node.heartbeat_ms = 100;
       runners.back()->add(node);
+      kinds[{m, n}] = sim::to_string(node.kind);
     }
     if (auto problems = map.add_module(m, NodeMap::default_pairs(m)); !problems.empty()) {
       throw std::runtime_error(problems.front());
@@ -182,13 +189,16 @@ int run_demo(const DemoOptions& options) {
     }
 
     std::printf("\nnode table (as the surface master sees it):\n");
-    std::printf("%7s %6s %5s  %-16s %8s  %-10s  %-10s %-10s %-10s %6s\n", "surface", "module",
-                "local", "state", "boot-ups", "1000h", "vendor", "product", "revision", "serial");
+    std::printf("%7s %6s %5s  %-12s  %-16s %8s  %-10s  %-10s %-10s %-10s %6s\n", "surface",
+                "module", "local", "kind", "state", "boot-ups", "1000h", "vendor", "product",
+                "revision", "serial");
     for (const auto& [surface_id, n] : table) {
-      std::printf("%7u %6u %5u  %-16s %8u  0x%08X  0x%08X 0x%08X 0x%08X %6u%s\n", surface_id,
-                  surface_id / 32, surface_id % 32, state_name(n.last_state), n.boot_ups,
-                  n.device_type, n.identity[0], n.identity[1], n.identity[2], n.identity[3],
-                  n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
+      const auto kind = kinds.find({surface_id / 32, surface_id % 32});
+      std::printf("%7u %6u %5u  %-12s  %-16s %8u  0x%08X  0x%08X 0x%08X 0x%08X %6u%s\n", surface_id,
+                  surface_id / 32, surface_id % 32,
+                  kind == kinds.end() ? "?" : kind->second.c_str(), state_name(n.last_state),
+                  n.boot_ups, n.device_type, n.identity[0], n.identity[1], n.identity[2],
+                  n.identity[3], n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
     }
     std::sort(round_trips_ms.begin(), round_trips_ms.end());
     const double median = round_trips_ms.empty() ? 0 : round_trips_ms[round_trips_ms.size() / 2];

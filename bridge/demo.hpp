@@ -6,7 +6,7 @@ namespace canbridge::bridge {
 
 struct DemoOptions {
   unsigned modules = 2;           // module ids 0..modules-1, each its own virtual bus
-  unsigned nodes_per_module = 3;  // local node ids 1..n on every module bus
+  unsigned nodes_per_module = 4;  // local node ids 1..n: one node of each sim kind
 };
 
 // Returns 0 when every node was seen and every SDO read through the tunnel succeeded.
