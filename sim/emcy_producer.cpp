@@ -2,6 +2,7 @@
 
 #include <algorithm>
 
+#include "bridge/canopen/little_endian.hpp"
 #include "bridge/canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
@@ -14,14 +15,6 @@ constexpr std::uint32_t kCobIdInvalid = 0x80000000;
 constexpr std::uint32_t kCanIdMask = 0x7FF;
 // Bits 11..30: 29-bit identifiers (bit 29) are not simulated, bit 30 is reserved.
 constexpr std::uint32_t kUnsupportedCobIdBits = 0x7FFFF800;
-
-std::uint32_t little_endian(std::span<const std::uint8_t> bytes) {
-  std::uint32_t value = 0;
-  for (std::size_t i = 0; i < bytes.size() && i < 4; ++i) {
-    value |= static_cast<std::uint32_t>(bytes[i]) << (8 * i);
-  }
-  return value;
-}
 
 std::uint32_t default_cob_id(canopen::NodeId node) {
   return canopen::cob::emcy + node;
@@ -65,8 +58,8 @@ void EmcyProducer::set_node_id(canopen::NodeId node) {
     return (cob_id & kCanIdMask) == old_default ? (cob_id & ~kCanIdMask) | default_cob_id(node)
                                                 : cob_id;
   };
-  const std::uint32_t current = follow(little_endian(entry->value));
-  const std::uint32_t initial = follow(little_endian(entry->initial));
+  const std::uint32_t current = follow(canopen::load_le32(entry->value));
+  const std::uint32_t initial = follow(canopen::load_le32(entry->initial));
   // add() makes the value the reset value too; then the current value is put back.
   od_.add_unsigned(kCobId, 0, entry->access, initial, 4);
   od_.set_unsigned(kCobId, 0, current);
@@ -173,12 +166,12 @@ EmcyProducer::TimePoint EmcyProducer::next_deadline() const {
 std::error_code EmcyProducer::check_write(const OdEntry& entry,
                                           std::span<const std::uint8_t> data) const {
   if (data.size() > 4) return {};
-  const std::uint32_t value = little_endian(data);
+  const std::uint32_t value = canopen::load_le32(data);
   if (entry.index == kErrorHistory && entry.sub == 0) {
     return value == 0 ? std::error_code{} : SdoAbort::value_range;
   }
   if (entry.index == kCobId && entry.sub == 0) {
-    const std::uint32_t current = little_endian(entry.value);
+    const std::uint32_t current = canopen::load_le32(entry.value);
     if (value == current) return {};
     if ((value & kUnsupportedCobIdBits) != 0) return SdoAbort::value_range;
     const bool valid_now = (current & kCobIdInvalid) == 0;

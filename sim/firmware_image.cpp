@@ -2,6 +2,8 @@
 
 #include <array>
 
+#include "bridge/canopen/little_endian.hpp"
+
 namespace canbridge::sim::firmware {
 
 namespace {
@@ -29,7 +31,8 @@ std::uint32_t crc32(std::span<const std::uint8_t> data) {
 std::vector<std::uint8_t> make_image(std::span<const std::uint8_t> application) {
   std::vector<std::uint8_t> image(application.begin(), application.end());
   const std::uint32_t crc = crc32(application);
-  for (int i = 0; i < 4; ++i) image.push_back(static_cast<std::uint8_t>(crc >> (8 * i)));
+  image.resize(image.size() + 4);
+  canopen::store_le(crc, std::span(image).last(4));
   return image;
 }
 
@@ -37,9 +40,7 @@ Verdict verify(std::span<const std::uint8_t> image) {
   if (image.size() <= 4) return {};
   const auto application = image.first(image.size() - 4);
   const auto trailer = image.last(4);
-  const std::uint32_t stored =
-      static_cast<std::uint32_t>(trailer[0]) | static_cast<std::uint32_t>(trailer[1]) << 8 |
-      static_cast<std::uint32_t>(trailer[2]) << 16 | static_cast<std::uint32_t>(trailer[3]) << 24;
+  const std::uint32_t stored = canopen::load_le32(trailer);
   const std::uint32_t computed = crc32(application);
   if (stored != computed) return {};
   return {true, computed};

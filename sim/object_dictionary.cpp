@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "bridge/canopen/little_endian.hpp"
 #include "bridge/canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
@@ -11,8 +12,7 @@ using canopen::SdoAbort;
 
 std::vector<std::uint8_t> le_bytes(std::uint32_t value, std::size_t size) {
   std::vector<std::uint8_t> out(size);
-  for (std::size_t i = 0; i < size && i < 4; ++i)
-    out[i] = static_cast<std::uint8_t>(value >> (8 * i));
+  canopen::store_le(value, out);
   return out;
 }
 
@@ -154,17 +154,13 @@ std::optional<std::uint32_t> ObjectDictionary::get_unsigned(std::uint16_t index,
                                                             std::uint8_t sub) const {
   const OdEntry* entry = find(index, sub);
   if (entry == nullptr || entry->value.size() > 4) return std::nullopt;
-  std::uint32_t v = 0;
-  for (std::size_t i = 0; i < entry->value.size(); ++i) {
-    v |= static_cast<std::uint32_t>(entry->value[i]) << (8 * i);
-  }
-  return v;
+  return canopen::load_le32(entry->value);
 }
 
 bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint32_t value) {
   OdEntry* entry = find_mutable(index, sub);
   if (entry == nullptr) return false;
-  entry->value = le_bytes(value, entry->value.size());
+  canopen::store_le(value, entry->value);
   return true;
 }
 

@@ -65,6 +65,11 @@ struct OdEntry {
 // Little-endian encoding of the low `size` bytes of `value`.
 std::vector<std::uint8_t> le_bytes(std::uint32_t value, std::size_t size);
 
+// index:sub as one ordered key (the order of entries()).
+constexpr std::uint32_t object_key(std::uint16_t index, std::uint8_t sub) {
+  return static_cast<std::uint32_t>(index) << 8 | sub;
+}
+
 class ObjectDictionary {
  public:
   struct Read {
@@ -120,9 +125,7 @@ class ObjectDictionary {
   void restore_initial(std::uint16_t first = 0x0000, std::uint16_t last = 0xFFFF);
 
  private:
-  static std::uint32_t key(std::uint16_t index, std::uint8_t sub) {
-    return static_cast<std::uint32_t>(index) << 8 | sub;
-  }
+  static std::uint32_t key(std::uint16_t index, std::uint8_t sub) { return object_key(index, sub); }
   OdEntry* find_mutable(std::uint16_t index, std::uint8_t sub);
   std::error_code locate(std::uint16_t index, std::uint8_t sub) const;
 

@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "bridge/canopen/little_endian.hpp"
 #include "bridge/canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
@@ -20,14 +21,6 @@ constexpr std::uint32_t kUnsupportedCobIdBits = 0x3FFFF800;
 constexpr unsigned kMaxPdoBits = 64;
 constexpr std::uint8_t kLastSynchronousType = 240;
 constexpr std::uint8_t kFirstEventDrivenType = 254;
-
-std::uint32_t little_endian(std::span<const std::uint8_t> bytes) {
-  std::uint32_t value = 0;
-  for (std::size_t i = 0; i < bytes.size() && i < 4; ++i) {
-    value |= static_cast<std::uint32_t>(bytes[i]) << (8 * i);
-  }
-  return value;
-}
 
 bool reserved_transmission_type(std::uint32_t type) {
   return type > kLastSynchronousType && type < kFirstEventDrivenType;
@@ -304,10 +297,10 @@ PdoEngine::TimePoint PdoEngine::next_deadline() const {
 }
 
 std::error_code PdoEngine::check_cob_id(const OdEntry& entry, std::uint32_t value) const {
-  const std::uint32_t current = little_endian(entry.value);
+  const std::uint32_t current = canopen::load_le32(entry.value);
   if (value == current) return {};
   if ((value & kUnsupportedCobIdBits) != 0) return SdoAbort::value_range;
-  const std::uint32_t installed = little_endian(entry.initial);
+  const std::uint32_t installed = canopen::load_le32(entry.initial);
   if (options_.fixed_cob_ids) {
     // seeds/001: the identifiers are fixed, but bit 31 may be set or cleared.
     const bool only_bit_31 = (value & ~kCobIdInvalid) == (installed & ~kCobIdInvalid);
@@ -343,7 +336,7 @@ std::error_code PdoEngine::check_mapping_entry(std::uint32_t entry, bool transmi
 
 std::error_code PdoEngine::check_mapping(const OdEntry& entry, std::uint32_t value,
                                          bool transmit) const {
-  if (value == little_endian(entry.value)) return {};
+  if (value == canopen::load_le32(entry.value)) return {};
   const std::uint16_t base = transmit ? kTpdoMapping : kRpdoMapping;
   const auto communication = static_cast<std::uint16_t>(
       (transmit ? kTpdoCommunication : kRpdoCommunication) + (entry.index - base));
@@ -370,7 +363,7 @@ std::error_code PdoEngine::check_mapping(const OdEntry& entry, std::uint32_t val
 std::error_code PdoEngine::check_write(const OdEntry& entry,
                                        std::span<const std::uint8_t> data) const {
   if (data.size() > 4) return {};
-  const std::uint32_t value = little_endian(data);
+  const std::uint32_t value = canopen::load_le32(data);
   const bool tpdo_communication = in_block(entry.index, kTpdoCommunication);
   if (tpdo_communication || in_block(entry.index, kRpdoCommunication)) {
     switch (entry.sub) {
@@ -379,7 +372,7 @@ std::error_code PdoEngine::check_write(const OdEntry& entry,
       case 2:
         return reserved_transmission_type(value) ? SdoAbort::value_range : std::error_code{};
       case 3: {
-        if (!tpdo_communication || value == little_endian(entry.value)) return {};
+        if (!tpdo_communication || value == canopen::load_le32(entry.value)) return {};
         // CiA 301: the inhibit time must not change while the PDO exists.
         const std::uint32_t cob_id = od_.get_unsigned(entry.index, 1).value_or(kCobIdInvalid);
         return (cob_id & kCobIdInvalid) == 0 ? SdoAbort::value_range : std::error_code{};

@@ -13,6 +13,8 @@
 #include <set>
 #include <sstream>
 
+#include "bridge/canopen/little_endian.hpp"
+
 namespace canbridge::sim {
 
 namespace {
@@ -70,10 +72,6 @@ std::string object_name(std::uint16_t index, std::uint8_t sub) {
   char buf[16];
   std::snprintf(buf, sizeof buf, "%04X:%02X", index, sub);
   return buf;
-}
-
-std::uint32_t object_key(std::uint16_t index, std::uint8_t sub) {
-  return static_cast<std::uint32_t>(index) << 8 | sub;
 }
 
 // An integer as written: sign and magnitude, so that the whole of INTEGER64 and UNSIGNED64 can
@@ -142,7 +140,7 @@ std::optional<double> parse_real(std::string_view s) {
 
 std::vector<std::uint8_t> le(std::uint64_t value, std::size_t size) {
   std::vector<std::uint8_t> out(size);
-  for (std::size_t i = 0; i < size; ++i) out[i] = static_cast<std::uint8_t>(value >> (8 * i));
+  canopen::store_le(value, out);
   return out;
 }
 

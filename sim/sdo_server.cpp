@@ -73,30 +73,6 @@ std::size_t end_block_unused(const can::Frame& f) {
   return (f.data[0] >> 2) & 0x07;
 }
 
-bool is_sdo_frame(const can::Frame& f) {
-  return !f.is_extended() && !f.is_remote() && !f.is_error() && f.len == sdo::kFrameLength;
-}
-
-Multiplexer read_mux(const can::Frame& f) {
-  return {static_cast<std::uint16_t>(f.data[1] | f.data[2] << 8), f.data[3]};
-}
-
-void write_mux(can::Frame& f, Multiplexer mux) {
-  f.data[1] = static_cast<std::uint8_t>(mux.index);
-  f.data[2] = static_cast<std::uint8_t>(mux.index >> 8);
-  f.data[3] = mux.sub;
-}
-
-std::uint32_t read_u32(const can::Frame& f, std::size_t at) {
-  return static_cast<std::uint32_t>(f.data[at]) | static_cast<std::uint32_t>(f.data[at + 1]) << 8 |
-         static_cast<std::uint32_t>(f.data[at + 2]) << 16 |
-         static_cast<std::uint32_t>(f.data[at + 3]) << 24;
-}
-
-void write_u32(can::Frame& f, std::size_t at, std::uint32_t v) {
-  for (std::size_t i = 0; i < 4; ++i) f.data[at + i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-
 // Unused bytes in the last of the segments carrying `size` bytes; an empty value still takes one
 // (empty) segment.
 std::uint8_t unused_in_last_segment(std::size_t size) {
@@ -156,7 +132,7 @@ void SdoServer::on_tick(TimePoint now, std::vector<can::Frame>& out) {
 }
 
 void SdoServer::on_request(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out) {
-  if (!is_sdo_frame(frame)) return;
+  if (!sdo::is_sdo_frame(frame)) return;
   // Inside a sub-block byte 0 is c | seqno, so only exactly 0x80 (seqno 0 is invalid) can be the
   // client's abort there.
   const bool client_abort = state_ == State::block_download_sub_block
@@ -202,7 +178,7 @@ void SdoServer::on_request(const can::Frame& frame, TimePoint now, std::vector<c
 void SdoServer::dispatch_initiate(const can::Frame& frame, std::vector<can::Frame>& out) {
   switch (specifier_of(frame)) {
     case sdo::ccs::initiate_upload:
-      initiate_upload(read_mux(frame), out);
+      initiate_upload(sdo::read_multiplexer(frame), out);
       return;
     case sdo::ccs::initiate_download:
       initiate_download(frame, out);
@@ -244,7 +220,7 @@ void SdoServer::initiate_upload(Multiplexer mux, std::vector<can::Frame>& out) {
 void SdoServer::initiate_download(const can::Frame& frame, std::vector<can::Frame>& out) {
   const auto request = sdo::decode_request(frame);
   const auto* r = request ? std::get_if<sdo::DownloadRequest>(&*request) : nullptr;
-  if (r == nullptr) return abort(read_mux(frame), SdoAbort::invalid_command, out);
+  if (r == nullptr) return abort(sdo::read_multiplexer(frame), SdoAbort::invalid_command, out);
   if (r->expedited) {
     auto data = r->data.span();
     if (!r->size_indicated) {
@@ -274,7 +250,7 @@ void SdoServer::initiate_download(const can::Frame& frame, std::vector<can::Fram
 }
 
 void SdoServer::initiate_block_upload(const can::Frame& frame, std::vector<can::Frame>& out) {
-  const Multiplexer mux = read_mux(frame);
+  const Multiplexer mux = sdo::read_multiplexer(frame);
   if (options_.level < SdoLevel::block) return abort(mux, SdoAbort::invalid_command, out);
   const std::uint8_t client_block_size = frame.data[4];
   const std::uint8_t protocol_switch_threshold = frame.data[5];
@@ -294,16 +270,16 @@ void SdoServer::initiate_block_upload(const can::Frame& frame, std::vector<can::
   client_crc_ = (frame.data[0] & kCrcSupported) != 0;
   can::Frame response_frame = response(command_byte(
       sdo::scs::block_upload, kCrcSupported | kBlockSizeIndicated | upload_ss::initiate));
-  write_mux(response_frame, mux);
-  write_u32(response_frame, 4, static_cast<std::uint32_t>(data_.size()));
+  sdo::write_multiplexer(response_frame, mux);
+  sdo::write_u32(response_frame, 4, static_cast<std::uint32_t>(data_.size()));
   out.push_back(response_frame);
 }
 
 void SdoServer::initiate_block_download(const can::Frame& frame, std::vector<can::Frame>& out) {
-  const Multiplexer mux = read_mux(frame);
+  const Multiplexer mux = sdo::read_multiplexer(frame);
   if (options_.level < SdoLevel::block) return abort(mux, SdoAbort::invalid_command, out);
   const auto size = (frame.data[0] & kBlockSizeIndicated) != 0
-                        ? std::optional<std::uint32_t>(read_u32(frame, 4))
+                        ? std::optional<std::uint32_t>(sdo::read_u32(frame, 4))
                         : std::nullopt;
   const DownloadLimit limit = check_download(mux, size);
   if (limit.error) return abort(mux, limit.error, out);
@@ -316,7 +292,7 @@ void SdoServer::initiate_block_download(const can::Frame& frame, std::vector<can
   block_size_ = options_.max_block_size;
   can::Frame response_frame =
       response(command_byte(sdo::scs::block_download, kCrcSupported | download_ss::initiate));
-  write_mux(response_frame, mux);
+  sdo::write_multiplexer(response_frame, mux);
   response_frame.data[4] = block_size_;
   out.push_back(response_frame);
 }

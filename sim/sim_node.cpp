@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "bridge/canopen/little_endian.hpp"
 #include "bridge/canopen/nmt_node_id.hpp"
 #include "bridge/canopen/pdop.hpp"
 #include "bridge/canopen/sdo_abort.hpp"
@@ -65,11 +66,8 @@ void add_identity(ObjectDictionary& od, const NodeSpec& spec, std::uint32_t devi
 
 // Adds `step` to a little-endian integer of any size, wrapping like the device's own counter.
 void add_wrapping(std::vector<std::uint8_t>& value, std::int64_t step) {
-  const std::size_t size = std::min<std::size_t>(value.size(), 8);
-  std::uint64_t v = 0;
-  for (std::size_t i = 0; i < size; ++i) v |= static_cast<std::uint64_t>(value[i]) << (8 * i);
-  v += static_cast<std::uint64_t>(step);  // two's complement: a negative step counts down
-  for (std::size_t i = 0; i < size; ++i) value[i] = static_cast<std::uint8_t>(v >> (8 * i));
+  // Two's complement: a negative step counts down.
+  canopen::store_le(canopen::load_le(value) + static_cast<std::uint64_t>(step), value);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <optional>
 
 #include "bridge/canopen/cob_id.hpp"
+#include "bridge/canopen/little_endian.hpp"
 #include "can/frame.hpp"
 
 namespace canbridge::canopen::nmt_node_id {
@@ -38,10 +39,9 @@ inline can::Frame encode(const ChangeNodeId& c) {
   return can::Frame::standard(cob::nmt, {kChange, c.current, c.next});
 }
 inline can::Frame encode(const SetNodeIdBySerial& s) {
-  return can::Frame::standard(cob::nmt, {kBySerial, s.next, static_cast<std::uint8_t>(s.serial),
-                                         static_cast<std::uint8_t>(s.serial >> 8),
-                                         static_cast<std::uint8_t>(s.serial >> 16),
-                                         static_cast<std::uint8_t>(s.serial >> 24)});
+  can::Frame f = can::Frame::standard(cob::nmt, {kBySerial, s.next, 0, 0, 0, 0});
+  store_le(s.serial, std::span(f.data).subspan(2, 4));
+  return f;
 }
 
 // nullopt unless the frame is exactly the documented layout with valid ids: a malformed command
@@ -56,10 +56,7 @@ inline std::optional<ChangeNodeId> decode_change(const can::Frame& f) {
 inline std::optional<SetNodeIdBySerial> decode_by_serial(const can::Frame& f) {
   if (f.id != cob::nmt || f.is_remote() || f.is_extended() || f.len != 6 || f.data[0] != kBySerial)
     return std::nullopt;
-  SetNodeIdBySerial s{f.data[1], static_cast<std::uint32_t>(f.data[2]) |
-                                     static_cast<std::uint32_t>(f.data[3]) << 8 |
-                                     static_cast<std::uint32_t>(f.data[4]) << 16 |
-                                     static_cast<std::uint32_t>(f.data[5]) << 24};
+  SetNodeIdBySerial s{f.data[1], load_le32(std::span(f.data).subspan(2, 4))};
   if (!valid_node_id(s.next)) return std::nullopt;
   return s;
 }

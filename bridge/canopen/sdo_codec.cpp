@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "bridge/canopen/little_endian.hpp"
+
 namespace canbridge::canopen::sdo {
 
 namespace {
@@ -16,33 +18,13 @@ constexpr std::uint8_t command_byte(std::uint8_t specifier) {
   return static_cast<std::uint8_t>(specifier << 5);
 }
 
-std::uint32_t read_u32(const can::Frame& f, std::size_t at) {
-  return static_cast<std::uint32_t>(f.data[at]) | static_cast<std::uint32_t>(f.data[at + 1]) << 8 |
-         static_cast<std::uint32_t>(f.data[at + 2]) << 16 |
-         static_cast<std::uint32_t>(f.data[at + 3]) << 24;
-}
-
-void write_u32(can::Frame& f, std::size_t at, std::uint32_t v) {
-  for (std::size_t i = 0; i < 4; ++i) f.data[at + i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-
-Multiplexer read_mux(const can::Frame& f) {
-  return {static_cast<std::uint16_t>(f.data[1] | f.data[2] << 8), f.data[3]};
-}
-
 can::Frame make(std::uint32_t cob_id, std::uint8_t command, Multiplexer mux) {
   can::Frame f;
   f.id = cob_id;
   f.len = kFrameLength;
   f.data[0] = command;
-  f.data[1] = static_cast<std::uint8_t>(mux.index);
-  f.data[2] = static_cast<std::uint8_t>(mux.index >> 8);
-  f.data[3] = mux.sub;
+  write_multiplexer(f, mux);
   return f;
-}
-
-bool is_sdo_frame(const can::Frame& f) {
-  return !f.is_extended() && !f.is_remote() && !f.is_error() && f.len == kFrameLength;
 }
 
 // Shared by both initiate directions: the e/s/n bits mean the same in requests and responses.
@@ -88,10 +70,31 @@ can::Frame make_abort(std::uint32_t cob_id, Multiplexer mux, std::uint32_t code)
 
 }  // namespace
 
+bool is_sdo_frame(const can::Frame& f) {
+  return !f.is_extended() && !f.is_remote() && !f.is_error() && f.len == kFrameLength;
+}
+
+Multiplexer read_multiplexer(const can::Frame& f) {
+  return {static_cast<std::uint16_t>(load_le(std::span(f.data).subspan(1, 2))), f.data[3]};
+}
+
+void write_multiplexer(can::Frame& f, Multiplexer mux) {
+  store_le(mux.index, std::span(f.data).subspan(1, 2));
+  f.data[3] = mux.sub;
+}
+
+std::uint32_t read_u32(const can::Frame& f, std::size_t at) {
+  return load_le32(std::span(f.data).subspan(at, 4));
+}
+
+void write_u32(can::Frame& f, std::size_t at, std::uint32_t value) {
+  store_le(value, std::span(f.data).subspan(at, 4));
+}
+
 std::optional<Request> decode_request(const can::Frame& frame) {
   if (!is_sdo_frame(frame)) return std::nullopt;
   const auto specifier = static_cast<std::uint8_t>(frame.data[0] >> 5);
-  const Multiplexer mux = read_mux(frame);
+  const Multiplexer mux = read_multiplexer(frame);
   switch (specifier) {
     case ccs::initiate_upload:
       return UploadRequest{mux};
@@ -109,7 +112,7 @@ std::optional<Request> decode_request(const can::Frame& frame) {
 std::optional<Response> decode_response(const can::Frame& frame) {
   if (!is_sdo_frame(frame)) return std::nullopt;
   const auto specifier = static_cast<std::uint8_t>(frame.data[0] >> 5);
-  const Multiplexer mux = read_mux(frame);
+  const Multiplexer mux = read_multiplexer(frame);
   switch (specifier) {
     case scs::initiate_upload: {
       const Initiate i = read_initiate(frame);

@@ -102,6 +102,15 @@ struct AbortTransfer {
   std::error_code error() const { return abort_error(code); }
 };
 
+// Layout every SDO service shares: an 8-byte standard data frame, the multiplexer in bytes 1..3,
+// a 32-bit value (size, abort code, data) in bytes 4..7. For the block and segment services the
+// server and client build on top of this codec.
+bool is_sdo_frame(const can::Frame& frame);
+Multiplexer read_multiplexer(const can::Frame& frame);
+void write_multiplexer(can::Frame& frame, Multiplexer mux);
+std::uint32_t read_u32(const can::Frame& frame, std::size_t at);
+void write_u32(can::Frame& frame, std::size_t at, std::uint32_t value);
+
 using Request = std::variant<UploadRequest, DownloadRequest, AbortTransfer, UnsupportedRequest>;
 using Response = std::variant<UploadResponse, DownloadResponse, AbortTransfer, UnsupportedResponse>;
 
