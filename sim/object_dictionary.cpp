@@ -157,7 +157,7 @@ std::optional<std::uint32_t> ObjectDictionary::get_unsigned(std::uint16_t index,
   return canopen::load_le32(entry->value);
 }
 
-bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint32_t value) {
+bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint64_t value) {
   OdEntry* entry = find_mutable(index, sub);
   if (entry == nullptr) return false;
   canopen::store_le(value, entry->value);
@@ -165,10 +165,10 @@ bool ObjectDictionary::set_unsigned(std::uint16_t index, std::uint8_t sub, std::
 }
 
 bool ObjectDictionary::set_bytes(std::uint16_t index, std::uint8_t sub,
-                                 std::vector<std::uint8_t> value) {
+                                 std::span<const std::uint8_t> value) {
   OdEntry* entry = find_mutable(index, sub);
   if (entry == nullptr) return false;
-  entry->value = std::move(value);
+  entry->value.assign(value.begin(), value.end());
   return true;
 }
 

@@ -111,11 +111,11 @@ class ObjectDictionary {
   // The device's own view: no access checks. nullopt for a missing entry or one longer than 4
   // bytes.
   std::optional<std::uint32_t> get_unsigned(std::uint16_t index, std::uint8_t sub) const;
-  // Keeps the entry's size; returns false for a missing entry.
-  bool set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint32_t value);
-  // Replaces the bytes without checks (a variable-length entry may change size); false when the
-  // entry is missing.
-  bool set_bytes(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> value);
+  // Keeps the entry's size (the low bytes of `value`); returns false for a missing entry.
+  bool set_unsigned(std::uint16_t index, std::uint8_t sub, std::uint64_t value);
+  // Replaces the bytes without checks (a variable-length entry may change size), reusing the
+  // entry's storage; false when the entry is missing.
+  bool set_bytes(std::uint16_t index, std::uint8_t sub, std::span<const std::uint8_t> value);
 
   // Every entry in index/sub-index order.
   const std::map<std::uint32_t, OdEntry>& entries() const { return entries_; }

@@ -199,22 +199,23 @@ void PdoEngine::stop() {
   }
 }
 
-std::vector<std::uint8_t> PdoEngine::sample(const Tpdo& tpdo) const {
-  std::vector<std::uint8_t> data;
+PdoEngine::PdoData PdoEngine::sample(const Tpdo& tpdo) const {
+  // install() holds every mapping to 64 bits, so the data always fits.
+  PdoData data;
   for (const MappedObject& mapped : tpdo.mapping) {
     const OdEntry* entry = od_.find(mapped.index, mapped.sub);
     for (std::size_t i = 0; i < mapped.bytes; ++i) {
       // A string shorter than its mapping is padded, as CiA 301 dummy bytes would be.
-      data.push_back(entry != nullptr && i < entry->value.size() ? entry->value[i] : 0);
+      data.bytes[data.size++] =
+          entry != nullptr && i < entry->value.size() ? entry->value[i] : std::uint8_t{0};
     }
   }
   return data;
 }
 
-void PdoEngine::send(Tpdo& tpdo, std::vector<std::uint8_t> data, TimePoint now,
-                     std::vector<can::Frame>& out) {
-  out.push_back(can::Frame::from_span(tpdo.can_id, data));
-  tpdo.last_sent = std::move(data);
+void PdoEngine::send(Tpdo& tpdo, const PdoData& data, TimePoint now, std::vector<can::Frame>& out) {
+  out.push_back(can::Frame::from_span(tpdo.can_id, data.span()));
+  tpdo.last_sent = data;
   tpdo.inhibit_end = now + tpdo.inhibit;
   // Any transmission restarts the event timer (CiA 301: it measures the gap since the last TPDO).
   const bool timed = event_driven(tpdo) && tpdo.event_timer.count() > 0;
@@ -228,8 +229,8 @@ void PdoEngine::on_sync(TimePoint now, std::vector<can::Frame>& out) {
   for (Tpdo& tpdo : tpdos_) {
     if (!tpdo.valid || tpdo.transmission_type > kLastSynchronousType) continue;
     if (tpdo.transmission_type == 0) {
-      auto data = sample(tpdo);
-      if (!tpdo.last_sent || *tpdo.last_sent != data) send(tpdo, std::move(data), now, out);
+      const PdoData data = sample(tpdo);
+      if (!tpdo.last_sent || *tpdo.last_sent != data) send(tpdo, data, now, out);
     } else if (++tpdo.syncs_seen >= tpdo.transmission_type) {
       tpdo.syncs_seen = 0;
       send(tpdo, sample(tpdo), now, out);
@@ -255,9 +256,10 @@ PdoEngine::RxResult PdoEngine::on_frame(const can::Frame& frame, TimePoint /*now
       const auto* first = frame.data.data() + offset;
       const std::size_t size = fixed_size(entry->type);
       // A number mapped with fewer bytes than its size gets zeros in the bytes not carried.
-      std::vector<std::uint8_t> value(first, first + mapped.bytes);
-      if (size != 0) value.resize(size, 0);
-      od_.set_bytes(mapped.index, mapped.sub, std::move(value));
+      std::array<std::uint8_t, 8> value{};
+      std::copy_n(first, mapped.bytes, value.begin());
+      od_.set_bytes(mapped.index, mapped.sub,
+                    std::span(value).first(std::max<std::size_t>(size, mapped.bytes)));
     }
     offset += mapped.bytes;
   }
@@ -269,7 +271,7 @@ void PdoEngine::poll(TimePoint now, std::vector<can::Frame>& out) {
   if (!operational_) return;
   for (Tpdo& tpdo : tpdos_) {
     if (!tpdo.valid || !event_driven(tpdo)) continue;
-    auto data = sample(tpdo);
+    const PdoData data = sample(tpdo);
     const bool timer_expired = tpdo.event_due <= now;
     const bool changed = !tpdo.last_sent || *tpdo.last_sent != data;
     if (!timer_expired && !changed) {
@@ -281,7 +283,7 @@ void PdoEngine::poll(TimePoint now, std::vector<can::Frame>& out) {
       tpdo.waiting_for_inhibit = true;
       continue;
     }
-    send(tpdo, std::move(data), now, out);
+    send(tpdo, data, now, out);
   }
 }
 

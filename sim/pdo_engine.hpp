@@ -3,6 +3,7 @@
 // A pure core: the time and frames in, frames out.
 #pragma once
 
+#include <array>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -119,6 +120,14 @@ class PdoEngine {
     std::uint8_t sub = 0;
     std::size_t bytes = 0;
   };
+  // A PDO's data: at most 64 bits (CiA 301), kept in place so that sampling a TPDO for change
+  // of state on every poll allocates nothing.
+  struct PdoData {
+    std::array<std::uint8_t, 8> bytes{};
+    std::uint8_t size = 0;
+    std::span<const std::uint8_t> span() const { return {bytes.data(), size}; }
+    friend bool operator==(const PdoData&, const PdoData&) = default;
+  };
   struct Tpdo {
     unsigned number = 0;
     bool valid = false;
@@ -128,7 +137,7 @@ class PdoEngine {
     std::chrono::milliseconds event_timer{0};
     std::vector<MappedObject> mapping;
     // What went out last; nullopt = nothing since start or enabling, so the next chance sends.
-    std::optional<std::vector<std::uint8_t>> last_sent;
+    std::optional<PdoData> last_sent;
     TimePoint inhibit_end = TimePoint::min();
     TimePoint event_due = TimePoint::max();
     bool waiting_for_inhibit = false;
@@ -147,9 +156,8 @@ class PdoEngine {
   void read_rpdo(Rpdo& rpdo) const;
   std::vector<MappedObject> read_mapping(std::uint16_t index) const;
   void restart(Tpdo& tpdo, TimePoint now) const;
-  std::vector<std::uint8_t> sample(const Tpdo& tpdo) const;
-  void send(Tpdo& tpdo, std::vector<std::uint8_t> data, TimePoint now,
-            std::vector<can::Frame>& out);
+  PdoData sample(const Tpdo& tpdo) const;
+  void send(Tpdo& tpdo, const PdoData& data, TimePoint now, std::vector<can::Frame>& out);
   std::error_code check_cob_id(const OdEntry& entry, std::uint32_t value) const;
   std::error_code check_mapping(const OdEntry& entry, std::uint32_t value, bool transmit) const;
   std::error_code check_mapping_entry(std::uint32_t entry, bool transmit) const;

@@ -64,12 +64,6 @@ void add_identity(ObjectDictionary& od, const NodeSpec& spec, std::uint32_t devi
   od.add_unsigned(SimNode::kIdentity, 4, Access::ro, spec.identity.serial, 4);
 }
 
-// Adds `step` to a little-endian integer of any size, wrapping like the device's own counter.
-void add_wrapping(std::vector<std::uint8_t>& value, std::int64_t step) {
-  // Two's complement: a negative step counts down.
-  canopen::store_le(canopen::load_le(value) + static_cast<std::uint64_t>(step), value);
-}
-
 }  // namespace
 
 SimNode::SimNode(const NodeSpec& spec) : spec_(spec), id_(spec.node_id) {
@@ -309,23 +303,28 @@ std::vector<can::Frame> SimNode::on_frame(const can::Frame& frame, TimePoint now
     }
     return out;
   }
+  // Every node sees every frame on its bus, so most frames end here untouched. Only an SDO
+  // request or an RPDO can change mapped values; only then is change of state checked (the
+  // timers are on_tick's business).
+  bool values_changed = false;
   if (frame.id == canopen::sdo::request_cob(id_) && !frame.is_remote()) {
     if (state_ != NmtState::stopped) {
       sdo_->on_request(frame, now, out);
+      values_changed = !pending_writes_.empty();
       apply_pending_writes(now, out);
     }
   } else if (frame.id == canopen::cob::sync && !frame.is_remote() && frame.len <= 1) {
     if (state_ == NmtState::operational) pdo_->on_sync(now, out);
   } else {
-    handle_pdo_traffic(frame, now, out);
+    values_changed = handle_pdo_traffic(frame, now, out);
   }
-  poll_engines(now, out);
+  if (values_changed && !in_loader_) pdo_->poll(now, out);
   return out;
 }
 
-void SimNode::handle_pdo_traffic(const can::Frame& frame, TimePoint now,
+bool SimNode::handle_pdo_traffic(const can::Frame& frame, TimePoint now,
                                  std::vector<can::Frame>& out) {
-  if (state_ != NmtState::operational) return;
+  if (state_ != NmtState::operational) return false;
   bool plain_pdo = !frame.is_remote();
   if (rpdop_) {
     std::vector<RpdopReceiver::Packet> completed;
@@ -345,11 +344,19 @@ void SimNode::handle_pdo_traffic(const can::Frame& frame, TimePoint now,
       }
     }
   }
-  if (!plain_pdo) return;
-  if (pdo_->on_frame(frame, now) == PdoEngine::RxResult::length_error) {
-    ++counters_.rpdo_length_errors;
-    emcy_->raise(kEmcyPdoLength, 0x10 /* communication error */, {}, now, out);
+  if (!plain_pdo) return false;
+  switch (pdo_->on_frame(frame, now)) {
+    case PdoEngine::RxResult::written:
+      return true;
+    case PdoEngine::RxResult::length_error:
+      ++counters_.rpdo_length_errors;
+      emcy_->raise(kEmcyPdoLength, 0x10 /* communication error */, {}, now, out);
+      return false;
+    case PdoEngine::RxResult::not_mine:
+    case PdoEngine::RxResult::ignored:
+      return false;
   }
+  return false;
 }
 
 void SimNode::handle_nmt(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out) {
@@ -445,7 +452,7 @@ void SimNode::apply_pending_writes(TimePoint now, std::vector<can::Frame>& out) 
         application_checksum_ = verdict.checksum;
         loader_od_->set_unsigned(kProgramIdentification, 1, verdict.checksum);
         loader_od_->set_unsigned(kFlashStatus, 1, verdict.valid ? 0 : 1);
-        loader_od_->set_bytes(kProgramData, 1, {});  // the bank holds it; free the buffer
+        loader_od_->set_bytes(kProgramData, 1, {});  // the bank holds it now
         if (verdict.valid) {
           ++counters_.images_accepted;
         } else {
@@ -500,10 +507,11 @@ void SimNode::run_traffic(TimePoint now, std::vector<can::Frame>& out) {
       if (t.next <= now) t.next = now + t.spec.period;  // after a stall: once, no burst
       switch (t.spec.kind) {
         case TrafficSpec::Kind::counter: {
+          // Wraps at the object's size; two's complement makes a negative step count down.
           if (const OdEntry* entry = od_->find(t.spec.index, t.spec.sub)) {
-            auto value = entry->value;
-            add_wrapping(value, t.spec.step);
-            od_->set_bytes(t.spec.index, t.spec.sub, std::move(value));
+            od_->set_unsigned(
+                t.spec.index, t.spec.sub,
+                canopen::load_le(entry->value) + static_cast<std::uint64_t>(t.spec.step));
           }
           break;
         }

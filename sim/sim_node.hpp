@@ -129,7 +129,8 @@ class SimNode {
   void handle_loader_nmt(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   bool handle_node_id_command(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   void rename(canopen::NodeId next, TimePoint now, std::vector<can::Frame>& out);
-  void handle_pdo_traffic(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  // True when an RPDO wrote mapped objects.
+  bool handle_pdo_traffic(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   void apply_pending_writes(TimePoint now, std::vector<can::Frame>& out);
   void run_traffic(TimePoint now, std::vector<can::Frame>& out);
   void poll_engines(TimePoint now, std::vector<can::Frame>& out);

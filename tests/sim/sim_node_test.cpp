@@ -589,5 +589,32 @@ TEST(MicroCanopenNode, CounterTrafficDrivesAnEventTimerTpdo) {
   EXPECT_NE(std::find(at200.begin(), at200.end(), Frame::standard(0x188, {2})), at200.end());
 }
 
+TEST(Cia301Node, ValueChangedBySdoOrRpdoGoesOutAtOnceAsChangeOfState) {
+  NodeSpec c;
+  c.kind = NodeKind::cia301;
+  c.node_id = 20;
+  c.auto_start = true;
+  c.objects.push_back({0x2000, 0, DataType::unsigned16, Access::rw, {0, 0}});
+  PdoSpec tpdo;
+  tpdo.number = 1;
+  tpdo.mapping = {{0x2000, 0, 16}};
+  c.tpdos.push_back(tpdo);
+  PdoSpec rpdo;
+  rpdo.number = 1;
+  rpdo.mapping = {{0x2000, 0, 16}};
+  c.rpdos.push_back(rpdo);
+  SimNode node(c);
+  node.boot(t0);
+  // Frames for other nodes change nothing and draw nothing.
+  EXPECT_TRUE(node.on_frame(Frame::standard(0x215, {1, 2}), t0).empty());
+  EXPECT_EQ(node.on_frame(download4(20, 0x2000, 0, 0x1234, 2), t0),
+            (Frames{Frame::standard(0x594, {0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}),
+                    Frame::standard(0x194, {0x34, 0x12})}));
+  EXPECT_EQ(node.on_frame(Frame::standard(0x214, {0xCD, 0xAB}), t0),
+            Frames{Frame::standard(0x194, {0xCD, 0xAB})});
+  // The same value again is no change of state.
+  EXPECT_TRUE(node.on_frame(Frame::standard(0x214, {0xCD, 0xAB}), t0).empty());
+}
+
 }  // namespace
 }  // namespace canbridge::sim
