@@ -221,14 +221,14 @@ std::vector<can::Frame> SimNode::boot(TimePoint now) {
   std::vector<can::Frame> out;
   booted_ = true;
   if (spec_.kind == NodeKind::qd) {
-    enter_loader(now, out);
+    enter_loader(power_on_exit(), now, out);
   } else {
     start_application(now, out);
   }
   return out;
 }
 
-void SimNode::enter_loader(TimePoint now, std::vector<can::Frame>& out) {
+void SimNode::enter_loader(LoaderExit exit, TimePoint now, std::vector<can::Frame>& out) {
   in_loader_ = true;
   ++counters_.loader_entries;
   state_ = NmtState::boot_up;
@@ -240,7 +240,9 @@ void SimNode::enter_loader(TimePoint now, std::vector<can::Frame>& out) {
   build_loader();
   out.push_back(can::Frame::standard(kLoaderBootUpBase + id_, {0x00}));
   // Power-on path of seeds/003: the loader checks the stored application and runs it.
-  if (application_valid_ && !spec_.loader.wait_for_command) start_application(now, out);
+  if (exit == LoaderExit::start_valid_application && application_valid_) {
+    start_application(now, out);
+  }
 }
 
 void SimNode::start_application(TimePoint now, std::vector<can::Frame>& out) {
@@ -379,7 +381,7 @@ void SimNode::handle_nmt(const can::Frame& frame, TimePoint now, std::vector<can
       // Application reset: every object back to its power-on value. A qd node restarts in its
       // loader, as after power-on.
       if (spec_.kind == NodeKind::qd) {
-        enter_loader(now, out);
+        enter_loader(power_on_exit(), now, out);
       } else {
         start_application(now, out);
       }
@@ -410,7 +412,7 @@ void SimNode::handle_loader_nmt(const can::Frame& frame, TimePoint now,
       break;
     case canopen::nmt::reset_node:
     case canopen::nmt::reset_communication:
-      enter_loader(now, out);
+      enter_loader(power_on_exit(), now, out);
       break;
     default:
       break;
@@ -468,7 +470,7 @@ void SimNode::apply_pending_writes(TimePoint now, std::vector<can::Frame>& out) 
           return;  // the loader and its pending writes are gone
         }
         if (command == 2) {
-          enter_loader(now, out);
+          enter_loader(power_on_exit(), now, out);
           return;
         }
         if (command == 3) {
@@ -488,10 +490,7 @@ void SimNode::apply_pending_writes(TimePoint now, std::vector<can::Frame>& out) 
     } else if (spec_.kind == NodeKind::qd && w.index == kProgramControl && w.sub == 1 &&
                od_->get_unsigned(kProgramControl, 1) == 0u) {
       // Stop program: back into the loader, which now waits for a new image or a start.
-      const bool wait = spec_.loader.wait_for_command;
-      spec_.loader.wait_for_command = true;
-      enter_loader(now, out);
-      spec_.loader.wait_for_command = wait;
+      enter_loader(LoaderExit::wait_for_command, now, out);
       return;
     }
     pdo_->on_written(*entry, now, out);

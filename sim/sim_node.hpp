@@ -116,7 +116,14 @@ class SimNode {
 
   void build_application(bool keep_process_values);
   void build_loader();
-  void enter_loader(TimePoint now, std::vector<can::Frame>& out);
+  // What the loader does after its boot-up: run a valid application at once (power-on, unless
+  // the rig says wait), or wait for 1F51h / NMT (after the application was told to stop).
+  enum class LoaderExit : std::uint8_t { start_valid_application, wait_for_command };
+  LoaderExit power_on_exit() const {
+    return spec_.loader.wait_for_command ? LoaderExit::wait_for_command
+                                         : LoaderExit::start_valid_application;
+  }
+  void enter_loader(LoaderExit exit, TimePoint now, std::vector<can::Frame>& out);
   void start_application(TimePoint now, std::vector<can::Frame>& out);
   // Rebuilds the application (keeping process values for a communication reset), sends the
   // boot-up and enters pre-operational (operational with auto_start).

@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "bridge/canopen/crc16.hpp"
 #include "sim/firmware_image.hpp"
 
 namespace canbridge::sim {
@@ -282,7 +283,7 @@ std::optional<std::uint32_t> expedited_value(const Frames& replies) {
 // the node sent that were not part of the transfer protocol (e.g. an EMCY), fails the test on
 // any protocol error.
 Frames block_download(SimNode& node, TimePoint now, std::uint16_t index, std::uint8_t sub,
-                      const std::vector<std::uint8_t>& data, std::uint32_t* abort = nullptr) {
+                      const std::vector<std::uint8_t>& data) {
   const canopen::NodeId id = node.id();
   const auto size = static_cast<std::uint32_t>(data.size());
   auto replies = node.on_frame(
@@ -294,12 +295,7 @@ Frames block_download(SimNode& node, TimePoint now, std::uint16_t index, std::ui
       now);
   EXPECT_EQ(replies.size(), 1u);
   if (replies.size() != 1 || replies[0].data[0] != 0xA4) {
-    if (abort && !replies.empty()) *abort = expedited_value(Frames{replies[0]}).value_or(0);
-    if (abort && !replies.empty() && replies[0].data[0] == 0x80) {
-      const auto& d = replies[0].data;
-      *abort = static_cast<std::uint32_t>(d[4]) | static_cast<std::uint32_t>(d[5]) << 8 |
-               static_cast<std::uint32_t>(d[6]) << 16 | static_cast<std::uint32_t>(d[7]) << 24;
-    }
+    ADD_FAILURE() << "block download not accepted";
     return {};
   }
   unsigned blksize = replies[0].data[4];
@@ -324,13 +320,7 @@ Frames block_download(SimNode& node, TimePoint now, std::uint16_t index, std::ui
     blksize = acks[0].data[2];
   }
   // End: ccs 6, n unused bytes, cs 1, CRC-16/XMODEM of the data.
-  std::uint16_t crc = 0;
-  for (std::uint8_t b : data) {
-    crc ^= static_cast<std::uint16_t>(b << 8);
-    for (int k = 0; k < 8; ++k)
-      crc = (crc & 0x8000) ? static_cast<std::uint16_t>((crc << 1) ^ 0x1021)
-                           : static_cast<std::uint16_t>(crc << 1);
-  }
+  const std::uint16_t crc = canopen::crc16_xmodem(data);
   auto end = node.on_frame(
       Frame::standard(0x600 + id, {static_cast<std::uint8_t>(0xC1 | (last_n << 2)),
                                    static_cast<std::uint8_t>(crc),
