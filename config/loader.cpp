@@ -3,118 +3,20 @@
 #include <yaml-cpp/yaml.h>
 
 #include <charconv>
-#include <fstream>
 #include <optional>
 #include <set>
-#include <sstream>
 
 #include "bridge/node_map.hpp"
+#include "config/yaml_reader.hpp"
 
 namespace canbridge::config {
 
-std::string ConfigProblem::to_string() const {
-  std::string s = file;
-  if (line > 0) s.append(":").append(std::to_string(line));
-  s += ": ";
-  if (!field.empty()) s += field + ": ";
-  return s + message;
-}
-
 namespace {
 
-std::string join(const std::vector<ConfigProblem>& problems) {
-  std::string s = "invalid configuration (" + std::to_string(problems.size()) + " problem" +
-                  (problems.size() == 1 ? "" : "s") + ")";
-  for (const auto& p : problems) s += "\n  " + p.to_string();
-  return s;
-}
-
-// Walks a YAML document collecting problems instead of stopping at the first one.
-class Reader {
+// The shared reader plus the value kinds only role configs have.
+class Reader : public YamlReader {
  public:
-  explicit Reader(std::string file) : file_(std::move(file)) {}
-
-  void problem(const YAML::Node& at, const std::string& field, const std::string& message) {
-    int line = 0;
-    if (at.IsDefined() && at.Mark().line >= 0) line = at.Mark().line + 1;
-    problems_.push_back({file_, line, field, message});
-  }
-
-  // Every key of `map` must be one of `known`: a typo must not silently become a default.
-  void only_keys(const YAML::Node& map, const std::string& path,
-                 std::initializer_list<const char*> known) {
-    if (!map.IsMap()) return;
-    for (const auto& kv : map) {
-      const std::string key = kv.first.Scalar();
-      bool ok = false;
-      for (const char* k : known) ok = ok || key == k;
-      if (!ok) problem(kv.first, join_path(path, key), "unknown key");
-    }
-  }
-
-  std::optional<std::string> string(const YAML::Node& map, const char* key, const std::string& path,
-                                    bool required) {
-    const YAML::Node node = map[key];
-    const std::string field = join_path(path, key);
-    if (!node) {
-      if (required) problem(map, field, "missing (required)");
-      return std::nullopt;
-    }
-    if (!node.IsScalar() || node.Scalar().empty()) {
-      problem(node, field, "must be a non-empty string");
-      return std::nullopt;
-    }
-    return node.Scalar();
-  }
-
-  std::optional<long long> integer(const YAML::Node& node, const std::string& field, long long min,
-                                   long long max) {
-    if (!node.IsScalar()) {
-      problem(node, field, "must be an integer");
-      return std::nullopt;
-    }
-    const std::string& s = node.Scalar();
-    long long v = 0;
-    int base = 10;
-    const char* begin = s.data();
-    if (s.size() > 2 && s[0] == '0' && (s[1] == 'x' || s[1] == 'X')) {
-      base = 16;
-      begin += 2;
-    }
-    auto [ptr, ec] = std::from_chars(begin, s.data() + s.size(), v, base);
-    if (ec != std::errc{} || ptr != s.data() + s.size()) {
-      problem(node, field, "'" + s + "' is not an integer");
-      return std::nullopt;
-    }
-    if (v < min || v > max) {
-      problem(node, field,
-              std::to_string(v) + " is out of range " + std::to_string(min) + ".." +
-                  std::to_string(max));
-      return std::nullopt;
-    }
-    return v;
-  }
-
-  std::optional<long long> integer(const YAML::Node& map, const char* key, const std::string& path,
-                                   long long min, long long max, bool required) {
-    const YAML::Node node = map[key];
-    if (!node) {
-      if (required) problem(map, join_path(path, key), "missing (required)");
-      return std::nullopt;
-    }
-    return integer(node, join_path(path, key), min, max);
-  }
-
-  std::optional<bool> boolean(const YAML::Node& map, const char* key, const std::string& path) {
-    const YAML::Node node = map[key];
-    if (!node) return std::nullopt;
-    bool v = false;
-    if (!node.IsScalar() || !YAML::convert<bool>::decode(node, v)) {
-      problem(node, join_path(path, key), "must be true or false");
-      return std::nullopt;
-    }
-    return v;
-  }
+  using YamlReader::YamlReader;
 
   std::optional<Endpoint> endpoint(const YAML::Node& map, const char* key, const std::string& path,
                                    bool required) {
@@ -170,29 +72,10 @@ class Reader {
       out.stats_interval = std::chrono::seconds(*v);
     }
   }
-
-  [[noreturn]] void fail() { throw ConfigError(problems_); }
-  void finish() {
-    if (!problems_.empty()) fail();
-  }
-
-  static std::string join_path(const std::string& path, const std::string& key) {
-    return path.empty() ? key : path + "." + key;
-  }
-
- private:
-  std::string file_;
-  std::vector<ConfigProblem> problems_;
 };
 
 YAML::Node parse_root(std::string_view yaml, const std::string& file, const char* role) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(std::string(yaml));
-  } catch (const YAML::ParserException& e) {
-    throw ConfigError({{file, e.mark.line + 1, "", "YAML syntax error: " + e.msg}});
-  }
-  if (!root.IsMap()) throw ConfigError({{file, 0, "", "the file must be a YAML mapping"}});
+  const YAML::Node root = parse_document(yaml, file);
   const YAML::Node r = root["role"];
   if (!r || !r.IsScalar() || r.Scalar() != role) {
     const int line = r && r.Mark().line >= 0 ? r.Mark().line + 1 : 0;
@@ -269,9 +152,6 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
 
 }  // namespace
 
-ConfigError::ConfigError(std::vector<ConfigProblem> problems)
-    : std::runtime_error(join(problems)), problems_(std::move(problems)) {}
-
 GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
@@ -329,21 +209,11 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   return out;
 }
 
-namespace {
-std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError({{path, 0, "", "cannot open the file"}});
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-}  // namespace
-
 GatewayOptions load_gateway(const std::string& path) {
-  return parse_gateway(read_file(path), path);
+  return parse_gateway(read_config_file(path), path);
 }
 SurfaceOptions load_surface(const std::string& path) {
-  return parse_surface(read_file(path), path);
+  return parse_surface(read_config_file(path), path);
 }
 
 }  // namespace canbridge::config

@@ -6,14 +6,13 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 #include <limits>
 #include <map>
 #include <optional>
 #include <set>
-#include <sstream>
 
 #include "bridge/canopen/little_endian.hpp"
+#include "config/yaml_reader.hpp"
 
 namespace canbridge::sim {
 
@@ -51,6 +50,12 @@ namespace {
 
 using config::ConfigError;
 using config::ConfigProblem;
+using config::hex;
+using config::Integer;
+using config::item_path;
+using config::join_path;
+using config::line_of;
+using config::parse_integer;
 
 // Highest node id of the kinds that take the identifiers of nodes N+32, N+64 and N+96 (qd: the
 // extended connection set of seeds/003; fpga: the t and c bits of PDO Packets, seeds/000).
@@ -61,62 +66,11 @@ constexpr int kMaxPdoBits = 64;
 constexpr std::size_t kMaxPdopPacketBytes = 524280;  // docs/pdop.md section 5
 constexpr std::size_t kMaxInterfaceName = 15;        // IFNAMSIZ - 1
 
-std::string hex(std::uint64_t value, int digits) {
-  char buf[24];
-  std::snprintf(buf, sizeof buf, "0x%0*llX", digits, static_cast<unsigned long long>(value));
-  return buf;
-}
-
 // "6000:01", as objects are written in PDO maps and counters.
 std::string object_name(std::uint16_t index, std::uint8_t sub) {
   char buf[16];
   std::snprintf(buf, sizeof buf, "%04X:%02X", index, sub);
   return buf;
-}
-
-// An integer as written: sign and magnitude, so that the whole of INTEGER64 and UNSIGNED64 can
-// be checked without a wider type.
-struct Integer {
-  bool negative = false;
-  std::uint64_t magnitude = 0;
-  bool overflow = false;  // more than 64 bits of magnitude
-  bool hex = false;
-
-  bool fits(std::int64_t min, std::uint64_t max) const {
-    if (overflow) return false;
-    if (!negative)
-      return magnitude <= max && (min <= 0 || magnitude >= static_cast<std::uint64_t>(min));
-    if (min >= 0) return false;
-    return magnitude <= static_cast<std::uint64_t>(-(min + 1)) + 1;
-  }
-  // Two's complement; only meaningful after fits().
-  std::uint64_t bits() const { return negative ? ~magnitude + 1 : magnitude; }
-  std::int64_t as_signed() const { return static_cast<std::int64_t>(bits()); }
-};
-
-// Decimal or 0x hexadecimal, with an optional sign.
-std::optional<Integer> parse_integer(std::string_view s) {
-  Integer v;
-  if (!s.empty() && (s[0] == '-' || s[0] == '+')) {
-    v.negative = s[0] == '-';
-    s.remove_prefix(1);
-  }
-  int base = 10;
-  if (s.size() > 2 && s[0] == '0' && (s[1] == 'x' || s[1] == 'X')) {
-    base = 16;
-    v.hex = true;
-    s.remove_prefix(2);
-  }
-  if (s.empty()) return std::nullopt;
-  auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v.magnitude, base);
-  if (ptr != s.data() + s.size()) return std::nullopt;
-  if (ec == std::errc::result_out_of_range) {
-    v.overflow = true;
-  } else if (ec != std::errc{}) {
-    return std::nullopt;
-  }
-  if (v.magnitude == 0 && !v.overflow) v.negative = false;
-  return v;
 }
 
 // A floating-point number: decimal, integer (also hex) or YAML's .inf / -.inf / .nan.
@@ -172,128 +126,10 @@ std::optional<ObjectRef> parse_object_ref(std::string_view s) {
   return ObjectRef{static_cast<std::uint16_t>(index), static_cast<std::uint8_t>(sub)};
 }
 
-std::string join_path(const std::string& path, const std::string& key) {
-  return path.empty() ? key : path + "." + key;
-}
-std::string item_path(const std::string& path, const char* key, std::size_t i) {
-  return join_path(path, key) + "[" + std::to_string(i) + "]";
-}
-
-int line_of(const YAML::Node& node) {
-  return node.IsDefined() && node.Mark().line >= 0 ? node.Mark().line + 1 : 0;
-}
-
-// Walks the document collecting problems instead of stopping at the first one (the style of
-// config/loader.cpp, whose reader is private to that file).
-class Reader {
+// The shared YAML reader plus what only rig files name: objects as index:sub.
+class Reader : public config::YamlReader {
  public:
-  explicit Reader(std::string file) : file_(std::move(file)) {}
-
-  void problem(const YAML::Node& at, const std::string& field, const std::string& message) {
-    problem(line_of(at), field, message);
-  }
-  void problem(int line, const std::string& field, const std::string& message) {
-    problems_.push_back({file_, line, field, message});
-  }
-
-  // Every key must be known: a typo must not silently become a default. A key given twice would
-  // silently lose one of its values, so that is refused too.
-  void only_keys(const YAML::Node& map, const std::string& path,
-                 std::initializer_list<std::string_view> known) {
-    if (!map.IsMap()) return;
-    std::map<std::string, int> seen;
-    for (const auto& kv : map) {
-      const std::string key = kv.first.Scalar();
-      const std::string field = join_path(path, key);
-      bool ok = false;
-      for (std::string_view k : known) ok = ok || key == k;
-      if (!ok) problem(kv.first, field, "unknown key");
-      if (auto [it, fresh] = seen.emplace(key, line_of(kv.first)); !fresh) {
-        problem(kv.first, field, "given twice (first at line " + std::to_string(it->second) + ")");
-      }
-    }
-  }
-
-  // A mapping that is present must be a mapping.
-  bool mapping(const YAML::Node& node, const std::string& field) {
-    if (node.IsMap()) return true;
-    problem(node, field, "must be a mapping");
-    return false;
-  }
-
-  // The list under `key`; nullopt when absent or (reported) not a list.
-  std::optional<YAML::Node> list(const YAML::Node& map, const char* key, const std::string& path) {
-    const YAML::Node node = map[key];
-    if (!node) return std::nullopt;
-    if (!node.IsSequence()) {
-      problem(node, join_path(path, key), "must be a list");
-      return std::nullopt;
-    }
-    return node;
-  }
-
-  std::optional<std::string> string(const YAML::Node& map, const char* key, const std::string& path,
-                                    bool required) {
-    const YAML::Node node = map[key];
-    const std::string field = join_path(path, key);
-    if (!node) {
-      if (required) problem(map, field, "missing (required)");
-      return std::nullopt;
-    }
-    if (!node.IsScalar() || node.Scalar().empty()) {
-      problem(node, field, "must be a non-empty string");
-      return std::nullopt;
-    }
-    return node.Scalar();
-  }
-
-  std::optional<Integer> integer_text(const YAML::Node& node, const std::string& field) {
-    if (!node.IsScalar()) {
-      problem(node, field, "must be an integer");
-      return std::nullopt;
-    }
-    auto v = parse_integer(node.Scalar());
-    if (!v) problem(node, field, "'" + node.Scalar() + "' is not an integer (decimal or 0x hex)");
-    return v;
-  }
-
-  std::optional<std::int64_t> integer(const YAML::Node& node, const std::string& field,
-                                      std::int64_t min, std::int64_t max) {
-    auto v = integer_text(node, field);
-    if (!v) return std::nullopt;
-    if (!v->fits(min, static_cast<std::uint64_t>(max))) {
-      const int digits = max > 0xFFFF ? 8 : max > 0xFF ? 4 : 2;
-      problem(node, field,
-              node.Scalar() + " is out of range " +
-                  (v->hex ? hex(static_cast<std::uint64_t>(min), digits) + ".." +
-                                hex(static_cast<std::uint64_t>(max), digits)
-                          : std::to_string(min) + ".." + std::to_string(max)));
-      return std::nullopt;
-    }
-    return v->as_signed();
-  }
-
-  std::optional<std::int64_t> integer(const YAML::Node& map, const char* key,
-                                      const std::string& path, std::int64_t min, std::int64_t max,
-                                      bool required = false) {
-    const YAML::Node node = map[key];
-    if (!node) {
-      if (required) problem(map, join_path(path, key), "missing (required)");
-      return std::nullopt;
-    }
-    return integer(node, join_path(path, key), min, max);
-  }
-
-  std::optional<bool> boolean(const YAML::Node& map, const char* key, const std::string& path) {
-    const YAML::Node node = map[key];
-    if (!node) return std::nullopt;
-    bool v = false;
-    if (!node.IsScalar() || !YAML::convert<bool>::decode(node, v)) {
-      problem(node, join_path(path, key), "must be true or false");
-      return std::nullopt;
-    }
-    return v;
-  }
+  using YamlReader::YamlReader;
 
   // "6000:01" (hex index, hex sub-index), as in EDS files and CANopen tools.
   std::optional<ObjectRef> object_ref(const YAML::Node& node, const std::string& field) {
@@ -302,12 +138,6 @@ class Reader {
     if (!ref) problem(node, field, "must name an object as index:sub in hex, e.g. \"6000:01\"");
     return ref;
   }
-
-  const std::vector<ConfigProblem>& problems() const { return problems_; }
-
- private:
-  std::string file_;
-  std::vector<ConfigProblem> problems_;
 };
 
 // What later rules need to know about an object the node declares, including one whose value
@@ -1334,38 +1164,18 @@ class RigReader {
   Reader& in_;
 };
 
-YAML::Node parse_root(std::string_view yaml, const std::string& file) {
-  YAML::Node root;
-  try {
-    root = YAML::Load(std::string(yaml));
-  } catch (const YAML::Exception& e) {
-    throw ConfigError(
-        {{file, e.mark.line >= 0 ? e.mark.line + 1 : 0, "", "YAML syntax error: " + e.msg}});
-  }
-  if (!root.IsMap()) throw ConfigError({{file, 0, "", "the file must be a YAML mapping"}});
-  return root;
-}
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError({{path, 0, "", "cannot open the file"}});
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
 }  // namespace
 
 RigSpec parse_rig(std::string_view yaml, const std::string& file) {
-  const YAML::Node root = parse_root(yaml, file);
+  const YAML::Node root = config::parse_document(yaml, file);
   Reader in(file);
   RigSpec rig = RigReader(in).read(root);
-  if (!in.problems().empty()) throw ConfigError(in.problems());
+  in.finish();
   return rig;
 }
 
 RigSpec load_rig(const std::string& path) {
-  return parse_rig(read_file(path), path);
+  return parse_rig(config::read_config_file(path), path);
 }
 
 }  // namespace canbridge::sim

@@ -3,6 +3,7 @@
 #include <algorithm>
 
 #include "config/loader.hpp"
+#include "tests/support/config_problems.hpp"
 
 namespace canbridge::config {
 namespace {
@@ -10,28 +11,9 @@ namespace {
 const std::string kConfigDir = CANBRIDGE_SOURCE_DIR "/config/";
 const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/config/fixtures/";
 
-std::vector<ConfigProblem> problems_of(auto&& load) {
-  try {
-    load();
-  } catch (const ConfigError& e) {
-    return e.problems();
-  }
-  ADD_FAILURE() << "expected a ConfigError";
-  return {};
-}
-
-bool has(const std::vector<ConfigProblem>& ps, int line, const std::string& field,
-         const std::string& text) {
-  return std::any_of(ps.begin(), ps.end(), [&](const ConfigProblem& p) {
-    return p.line == line && p.field == field && p.message.find(text) != std::string::npos;
-  });
-}
-
-std::string dump(const std::vector<ConfigProblem>& ps) {
-  std::string s;
-  for (const auto& p : ps) s += p.to_string() + "\n";
-  return s;
-}
+using test::dump;
+using test::has;
+using test::problems_of;
 
 TEST(Config, SampleGatewayLoads) {
   const GatewayOptions g = load_gateway(kConfigDir + "gateway.yaml");
@@ -72,6 +54,14 @@ TEST(Config, OverlappingSurfaceIdsNameBothOwners) {
       ps[0].message.find("module 4 node 6: surface node id 7 is already owned by module 0 node 7"),
       std::string::npos)
       << ps[0].message;
+}
+
+TEST(Config, AKeyGivenTwiceIsRefusedNotSilentlyOverwritten) {
+  const auto ps = problems_of([] {
+    parse_surface("role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000}\nbus: vcan1\n",
+                  "twice.yaml");
+  });
+  EXPECT_TRUE(has(ps, 4, "bus", "given twice (first at line 2)")) << dump(ps);
 }
 
 TEST(Config, WrongRoleSyntaxErrorAndMissingFile) {

@@ -6,6 +6,8 @@
 #include <set>
 #include <sstream>
 
+#include "tests/support/config_problems.hpp"
+
 namespace canbridge::sim {
 namespace {
 
@@ -16,32 +18,12 @@ using Bytes = std::vector<std::uint8_t>;
 const std::string kRigs = CANBRIDGE_SOURCE_DIR "/config/rigs/";
 const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/sim/fixtures/";
 
-std::vector<ConfigProblem> problems_of(auto&& load) {
-  try {
-    load();
-  } catch (const ConfigError& e) {
-    return e.problems();
-  }
-  ADD_FAILURE() << "expected a ConfigError";
-  return {};
-}
+using test::dump;
+using test::has;
+using test::problems_of;
 
 std::vector<ConfigProblem> problems_of_text(const std::string& yaml) {
   return problems_of([&] { parse_rig(yaml, "t.yaml"); });
-}
-
-std::string dump(const std::vector<ConfigProblem>& ps) {
-  std::string s;
-  for (const auto& p : ps) s += p.to_string() + "\n";
-  return s;
-}
-
-bool has(const std::vector<ConfigProblem>& ps, int line, const std::string& field,
-         const std::string& text) {
-  return std::any_of(ps.begin(), ps.end(), [&](const ConfigProblem& p) {
-    return (line == 0 || p.line == line) && p.field == field &&
-           p.message.find(text) != std::string::npos;
-  });
 }
 
 // A rig of one bus `b` whose only node has `keys` (one per line, unindented). The node's first
