@@ -86,7 +86,6 @@ int run_demo(const DemoOptions& options) {
   std::vector<std::unique_ptr<sim::NodeRunner>> runners;
   NodeMap map;
   std::vector<GatewayModule> modules;
-  std::map<std::pair<unsigned, unsigned>, std::string> kinds;  // (module, local id) -> kind
   for (unsigned m = 0; m < options.modules; ++m) {
     module_buses.push_back(std::make_unique<can::VirtualBus>(ex, fmt::format("module{}", m)));
     node_ports.push_back(module_buses.back()->connect("nodes"));
@@ -103,7 +102,6 @@ int run_demo(const DemoOptions& options) {
       node.identity = {0x0000ABCD, 0x5EED0000 + m, 0x00010000 + n, 1000 * m + n};
       node.heartbeat_ms = 100;
       runners.back()->add(node);
-      kinds[{m, n}] = sim::to_string(node.kind);
     }
     if (auto problems = map.add_module(m, NodeMap::default_pairs(m)); !problems.empty()) {
       throw std::runtime_error(problems.front());
@@ -130,6 +128,16 @@ int run_demo(const DemoOptions& options) {
     n.last_state = f.data[0];
     if (f.data[0] == 0x00) ++n.boot_ups;
   });
+
+  // The kind of the simulated node behind a module's local id (the default map: module m owns
+  // surface ids 32m+1..).
+  auto kind_of = [&](unsigned module, unsigned local) -> const char* {
+    if (module >= runners.size()) return "?";
+    for (const auto& node : runners[module]->nodes()) {
+      if (node->id() == local) return sim::to_string(node->kind());
+    }
+    return "?";
+  };
 
   int status = 1;
   std::vector<double> round_trips_ms;
@@ -193,12 +201,11 @@ int run_demo(const DemoOptions& options) {
                 "module", "local", "kind", "state", "boot-ups", "1000h", "vendor", "product",
                 "revision", "serial");
     for (const auto& [surface_id, n] : table) {
-      const auto kind = kinds.find({surface_id / 32, surface_id % 32});
+      const char* kind = kind_of(surface_id / 32, surface_id % 32);
       std::printf("%7u %6u %5u  %-12s  %-16s %8u  0x%08X  0x%08X 0x%08X 0x%08X %6u%s\n", surface_id,
-                  surface_id / 32, surface_id % 32,
-                  kind == kinds.end() ? "?" : kind->second.c_str(), state_name(n.last_state),
-                  n.boot_ups, n.device_type, n.identity[0], n.identity[1], n.identity[2],
-                  n.identity[3], n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
+                  surface_id / 32, surface_id % 32, kind, state_name(n.last_state), n.boot_ups,
+                  n.device_type, n.identity[0], n.identity[1], n.identity[2], n.identity[3],
+                  n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
     }
     std::sort(round_trips_ms.begin(), round_trips_ms.end());
     const double median = round_trips_ms.empty() ? 0 : round_trips_ms[round_trips_ms.size() / 2];

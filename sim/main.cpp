@@ -14,6 +14,7 @@
 #include <iostream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -53,8 +54,9 @@ int usage_error(const std::string& message) {
   return 2;
 }
 
-// nullopt-like: returns false and prints on bad usage.
-bool parse(int argc, char** argv, Options& options, int& exit_code) {
+// Fills `options`; returns the exit status when the program should stop here (help: 0, bad
+// usage: 2 with the reason printed).
+std::optional<int> parse(int argc, char** argv, Options& options) {
   std::vector<std::string> args(argv + 1, argv + argc);
   for (std::size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
@@ -64,17 +66,16 @@ bool parse(int argc, char** argv, Options& options, int& exit_code) {
     };
     if (a == "--help" || a == "-h") {
       std::cout << kUsage;
-      exit_code = 0;
-      return false;
+      return 0;
     } else if (a == "--bus") {
       const auto* v = value();
-      if (v == nullptr) return exit_code = usage_error("--bus needs a name"), false;
+      if (v == nullptr) return usage_error("--bus needs a name");
       options.buses.insert(*v);
     } else if (a == "--interface") {
       const auto* v = value();
       const auto eq = v == nullptr ? std::string::npos : v->find('=');
       if (eq == std::string::npos || eq == 0 || eq + 1 == v->size()) {
-        return exit_code = usage_error("--interface needs BUS=IFACE"), false;
+        return usage_error("--interface needs BUS=IFACE");
       }
       options.interfaces[v->substr(0, eq)] = v->substr(eq + 1);
     } else if (a == "--virtual") {
@@ -85,20 +86,20 @@ bool parse(int argc, char** argv, Options& options, int& exit_code) {
         if (v == nullptr) throw std::invalid_argument("missing");
         options.stats_seconds = static_cast<unsigned>(std::stoul(*v));
       } catch (const std::exception&) {
-        return exit_code = usage_error("--stats-seconds needs a number"), false;
+        return usage_error("--stats-seconds needs a number");
       }
     } else if (a == "--verbose") {
       options.verbose = true;
     } else if (!a.empty() && a[0] == '-') {
-      return exit_code = usage_error("unknown option " + a), false;
+      return usage_error("unknown option " + a);
     } else if (options.rig_path.empty()) {
       options.rig_path = a;
     } else {
-      return exit_code = usage_error("more than one rig file given"), false;
+      return usage_error("more than one rig file given");
     }
   }
-  if (options.rig_path.empty()) return exit_code = usage_error("no rig file given"), false;
-  return true;
+  if (options.rig_path.empty()) return usage_error("no rig file given");
+  return std::nullopt;
 }
 
 struct RunningBus {
@@ -128,8 +129,7 @@ asio::awaitable<void> log_stats(std::vector<RunningBus>& buses, unsigned seconds
 
 int main(int argc, char** argv) {
   Options options;
-  int exit_code = 0;
-  if (!parse(argc, argv, options, exit_code)) return exit_code;
+  if (const auto exit_status = parse(argc, argv, options)) return *exit_status;
   spdlog::set_level(options.verbose ? spdlog::level::debug : spdlog::level::info);
 
   sim::RigSpec rig;
