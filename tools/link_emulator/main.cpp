@@ -1,0 +1,34 @@
+// canbridge-link-emulator: a slow, noisy, sometimes cut wireline between two backbone endpoints.
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <exception>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "tools/link_emulator/command_line.hpp"
+#include "tools/link_emulator/link_shell.hpp"
+
+int main(int argc, char** argv) {
+  const canbridge::emulator::CommandLine command_line =
+      canbridge::emulator::parse_command_line(std::vector<std::string>(argv + 1, argv + argc));
+  if (command_line.help) {
+    std::cout << canbridge::emulator::kUsage;
+    return 0;
+  }
+  if (!command_line.options) {
+    std::cerr << "canbridge-link-emulator: " << command_line.error << "\n"
+              << canbridge::emulator::kUsage;
+    return 2;
+  }
+  // stdout is for the lines tests wait for (ready, cuts, stats); diagnostics go to stderr.
+  spdlog::set_default_logger(spdlog::stderr_color_st("link-emulator"));
+  spdlog::set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ link-emulator %v");
+  try {
+    return canbridge::emulator::run_link_emulator(*command_line.options);
+  } catch (const std::exception& e) {
+    std::cerr << "canbridge-link-emulator: " << e.what() << "\n";
+    return 1;
+  }
+}
