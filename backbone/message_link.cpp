@@ -1,7 +1,9 @@
 #include "backbone/message_link.hpp"
 
+#include <fcntl.h>
 #include <spdlog/spdlog.h>
 #include <sys/socket.h>
+#include <unistd.h>
 
 #include <atomic>
 #include <boost/asio/as_tuple.hpp>
@@ -41,40 +43,65 @@ std::string describe(const tcp::endpoint& endpoint) {
 }  // namespace
 
 std::shared_ptr<MessageLink> MessageLink::create(tcp::socket socket, LinkOptions options) {
-  return std::shared_ptr<MessageLink>(new MessageLink(std::move(socket), options));
+  boost::system::error_code ec;
+  const tcp::endpoint remote = socket.remote_endpoint(ec);
+  auto link =
+      std::shared_ptr<MessageLink>(new MessageLink(std::move(socket), describe(remote), options));
+  link->remote_ = remote;
+  return link;
 }
 
-MessageLink::MessageLink(tcp::socket socket, LinkOptions options)
-    : socket_(std::move(socket)),
+std::shared_ptr<MessageLink> MessageLink::create(asio::serial_port port, std::string name,
+                                                 LinkOptions options) {
+  return std::shared_ptr<MessageLink>(new MessageLink(std::move(port), std::move(name), options));
+}
+
+MessageLink::MessageLink(Stream stream, std::string peer_name, LinkOptions options)
+    : stream_(std::move(stream)),
       options_(options),
+      peer_name_(std::move(peer_name)),
       decoder_(options.max_message_size),
+      deframer_(options.max_message_size),
       read_buffer_(std::max<std::size_t>(options.read_buffer_size, 1)),
-      wake_(socket_.get_executor(), asio::steady_timer::time_point::max()),
-      closed_(socket_.get_executor(), asio::steady_timer::time_point::max()) {
+      wake_(std::visit([](auto& s) { return s.get_executor(); }, stream_),
+            asio::steady_timer::time_point::max()),
+      closed_(wake_.get_executor(), asio::steady_timer::time_point::max()) {
+  crc_framed_ = options.framing == LinkFraming::cobs_crc32c ||
+                (options.framing == LinkFraming::automatic && is_serial());
   boost::system::error_code ec;
-  remote_ = socket_.remote_endpoint(ec);
-  // Small, latency-bound messages: the writer already batches, so Nagle would only add delay.
-  socket_.set_option(tcp::no_delay(true), ec);
-  if (ec) spdlog::warn("backbone: TCP_NODELAY on {} failed: {}", describe(remote_), ec.message());
-  if (options_.socket_buffer_size > 0) {
-    socket_.set_option(asio::socket_base::send_buffer_size(options_.socket_buffer_size), ec);
-    socket_.set_option(asio::socket_base::receive_buffer_size(options_.socket_buffer_size), ec);
+  if (auto* socket = std::get_if<tcp::socket>(&stream_)) {
+    // Small, latency-bound messages: the writer already batches, so Nagle would only add delay.
+    socket->set_option(tcp::no_delay(true), ec);
+    if (ec) spdlog::warn("backbone: TCP_NODELAY on {} failed: {}", peer_name_, ec.message());
+    if (options_.socket_buffer_size > 0) {
+      socket->set_option(asio::socket_base::send_buffer_size(options_.socket_buffer_size), ec);
+      socket->set_option(asio::socket_base::receive_buffer_size(options_.socket_buffer_size), ec);
+    }
+  } else {
+    // The inline send writes the descriptor directly and must never block the loop.
+    const int fd = native_handle();
+    const int flags = ::fcntl(fd, F_GETFL);
+    if (flags >= 0) ::fcntl(fd, F_SETFL, flags | O_NONBLOCK);
   }
+}
+
+int MessageLink::native_handle() {
+  return std::visit([](auto& s) { return static_cast<int>(s.native_handle()); }, stream_);
 }
 
 MessageLink::~MessageLink() = default;
 
 void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler on_closed) {
   if (started_) {
-    spdlog::error("backbone: MessageLink::start called twice on {}", describe(remote_));
+    spdlog::error("backbone: MessageLink::start called twice on {}", peer_name_);
     return;
   }
   started_ = true;
   if (finished_) {
     // Closed before it was started: still honour "on_closed exactly once", but not reentrantly.
     if (on_closed) {
-      asio::post(socket_.get_executor(), [handler = std::move(on_closed),
-                                          reason = counters_.close_reason] { handler(reason); });
+      asio::post(wake_.get_executor(), [handler = std::move(on_closed),
+                                        reason = counters_.close_reason] { handler(reason); });
     }
     return;
   }
@@ -84,8 +111,8 @@ void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler 
   loops_running_ = 2;
   auto self = shared_from_this();
   auto done = [self](std::exception_ptr error) { self->loop_done(error); };
-  asio::co_spawn(socket_.get_executor(), read_loop(), done);
-  asio::co_spawn(socket_.get_executor(), write_loop(), done);
+  asio::co_spawn(wake_.get_executor(), read_loop(), done);
+  asio::co_spawn(wake_.get_executor(), write_loop(), done);
 }
 
 void MessageLink::wake_writer() {
@@ -107,7 +134,7 @@ bool MessageLink::write_inline() {
   write_offset_ = 0;
   wake_requested_ = false;
   try {
-    if (source_) source_(write_buffer_);
+    fill_write_buffer();
   } catch (...) {
     // What the coroutine writer would report through loop_done(); on_closed still comes once,
     // after both loops have stopped.
@@ -121,8 +148,10 @@ bool MessageLink::write_inline() {
     writer_sleeping_ = true;
     return true;
   }
-  const ssize_t sent = ::send(socket_.native_handle(), write_buffer_.data(), write_buffer_.size(),
-                              MSG_DONTWAIT | MSG_NOSIGNAL);
+  const ssize_t sent = is_serial()
+                           ? ::write(native_handle(), write_buffer_.data(), write_buffer_.size())
+                           : ::send(native_handle(), write_buffer_.data(), write_buffer_.size(),
+                                    MSG_DONTWAIT | MSG_NOSIGNAL);
   if (sent >= 0) {
     write_offset_ = static_cast<std::size_t>(sent);
     if (write_offset_ == write_buffer_.size()) write_done();
@@ -131,6 +160,32 @@ bool MessageLink::write_inline() {
     return true;
   }
   return false;  // the writer sends the rest, if any, then calls the source again
+}
+
+// Asks the source for what is queued; on a serial link, re-frames it for the line. Returns
+// whether there is anything to send.
+bool MessageLink::fill_write_buffer() {
+  if (!crc_framed_) {
+    if (source_) source_(write_buffer_);
+    return !write_buffer_.empty();
+  }
+  staging_.clear();
+  if (source_) source_(staging_);
+  if (!staging_.empty()) frame_staged_for_serial();
+  return !write_buffer_.empty();
+}
+
+void MessageLink::frame_staged_for_serial() {
+  if (!leading_delimiter_sent_) {
+    // Ends whatever partial frame the receiver holds from before this link (noise, a cut), so
+    // our first frame is not discarded with it.
+    write_buffer_.push_back(static_cast<char>(kFrameDelimiter));
+    leading_delimiter_sent_ = true;
+  }
+  DelimitedDecoder split(options_.max_message_size);
+  std::span<const std::uint8_t> input(reinterpret_cast<const std::uint8_t*>(staging_.data()),
+                                      staging_.size());
+  while (auto message = split.next(input)) append_serial_frame(write_buffer_, *message);
 }
 
 // The whole write buffer has reached the socket.
@@ -165,12 +220,14 @@ asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
 
 asio::awaitable<void> MessageLink::read_loop() {
   while (!closing_) {
-    auto [ec, n] = co_await socket_.async_read_some(asio::buffer(read_buffer_), kNoError);
+    auto [ec, n] = co_await std::visit(
+        [this](auto& s) { return s.async_read_some(asio::buffer(read_buffer_), kNoError); },
+        stream_);
     if (closing_) break;
     if (ec) {
       if (ec == asio::error::eof) {
-        if (!decoder_.at_message_boundary()) {
-          spdlog::debug("backbone: {} closed in the middle of a message", describe(remote_));
+        if (!crc_framed_ && !decoder_.at_message_boundary()) {
+          spdlog::debug("backbone: {} closed in the middle of a message", peer_name_);
         }
         end(make_error_code(errc::peer_closed));
       } else {
@@ -179,19 +236,23 @@ asio::awaitable<void> MessageLink::read_loop() {
       break;
     }
     counters_.rx_bytes += n;
-    std::span<const std::uint8_t> input(read_buffer_.data(), n);
-    // Pull one message at a time so that a handler calling close() stops delivery at once.
-    while (!closing_) {
-      auto message = decoder_.next(input);
-      if (!message) break;
-      ++counters_.rx_messages;
-      if (on_message_) on_message_(*message);
-    }
-    if (!closing_ && decoder_.error()) {
+    deliver({read_buffer_.data(), n});
+    if (!closing_ && !crc_framed_ && decoder_.error()) {
       report_decode_error(decoder_.error());
       end(decoder_.error());
     }
   }
+}
+
+// Pulls one message at a time so that a handler calling close() stops delivery at once.
+void MessageLink::deliver(std::span<const std::uint8_t> input) {
+  while (!closing_) {
+    auto message = crc_framed_ ? deframer_.next(input) : decoder_.next(input);
+    if (!message) break;
+    ++counters_.rx_messages;
+    if (on_message_) on_message_(*message);
+  }
+  if (crc_framed_) counters_.deframer = deframer_.counters();
 }
 
 asio::awaitable<void> MessageLink::write_loop() {
@@ -199,7 +260,7 @@ asio::awaitable<void> MessageLink::write_loop() {
     if (write_buffer_.empty()) {  // else: the rest of an inline send (write_inline) is pending
       write_offset_ = 0;
       wake_requested_ = false;
-      if (source_) source_(write_buffer_);
+      fill_write_buffer();
       if (closing_) break;
       if (write_buffer_.empty()) {
         if (wake_requested_) continue;  // woken from inside the source: ask again
@@ -210,8 +271,11 @@ asio::awaitable<void> MessageLink::write_loop() {
         continue;
       }
     }
-    auto [ec, n] =
-        co_await asio::async_write(socket_, asio::buffer(write_buffer_) + write_offset_, kNoError);
+    auto [ec, n] = co_await std::visit(
+        [this](auto& s) {
+          return asio::async_write(s, asio::buffer(write_buffer_) + write_offset_, kNoError);
+        },
+        stream_);
     if (closing_) break;
     if (ec) {
       end(ec);
@@ -225,9 +289,9 @@ void MessageLink::report_handler_error(std::exception_ptr error) {
   try {
     std::rethrow_exception(error);
   } catch (const std::exception& e) {
-    spdlog::error("backbone: handler on link {} threw: {}", describe(remote_), e.what());
+    spdlog::error("backbone: handler on link {} threw: {}", peer_name_, e.what());
   } catch (...) {
-    spdlog::error("backbone: handler on link {} threw", describe(remote_));
+    spdlog::error("backbone: handler on link {} threw", peer_name_);
   }
 }
 
@@ -236,9 +300,9 @@ void MessageLink::report_decode_error(std::error_code error) {
   ++(malformed ? counters_.malformed : counters_.oversize);
   if (first_time(malformed ? warned_malformed : warned_oversize)) {
     spdlog::warn("backbone: dropping {} after {} (first occurrence; further ones are only counted)",
-                 describe(remote_), error.message());
+                 peer_name_, error.message());
   } else {
-    spdlog::debug("backbone: dropping {} after {}", describe(remote_), error.message());
+    spdlog::debug("backbone: dropping {} after {}", peer_name_, error.message());
   }
 }
 
@@ -246,9 +310,9 @@ void MessageLink::end(std::error_code reason) {
   if (closing_) return;
   closing_ = true;
   counters_.close_reason = reason;
-  spdlog::debug("backbone: link {} ends: {}", describe(remote_), reason.message());
+  spdlog::debug("backbone: link {} ends: {}", peer_name_, reason.message());
   boost::system::error_code ignored;
-  socket_.close(ignored);  // aborts a pending read or write
+  std::visit([&](auto& s) { s.close(ignored); }, stream_);  // aborts a pending read or write
   writer_sleeping_ = false;
   wake_.cancel();
   if (loops_running_ == 0) finish();  // never started

@@ -1,9 +1,12 @@
-// One established TCP connection carrying delimited messages both ways: a reader that hands each
-// complete message to the user and a pull-model writer that batches whatever the user has queued.
+// One established byte link (a TCP connection or a serial line) carrying messages both ways: a
+// reader that hands each complete message to the user and a pull-model writer that batches
+// whatever the user has queued. TCP frames messages by length prefix; a serial line, which can
+// corrupt, lose or cut bytes, frames them with COBS + CRC-32C and resynchronises after damage.
 #pragma once
 
 #include <boost/asio/awaitable.hpp>
 #include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/serial_port.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <cstdint>
 #include <exception>
@@ -12,13 +15,23 @@
 #include <span>
 #include <string>
 #include <system_error>
+#include <variant>
 #include <vector>
 
 #include "backbone/delimited_codec.hpp"
+#include "backbone/serial_framing.hpp"
 
 namespace canbridge::backbone {
 
+// How messages are delimited on the byte stream.
+enum class LinkFraming {
+  automatic,    // length prefix on TCP, COBS + CRC-32C on serial lines
+  delimited,    // varint length prefix: for transports that never corrupt bytes
+  cobs_crc32c,  // COBS + CRC-32C per message: for anything that can corrupt, lose or cut bytes
+};
+
 struct LinkOptions {
+  LinkFraming framing = LinkFraming::automatic;
   std::size_t max_message_size = kDefaultMaxMessageSize;
   std::size_t read_buffer_size = 64 * 1024;
   // SO_SNDBUF/SO_RCVBUF in bytes; 0 keeps the kernel's autotuning. A fixed, moderate size bounds
@@ -32,8 +45,10 @@ struct LinkCounters {
   std::uint64_t rx_bytes = 0;
   std::uint64_t tx_writes = 0;  // completed writes; each carries one or more messages
   std::uint64_t tx_bytes = 0;
-  std::uint64_t malformed = 0;   // malformed length prefixes (the link was dropped)
-  std::uint64_t oversize = 0;    // announced lengths above max_message_size (the link was dropped)
+  std::uint64_t malformed = 0;  // malformed length prefixes (the link was dropped)
+  std::uint64_t oversize = 0;   // announced lengths above max_message_size (the link was dropped)
+  // COBS + CRC framing only: what the deframer discarded (corrupt, truncated, oversize frames).
+  DeframerCounters deframer{};
   std::error_code close_reason;  // empty while the link is open
 };
 
@@ -48,6 +63,9 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
 
   // Takes over a connected socket; sets TCP_NODELAY and the socket buffer sizes.
   static std::shared_ptr<MessageLink> create(boost::asio::ip::tcp::socket socket,
+                                             LinkOptions options = {});
+  // Takes over an open, configured serial port (or pty); `name` is the device, for logs.
+  static std::shared_ptr<MessageLink> create(boost::asio::serial_port port, std::string name,
                                              LinkOptions options = {});
   ~MessageLink();
   MessageLink(const MessageLink&) = delete;
@@ -72,17 +90,30 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   // already has). Completes with std::errc::operation_canceled if the caller is cancelled.
   boost::asio::awaitable<std::error_code> async_wait_closed();
 
+  boost::asio::any_io_executor executor() { return wake_.get_executor(); }
   bool started() const noexcept { return started_; }
   bool is_open() const noexcept { return !closing_; }
   LinkCounters counters() const { return counters_; }
+  // The TCP peer (an empty endpoint on a serial link).
   const boost::asio::ip::tcp::endpoint& remote_endpoint() const noexcept { return remote_; }
-  // For socket options and diagnostics only; never read or write through it.
-  boost::asio::ip::tcp::socket::native_handle_type native_handle() {
-    return socket_.native_handle();
+  // "address:port" or the serial device, for logs.
+  const std::string& peer_name() const noexcept { return peer_name_; }
+  bool is_serial() const noexcept {
+    return std::holds_alternative<boost::asio::serial_port>(stream_);
   }
+  // Messages are COBS + CRC-32C framed (serial lines, or TCP across a lossy path).
+  bool crc_framed() const noexcept { return crc_framed_; }
+  // For socket options and diagnostics only; never read or write through it.
+  int native_handle();
 
  private:
-  MessageLink(boost::asio::ip::tcp::socket socket, LinkOptions options);
+  using Stream = std::variant<boost::asio::ip::tcp::socket, boost::asio::serial_port>;
+  MessageLink(Stream stream, std::string peer_name, LinkOptions options);
+
+  // Turns the delimited messages the source appended to staging_ into serial frames.
+  void frame_staged_for_serial();
+  bool fill_write_buffer();
+  void deliver(std::span<const std::uint8_t> input);
 
   boost::asio::awaitable<void> read_loop();
   boost::asio::awaitable<void> write_loop();
@@ -94,10 +125,15 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   bool write_inline();
   void write_done();
 
-  boost::asio::ip::tcp::socket socket_;
+  Stream stream_;
   LinkOptions options_;
   boost::asio::ip::tcp::endpoint remote_;
-  DelimitedDecoder decoder_;
+  std::string peer_name_;
+  DelimitedDecoder decoder_;  // TCP framing
+  SerialDeframer deframer_;   // serial framing
+  std::string staging_;       // serial: the source's delimited messages before framing
+  bool crc_framed_ = false;
+  bool leading_delimiter_sent_ = false;
   std::vector<std::uint8_t> read_buffer_;
   std::string write_buffer_;
   std::size_t write_offset_ = 0;      // bytes of write_buffer_ already sent by an inline send

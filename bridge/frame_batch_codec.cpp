@@ -1,14 +1,70 @@
 #include "bridge/frame_batch_codec.hpp"
 
+#include <algorithm>
 #include <chrono>
+#include <string>
 
 namespace canbridge::bridge {
 
 namespace {
-// SocketCAN's can_id flag bits, used on the wire so a batch reads like struct can_frame.
+// SocketCAN's can_id flag bits, used in escaped_can_id so an entry reads like struct can_frame.
 constexpr std::uint32_t kEffFlag = 0x80000000u;
 constexpr std::uint32_t kRtrFlag = 0x40000000u;
+// CAN_ERR_FLAG: the wire does not carry error frames, so an entry with it set is malformed.
+constexpr std::uint32_t kErrFlag = 0x20000000u;
 constexpr std::uint32_t kIdMask = 0x1FFFFFFFu;
+
+// Head word layout (canbridge.proto, FrameBatch.head).
+constexpr std::uint16_t kHeadIdMask = 0x07FF;
+constexpr unsigned kHeadLengthShift = 11;
+constexpr std::uint16_t kHeadLengthMask = 0x0F;
+constexpr std::uint16_t kHeadEscape = 0x8000;
+constexpr std::size_t kHeadBytes = 2;
+
+// The bounds a running timestamp in microseconds may take so that converting it to
+// std::chrono::nanoseconds cannot overflow (a hostile delta column must not cause UB).
+constexpr std::int64_t kMaxUs = std::chrono::nanoseconds::max().count() / 1000;
+constexpr std::int64_t kMinUs = std::chrono::nanoseconds::min().count() / 1000;
+
+// The head is protobuf `bytes`, so its byte order is ours to fix: little endian, written here
+// rather than through bridge/canopen/little_endian.hpp so the codec does not depend on CANopen.
+std::uint16_t head_word(const std::string& head, std::size_t frame) {
+  const auto lo = static_cast<unsigned char>(head[frame * kHeadBytes]);
+  const auto hi = static_cast<unsigned char>(head[frame * kHeadBytes + 1]);
+  return static_cast<std::uint16_t>(lo | (hi << 8));
+}
+
+// Fills id, flags and len of `f` from one head word (consuming an escaped_can_id entry when the
+// word escapes); the payload and timestamp are the caller's.
+BatchError parse_head(std::uint16_t word, const v1::FrameBatch& batch, int& next_escape,
+                      can::Frame& f) {
+  const auto len = static_cast<std::uint8_t>((word >> kHeadLengthShift) & kHeadLengthMask);
+  if (len > can::kMaxPayload) return BatchError::bad_length;
+  f.len = len;
+  if ((word & kHeadEscape) == 0) {
+    f.id = word & kHeadIdMask;
+    f.flags = 0;
+    return BatchError::none;
+  }
+  if (next_escape >= batch.escaped_can_id_size()) return BatchError::escape_mismatch;
+  // Identifier bits beside an escape would leave two candidate ids; refuse rather than guess.
+  if ((word & kHeadIdMask) != 0) return BatchError::bad_id;
+  const std::uint32_t can_id = batch.escaped_can_id(next_escape++);
+  if ((can_id & kErrFlag) != 0) return BatchError::bad_id;
+  f.flags = static_cast<std::uint8_t>(((can_id & kEffFlag) ? can::FrameFlags::extended : 0) |
+                                      ((can_id & kRtrFlag) ? can::FrameFlags::remote : 0));
+  f.id = can_id & kIdMask;
+  if (!f.is_extended() && f.id > can::kMaxStandardId) return BatchError::bad_id;
+  return BatchError::none;
+}
+
+// Advances the running timestamp `us` by `delta`, or fails if it would leave [kMinUs, kMaxUs].
+bool advance(std::int64_t& us, std::int64_t delta) {
+  // Both differences fit in int64 because us itself is within the bounds.
+  if (delta > kMaxUs - us || delta < kMinUs - us) return false;
+  us += delta;
+  return true;
+}
 }  // namespace
 
 void FrameBatchBuilder::start(v1::FrameBatch& batch, std::uint32_t module_id) {
@@ -18,13 +74,23 @@ void FrameBatchBuilder::start(v1::FrameBatch& batch, std::uint32_t module_id) {
 }
 
 void FrameBatchBuilder::append(v1::FrameBatch& batch, const can::Frame& frame) {
-  std::uint32_t can_id = frame.id & kIdMask;
-  if (frame.is_extended()) can_id |= kEffFlag;
-  if (frame.is_remote()) can_id |= kRtrFlag;
-  batch.add_can_id(can_id);
-  batch.mutable_length()->push_back(static_cast<char>(frame.len));
+  // Clamped so a malformed Frame never reads past frame.data nor poisons the receiver's batch.
+  const auto len = static_cast<std::uint8_t>(std::min<std::size_t>(frame.len, can::kMaxPayload));
+  auto word = static_cast<std::uint16_t>(len << kHeadLengthShift);
+  if (frame.is_extended() || frame.is_remote()) {
+    std::uint32_t can_id = frame.id & (frame.is_extended() ? kIdMask : can::kMaxStandardId);
+    if (frame.is_extended()) can_id |= kEffFlag;
+    if (frame.is_remote()) can_id |= kRtrFlag;
+    batch.add_escaped_can_id(can_id);
+    word |= kHeadEscape;
+  } else {
+    word |= static_cast<std::uint16_t>(frame.id & kHeadIdMask);
+  }
+  std::string& head = *batch.mutable_head();
+  head.push_back(static_cast<char>(word & 0xFF));
+  head.push_back(static_cast<char>(word >> 8));
   if (!frame.is_remote()) {
-    batch.mutable_data()->append(reinterpret_cast<const char*>(frame.data.data()), frame.len);
+    batch.mutable_data()->append(reinterpret_cast<const char*>(frame.data.data()), len);
   }
   if (timestamps_) {
     const std::int64_t us =
@@ -46,54 +112,62 @@ std::string_view to_string(BatchError error) {
       return "bad-id";
     case BatchError::data_size_mismatch:
       return "data-size-mismatch";
+    case BatchError::escape_mismatch:
+      return "escape-mismatch";
+    case BatchError::bad_timestamp:
+      return "bad-timestamp";
   }
   return "unknown";
 }
 
 BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Frame>& out) {
-  const int n = batch.can_id_size();
-  const std::string& lengths = batch.length();
+  const std::string& head = batch.head();
   const std::string& data = batch.data();
-  if (static_cast<std::size_t>(n) != lengths.size() ||
-      (batch.timestamp_delta_us_size() != 0 && batch.timestamp_delta_us_size() != n)) {
+  if (head.size() % kHeadBytes != 0) return BatchError::column_mismatch;
+  const std::size_t n = head.size() / kHeadBytes;
+  const bool timed = batch.timestamp_delta_us_size() != 0;
+  if (timed && static_cast<std::size_t>(batch.timestamp_delta_us_size()) != n) {
     return BatchError::column_mismatch;
   }
-  const std::size_t first = out.size();
+
+  // Pass 1 validates everything, so a bad batch neither leaves partial output nor makes `out`
+  // grow (a large hostile head would otherwise cost ~12 bytes of Frame per head byte).
+  {
+    int next_escape = 0;
+    std::size_t payload_bytes = 0;
+    std::int64_t us = 0;
+    can::Frame f;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (const BatchError e = parse_head(head_word(head, i), batch, next_escape, f);
+          e != BatchError::none) {
+        return e;
+      }
+      if (!f.is_remote()) payload_bytes += f.len;
+      if (timed && !advance(us, batch.timestamp_delta_us(static_cast<int>(i)))) {
+        return BatchError::bad_timestamp;
+      }
+    }
+    if (next_escape != batch.escaped_can_id_size()) return BatchError::escape_mismatch;
+    if (payload_bytes != data.size()) return BatchError::data_size_mismatch;
+  }
+
+  // Pass 2 cannot fail: it repeats pass 1's parse and copies payloads and timestamps.
+  out.reserve(out.size() + n);
+  int next_escape = 0;
   std::size_t offset = 0;
   std::int64_t us = 0;
-  for (int i = 0; i < n; ++i) {
-    const std::uint32_t can_id = batch.can_id(i);
-    const auto len = static_cast<std::uint8_t>(lengths[static_cast<std::size_t>(i)]);
-    if (len > can::kMaxPayload) {
-      out.resize(first);
-      return BatchError::bad_length;
-    }
+  for (std::size_t i = 0; i < n; ++i) {
     can::Frame f;
-    f.flags = static_cast<std::uint8_t>(((can_id & kEffFlag) ? can::FrameFlags::extended : 0) |
-                                        ((can_id & kRtrFlag) ? can::FrameFlags::remote : 0));
-    f.id = can_id & kIdMask;
-    if (!f.is_extended() && f.id > can::kMaxStandardId) {
-      out.resize(first);
-      return BatchError::bad_id;
-    }
-    f.len = len;
+    parse_head(head_word(head, i), batch, next_escape, f);
     if (!f.is_remote()) {
-      if (offset + len > data.size()) {
-        out.resize(first);
-        return BatchError::data_size_mismatch;
-      }
-      std::copy_n(data.data() + offset, len, reinterpret_cast<char*>(f.data.data()));
-      offset += len;
+      std::copy_n(data.data() + offset, f.len, reinterpret_cast<char*>(f.data.data()));
+      offset += f.len;
     }
-    if (batch.timestamp_delta_us_size() != 0) {
-      us += batch.timestamp_delta_us(i);
+    if (timed) {
+      advance(us, batch.timestamp_delta_us(static_cast<int>(i)));
       f.timestamp = std::chrono::microseconds(us);
     }
     out.push_back(f);
-  }
-  if (offset != data.size()) {
-    out.resize(first);
-    return BatchError::data_size_mismatch;
   }
   return BatchError::none;
 }

@@ -5,17 +5,32 @@
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
 
+#include "bridge/delivery_class.hpp"
+#include "bridge/frame_batch_codec.hpp"
+
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 
 Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
-                 std::vector<GatewayModule> modules, std::size_t max_backlog)
+                 std::vector<GatewayModule> modules, BackboneTuning tuning)
     : executor_(std::move(executor)),
       name_(std::move(name)),
       map_(std::move(map)),
       modules_(std::move(modules)),
-      max_backlog_(max_backlog) {}
+      tuning_(tuning),
+      outbox_(tuning_.outbox),
+      stream_(tuning_.session,
+              backbone::PeerStream::Handlers{
+                  [this](backbone::PayloadSink& sink) { outbox_.produce(sink); },
+                  [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
+                  nullptr, nullptr}) {
+  identity_.role = v1::Hello::ROLE_GATEWAY;
+  identity_.expected_peer = v1::Hello::ROLE_SURFACE;
+  identity_.name = name_;
+  identity_.session_id = backbone::random_session_id();
+  for (const auto& m : modules_) identity_.module_ids.push_back(m.id);
+}
 
 Gateway::~Gateway() = default;
 
@@ -27,39 +42,22 @@ void Gateway::start() {
 
 void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (stopped_) return link->close();
-  if (session_) session_->close();
-  v1::Hello hello;
-  hello.set_protocol_major(kProtocolMajor);
-  hello.set_protocol_minor(kProtocolMinor);
-  hello.set_role(v1::Hello::ROLE_GATEWAY);
-  hello.set_name(name_);
-  std::vector<std::uint32_t> ids;
-  for (const auto& m : modules_) {
-    hello.add_module_ids(m.id);
-    ids.push_back(m.id);
-  }
-  BackboneSession::Handlers handlers;
-  handlers.on_frames = [this](std::uint32_t module_id, std::span<const can::Frame> frames) {
-    on_backbone_frames(module_id, frames);
-  };
-  // Forget the session when its link ends, unless a newer one has replaced it meanwhile.
-  handlers.on_closed = [this] {
-    if (session_ && session_->is_closed()) session_.reset();
-  };
-  session_ =
-      std::make_shared<BackboneSession>(std::move(link), std::move(hello), v1::Hello::ROLE_SURFACE,
-                                        std::move(ids), max_backlog_, counters_.backbone);
-  session_->start(std::move(handlers));
+  if (link_) link_->close();
+  link_ = backbone::SessionLink::create(std::move(link), identity_, tuning_.session, &stream_,
+                                        nullptr, counters_.session);
+  link_->start();
 }
 
 void Gateway::stop() {
   stopped_ = true;
-  if (session_) session_->close();
+  if (link_) link_->close();
+  stream_.close_link();
   for (auto& m : modules_) m.bus->close();
 }
 
 asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
-  can::Bus& bus = *modules_[module_index].bus;
+  GatewayModule& module = modules_[module_index];
+  can::Bus& bus = *module.bus;
   std::vector<can::Frame> batch;
   batch.reserve(512);
   for (;;) {
@@ -69,34 +67,48 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       co_return;
     }
     counters_.from_buses += batch.size();
-    const bool up = session_ && session_->ready();
     for (const can::Frame& frame : batch) {
+      if (frame.is_error()) continue;  // bus state, counted by the bus itself
       auto surface = translator_.to_surface(module_index, frame);
       if (!surface) continue;
-      if (!up) {
-        ++counters_.dropped_no_link;
-        warn_.warn(Warn::kNoLink,
-                   "gateway: backbone not connected: module frames are dropped (counted)");
-        continue;
+      // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
+      if (!outbox_.push(module.id, *surface, module.conflate_pdos) && !is_process_data(*surface)) {
+        warn_.warn(Warn::kRefused,
+                   "gateway: backbone queue full: reliable frames refused (counted as "
+                   "reliable-refused; the link is too slow or down too long)");
       }
-      session_->queue(module_index, *surface);
     }
-    if (up) session_->flush();
+    stream_.wake();
   }
 }
 
-void Gateway::on_backbone_frames(std::uint32_t module_id, std::span<const can::Frame> frames) {
+void Gateway::on_payload(std::span<const std::uint8_t> payload) {
+  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
+      !inbound_.has_frames()) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed, "gateway: a backbone payload is not a frame batch (counted)");
+    return;
+  }
+  const v1::FrameBatch& batch = inbound_.frames();
+  decoded_.clear();
+  if (const BatchError err = decode_frame_batch(batch, decoded_); err != BatchError::none) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed, "gateway: malformed frame batch ({}): dropped (counted)",
+               to_string(err));
+    return;
+  }
+  counters_.frames_received += decoded_.size();
   std::optional<std::size_t> only;
-  if (module_id != kAnyModule) {
-    only = map_.index_of(module_id);
+  if (batch.module_id() != kAnyModule) {
+    only = map_.index_of(batch.module_id());
     if (!only) {
-      ++counters_.backbone.unknown_module;
+      ++counters_.unknown_module;
       warn_.warn(Warn::kUnknownModule,
-                 "gateway: surface sent frames for unknown module {} (counted)", module_id);
+                 "gateway: surface sent frames for unknown module {} (counted)", batch.module_id());
       return;
     }
   }
-  for (const can::Frame& frame : frames) {
+  for (const can::Frame& frame : decoded_) {
     translator_.to_modules(frame, [&](std::size_t m, const can::Frame& local) {
       if (only && *only != m) return;
       if (modules_[m].bus->send(local)) {
@@ -114,6 +126,7 @@ void Gateway::on_backbone_frames(std::uint32_t module_id, std::span<const can::F
 GatewayCounters Gateway::counters() const {
   GatewayCounters c = counters_;
   c.translation = translator_.drops();
+  c.outbox = outbox_.counters();
   return c;
 }
 
@@ -121,12 +134,22 @@ std::string Gateway::stats_line() const {
   const GatewayCounters c = counters();
   std::uint64_t dropped = 0;
   for (auto d : c.translation) dropped += d;
+  const auto& sender = stream_.sender();
   std::string s = fmt::format(
       "gateway {}: link {}, bus->backbone {} frames ({} batches), backbone->bus {}, "
-      "untranslatable {}, no-link {}, backlog-full {}, bus-refused {}, malformed {}",
-      name_, connected() ? "up" : "down", c.backbone.frames_sent, c.backbone.batches_sent,
-      c.to_buses, dropped, c.dropped_no_link, c.backbone.dropped_backlog, c.bus_refused,
-      c.backbone.malformed_envelopes + c.backbone.malformed_batches);
+      "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
+      "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
+      "bus-refused {}",
+      name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
+      dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
+      c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
+      sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
+      c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused);
+  if (link_ && link_->message_link()->crc_framed()) {
+    const auto serial = link_->message_link()->counters().deframer;
+    s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", serial.frames,
+                     serial.crc_errors, serial.discarded_bytes);
+  }
   for (const auto& m : modules_) {
     const can::BusCounters b = m.bus->counters();
     s += fmt::format("; {} rx {} tx {} kernel-drops {} {}", m.bus->name(), b.rx_frames, b.tx_frames,

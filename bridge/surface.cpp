@@ -6,18 +6,43 @@
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
 
+#include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 
+// One gateway as the surface knows it, kept across its links so reliable streams resume.
+struct Surface::Gateway {
+  Gateway(std::string gateway_name, const BackboneTuning& tuning, Surface& surface)
+      : name(std::move(gateway_name)),
+        outbox(tuning.outbox),
+        stream(tuning.session, backbone::PeerStream::Handlers{
+                                   [this](backbone::PayloadSink& sink) { outbox.produce(sink); },
+                                   [this, &surface](std::span<const std::uint8_t> payload, bool) {
+                                     surface.on_payload(*this, payload);
+                                   },
+                                   nullptr, nullptr}) {}
+
+  std::string name;
+  std::vector<std::uint32_t> modules;  // as announced in its latest accepted hello
+  FrameOutbox outbox;
+  backbone::PeerStream stream;
+};
+
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-                 std::size_t max_backlog)
+                 BackboneTuning tuning, bool conflate_pdos)
     : executor_(std::move(executor)),
       name_(std::move(name)),
       bus_(std::move(bus)),
-      max_backlog_(max_backlog) {}
+      tuning_(tuning),
+      conflate_pdos_(conflate_pdos) {
+  identity_.role = v1::Hello::ROLE_SURFACE;
+  identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
+  identity_.name = name_;
+  identity_.session_id = backbone::random_session_id();
+}
 
 Surface::~Surface() = default;
 
@@ -27,35 +52,58 @@ void Surface::start() {
 
 void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (stopped_) return link->close();
-  v1::Hello hello;
-  hello.set_protocol_major(kProtocolMajor);
-  hello.set_protocol_minor(kProtocolMinor);
-  hello.set_role(v1::Hello::ROLE_SURFACE);
-  hello.set_name(name_);
-  auto session = std::make_shared<BackboneSession>(
-      std::move(link), std::move(hello), v1::Hello::ROLE_GATEWAY,
-      std::vector<std::uint32_t>{kAnyModule}, max_backlog_, counters_.backbone);
-  BackboneSession* raw = session.get();
-  BackboneSession::Handlers handlers;
-  handlers.on_frames = [this, raw](std::uint32_t module_id, std::span<const can::Frame> frames) {
-    on_gateway_frames(*raw, module_id, frames);
-  };
-  handlers.on_closed = [this, raw] {
-    std::erase_if(sessions_, [raw](const auto& s) { return s.get() == raw; });
-  };
-  sessions_.push_back(session);
-  session->start(std::move(handlers));
+  std::erase_if(links_, [](const auto& l) { return !l->message_link()->is_open(); });
+  auto session = backbone::SessionLink::create(
+      std::move(link), identity_, tuning_.session, nullptr,
+      [this](const v1::Hello& hello, backbone::SessionLink&) { return bind(hello); },
+      counters_.session);
+  links_.push_back(session);
+  session->start();
+}
+
+backbone::BindResult Surface::bind(const v1::Hello& hello) {
+  backbone::BindResult refused;
+  refused.reason = v1::Refusal::DUPLICATE_MODULE;
+  const auto& wanted = hello.module_ids();
+  for (int i = 0; i < wanted.size(); ++i) {
+    if (std::find(wanted.begin(), wanted.begin() + i, wanted[i]) != wanted.begin() + i) {
+      refused.detail =
+          "gateway '" + hello.name() + "' announces module " + std::to_string(wanted[i]) + " twice";
+      return refused;
+    }
+  }
+  for (const auto& [name, other] : gateways_) {
+    if (name == hello.name() || !other->stream.up()) continue;
+    for (std::uint32_t m : wanted) {
+      if (std::find(other->modules.begin(), other->modules.end(), m) != other->modules.end()) {
+        refused.detail = "module " + std::to_string(m) + " is already served by gateway '" + name +
+                         "', connected to surface '" + name_ + "'; gateway '" + hello.name() +
+                         "' refused";
+        return refused;
+      }
+    }
+  }
+  auto& slot = gateways_[hello.name()];
+  if (!slot) slot = std::make_unique<Gateway>(hello.name(), tuning_, *this);
+  if (slot->stream.up() && slot->stream.peer_hello().session_id() != hello.session_id()) {
+    refused.detail = "a gateway named '" + hello.name() +
+                     "' is already connected (another process); names must be unique";
+    return refused;
+  }
+  slot->modules.assign(wanted.begin(), wanted.end());
+  return {&slot->stream, {}, {}};
 }
 
 void Surface::stop() {
   stopped_ = true;
-  for (auto& s : std::vector(sessions_)) s->close();
+  for (auto& l : std::vector(links_)) l->close();
+  for (auto& [name, g] : gateways_) g->stream.close_link();
   bus_->close();
 }
 
 std::size_t Surface::gateways_ready() const {
-  return static_cast<std::size_t>(
-      std::count_if(sessions_.begin(), sessions_.end(), [](const auto& s) { return s->ready(); }));
+  return static_cast<std::size_t>(std::count_if(
+      gateways_.begin(), gateways_.end(), [](const auto& g) { return g.second->stream.up(); }));
 }
 
 asio::awaitable<void> Surface::read_bus() {
@@ -68,33 +116,54 @@ asio::awaitable<void> Surface::read_bus() {
       co_return;
     }
     counters_.from_bus += batch.size();
-    bool any = false;
-    // Every ready gateway gets the surface traffic; each routes by COB-ID to its own modules.
-    for (auto& session : sessions_) {
-      if (!session->ready()) continue;
-      any = true;
-      for (const can::Frame& frame : batch) session->queue(0, frame);
-      session->flush();
+    if (gateways_.empty()) {
+      counters_.dropped_no_gateway += batch.size();
+      warn_.warn(Warn::kNoGateway,
+                 "surface: no gateway has connected yet: surface frames are dropped (counted)");
+      continue;
     }
-    if (!any) {
-      counters_.dropped_no_link += batch.size();
-      warn_.warn(Warn::kNoLink,
-                 "surface: no gateway connected: surface frames are dropped (counted)");
+    // Every known gateway gets the surface traffic (queued while its link is down, so reliable
+    // frames reach it exactly once); each routes by COB-ID to its own modules.
+    for (auto& [name, gateway] : gateways_) {
+      for (const can::Frame& frame : batch) {
+        if (frame.is_error()) continue;
+        if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_) && !is_process_data(frame)) {
+          warn_.warn(Warn::kRefused,
+                     "surface: backbone queue to gateway '{}' full: reliable frames refused "
+                     "(counted as reliable-refused)",
+                     name);
+        }
+      }
+      gateway->stream.wake();
     }
   }
 }
 
-void Surface::on_gateway_frames(const BackboneSession& from, std::uint32_t module_id,
-                                std::span<const can::Frame> frames) {
-  const auto& ids = from.peer_hello().module_ids();
-  if (std::find(ids.begin(), ids.end(), module_id) == ids.end()) {
-    ++counters_.backbone.unknown_module;
-    warn_.warn(Warn::kUnknownModule,
-               "surface: gateway '{}' sent frames for module {} it did not announce (counted)",
-               from.peer_hello().name(), module_id);
+void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
+  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
+      !inbound_.has_frames()) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed, "surface: a backbone payload is not a frame batch (counted)");
     return;
   }
-  for (const can::Frame& frame : frames) {
+  const v1::FrameBatch& batch = inbound_.frames();
+  if (std::find(from.modules.begin(), from.modules.end(), batch.module_id()) ==
+      from.modules.end()) {
+    ++counters_.unknown_module;
+    warn_.warn(Warn::kUnknownModule,
+               "surface: gateway '{}' sent frames for module {} it did not announce (counted)",
+               from.name, batch.module_id());
+    return;
+  }
+  decoded_.clear();
+  if (const BatchError err = decode_frame_batch(batch, decoded_); err != BatchError::none) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed, "surface: malformed frame batch ({}): dropped (counted)",
+               to_string(err));
+    return;
+  }
+  counters_.frames_received += decoded_.size();
+  for (const can::Frame& frame : decoded_) {
     if (bus_->send(frame)) {
       ++counters_.to_bus;
     } else {
@@ -105,17 +174,35 @@ void Surface::on_gateway_frames(const BackboneSession& from, std::uint32_t modul
   }
 }
 
+SurfaceCounters Surface::counters() const {
+  SurfaceCounters c = counters_;
+  for (const auto& [name, g] : gateways_) {
+    const OutboxCounters o = g->outbox.counters();
+    c.outbox.queued += o.queued;
+    c.outbox.conflated += o.conflated;
+    c.outbox.process_dropped += o.process_dropped;
+    c.outbox.reliable_refused += o.reliable_refused;
+    c.outbox.frames_sent += o.frames_sent;
+    c.outbox.batches_sent += o.batches_sent;
+  }
+  return c;
+}
+
 std::string Surface::stats_line() const {
+  const SurfaceCounters c = counters();
   const can::BusCounters b = bus_->counters();
-  return fmt::format(
-      "surface {}: {} gateway(s), bus->backbone {} frames, backbone->bus {}, no-link {}, "
-      "backlog-full {}, bus-refused {}, malformed {}, unknown-module {}; {} rx {} tx {} "
+  std::string s = fmt::format(
+      "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
+      "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
+      "refusals {}/{}, bus-refused {}, malformed {}, unknown-module {}; {} rx {} tx {} "
       "kernel-drops {} {}",
-      name_, gateways_ready(), counters_.backbone.frames_sent, counters_.to_bus,
-      counters_.dropped_no_link, counters_.backbone.dropped_backlog, counters_.bus_refused,
-      counters_.backbone.malformed_envelopes + counters_.backbone.malformed_batches,
-      counters_.backbone.unknown_module, bus_->name(), b.rx_frames, b.tx_frames,
-      b.rx_dropped_kernel, can::to_string(b.state));
+      name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
+      c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
+      c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
+      c.session.refusals_received, c.bus_refused, c.malformed_payloads + c.session.malformed,
+      c.unknown_module, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
+      can::to_string(b.state));
+  return s;
 }
 
 }  // namespace canbridge::bridge

@@ -1,56 +1,79 @@
 // The surface role: one CAN interface where a master sees every module's nodes, fed by the
-// gateways connected over the backbone.
+// gateways connected over the backbone (several at once, each serving its own modules).
 #pragma once
 
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
 
-#include "bridge/backbone_session.hpp"
+#include "backbone/session.hpp"
+#include "bridge/backbone_tuning.hpp"
+#include "bridge/frame_outbox.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
 namespace canbridge::bridge {
 
 struct SurfaceCounters {
-  SessionCounters backbone;
-  std::uint64_t from_bus = 0;         // frames read on the surface bus
-  std::uint64_t to_bus = 0;           // frames written to the surface bus
-  std::uint64_t dropped_no_link = 0;  // surface frames with no gateway connected
-  std::uint64_t bus_refused = 0;      // surface bus transmit queue full
+  backbone::SessionCounters session;
+  OutboxCounters outbox;                 // summed over the gateways
+  std::uint64_t from_bus = 0;            // frames read on the surface bus
+  std::uint64_t to_bus = 0;              // frames written to the surface bus
+  std::uint64_t frames_received = 0;     // frames decoded from the backbone
+  std::uint64_t dropped_no_gateway = 0;  // surface frames while no gateway was ever known
+  std::uint64_t bus_refused = 0;         // surface bus transmit queue full
+  std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
+  std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
 };
 
 class Surface {
  public:
   Surface(boost::asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-          std::size_t max_backlog = 1u << 16);
+          BackboneTuning tuning = {}, bool conflate_pdos = true);
   ~Surface();
 
   void start();
-  // Takes a newly accepted gateway connection.
+  // Takes a new gateway link (accepted TCP connection or opened serial line). Its hello decides
+  // which gateway it belongs to; a gateway announcing a module another connected gateway serves
+  // is refused, with the reason sent to it.
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
 
-  SurfaceCounters counters() const { return counters_; }
+  SurfaceCounters counters() const;
   std::size_t gateways_ready() const;
   can::Bus& bus() { return *bus_; }
   std::string stats_line() const;
 
  private:
-  boost::asio::awaitable<void> read_bus();
-  void on_gateway_frames(const BackboneSession& from, std::uint32_t module_id,
-                         std::span<const can::Frame> frames);
+  struct Gateway;
 
-  enum Warn : std::size_t { kUnknownModule, kNoLink, kBusRefused, kWarnKinds };
+  boost::asio::awaitable<void> read_bus();
+  backbone::BindResult bind(const v1::Hello& hello);
+  void on_payload(Gateway& from, std::span<const std::uint8_t> payload);
+
+  enum Warn : std::size_t {
+    kUnknownModule,
+    kNoGateway,
+    kMalformed,
+    kRefused,
+    kBusRefused,
+    kWarnKinds
+  };
 
   boost::asio::any_io_executor executor_;
   std::string name_;
   std::unique_ptr<can::Bus> bus_;
-  std::size_t max_backlog_;
-  std::vector<std::shared_ptr<BackboneSession>> sessions_;
+  BackboneTuning tuning_;
+  bool conflate_pdos_;
+  backbone::SessionLink::Identity identity_;
+  std::map<std::string, std::unique_ptr<Gateway>> gateways_;   // by name, once seen
+  std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   SurfaceCounters counters_;
+  v1::Payload inbound_;
+  std::vector<can::Frame> decoded_;
   WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
 };

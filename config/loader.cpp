@@ -2,7 +2,10 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
+#include <array>
 #include <charconv>
+#include <map>
 #include <optional>
 #include <set>
 
@@ -38,6 +41,113 @@ class Reader : public YamlReader {
     }
     ep.port = static_cast<std::uint16_t>(port);
     return ep;
+  }
+
+  // A line of a serial backbone: {device, baud, flow_control}.
+  std::optional<SerialLineOptions> serial_line(const YAML::Node& node, const std::string& path) {
+    if (!node.IsMap()) {
+      problem(node, path, "must be a mapping with device, baud and flow_control");
+      return std::nullopt;
+    }
+    only_keys(node, path, {"device", "baud", "flow_control"});
+    SerialLineOptions line;
+    bool ok = true;
+    if (auto device = string(node, "device", path, true)) {
+      line.device = *device;
+    } else {
+      ok = false;
+    }
+    if (const YAML::Node baud = node["baud"]) {
+      if (auto rate = baud_rate(baud, join_path(path, "baud"))) {
+        line.baud = *rate;
+      } else {
+        ok = false;
+      }
+    }
+    if (auto flow = string(node, "flow_control", path, false)) {
+      if (*flow == "hardware") {
+        line.hardware_flow_control = true;
+      } else if (*flow != "none") {
+        // XON/XOFF is not offered: it would swallow those byte values out of the binary frames.
+        problem(node["flow_control"], join_path(path, "flow_control"),
+                "'" + *flow + "' is not one of none, hardware (RTS/CTS)");
+        ok = false;
+      }
+    } else if (node["flow_control"]) {
+      ok = false;
+    }
+    if (!ok) return std::nullopt;
+    return line;
+  }
+
+  // Only the rates termios has a B constant for: any other rate would fail when the line opens,
+  // long after startup, so it is refused here.
+  std::optional<unsigned> baud_rate(const YAML::Node& node, const std::string& field) {
+    static constexpr std::array<unsigned, 19> kRates = {
+        1200,   2400,   4800,   9600,    19200,   38400,   57600,   115200,  230400, 460800,
+        500000, 576000, 921600, 1000000, 1152000, 1500000, 2000000, 3000000, 4000000};
+    auto v = integer_text(node, field);
+    if (!v) return std::nullopt;
+    if (!v->negative && !v->overflow &&
+        std::find(kRates.begin(), kRates.end(), v->magnitude) != kRates.end()) {
+      return static_cast<unsigned>(v->magnitude);
+    }
+    problem(node, field,
+            node.Scalar() +
+                " is not a standard serial rate (e.g. 9600, 19200, 57600, 115200, 230400, 460800, "
+                "921600, 1000000; up to 4000000)");
+    return std::nullopt;
+  }
+
+  // The session keys both roles share under `backbone`.
+  void session_tuning(const YAML::Node& backbone, SessionTuning& out) {
+    using std::chrono::milliseconds;
+    const auto ms = [&](const char* key, std::int64_t min, std::int64_t max) {
+      auto v = integer(backbone, key, "backbone", min, max, false);
+      return v ? std::optional<milliseconds>(*v) : std::nullopt;
+    };
+    const auto count = [&](const char* key, std::int64_t min, std::int64_t max,
+                           std::size_t& field) {
+      if (auto v = integer(backbone, key, "backbone", min, max, false)) {
+        field = static_cast<std::size_t>(*v);
+      }
+    };
+    const auto keepalive = ms("keepalive_ms", 10, 600000);
+    const auto dead_after = ms("dead_after_ms", 10, 3600000);
+    if (keepalive) out.keepalive = *keepalive;
+    if (dead_after) out.dead_after = *dead_after;
+    // A link must not be declared dead while the peer is merely between two keepalives. Checked
+    // only when neither value is already reported, and against the default when one is absent.
+    const bool keepalive_ok = keepalive || !backbone["keepalive_ms"];
+    const bool dead_after_ok = dead_after || !backbone["dead_after_ms"];
+    if (keepalive_ok && dead_after_ok && out.dead_after <= out.keepalive) {
+      const std::string ka = std::to_string(out.keepalive.count());
+      const std::string da = std::to_string(out.dead_after.count());
+      if (dead_after) {
+        problem(backbone["dead_after_ms"], "backbone.dead_after_ms",
+                da + " must exceed keepalive_ms (" + ka + "), best by a few keepalives");
+      } else {
+        problem(backbone["keepalive_ms"], "backbone.dead_after_ms",
+                "the default " + da + " does not exceed keepalive_ms (" + ka +
+                    "): give dead_after_ms, a few keepalives longer");
+      }
+    }
+    if (auto v = ms("retransmit_ms", 10, 600000)) out.retransmit = *v;
+    count("resend_buffer_messages", 1, 1LL << 20, out.resend_buffer_messages);
+    count("resend_buffer_bytes", 1024, 1LL << 30, out.resend_buffer_bytes);
+    count("max_write_bytes", 64, 1LL << 20, out.max_write_bytes);
+    count("queue_reliable_frames", 1, 1LL << 22, out.queue_reliable_frames);
+    count("queue_process_frames", 1, 1LL << 22, out.queue_process_frames);
+    if (auto framing = string(backbone, "tcp_framing", "backbone", false)) {
+      if (*framing == "length-prefix") {
+        out.tcp_crc_framing = false;
+      } else if (*framing == "cobs-crc32c") {
+        out.tcp_crc_framing = true;
+      } else {
+        problem(backbone["tcp_framing"], "backbone.tcp_framing",
+                "'" + *framing + "' is not one of length-prefix, cobs-crc32c");
+      }
+    }
   }
 
   void can_options(const YAML::Node& root, CanOptions& out) {
@@ -85,6 +195,15 @@ YAML::Node parse_root(std::string_view yaml, const std::string& file, const char
   return root;
 }
 
+// The key node of `key` in `map` (its line is where an operator looks); an undefined node (false,
+// line 0) if absent. YAML::Node() would not do: it is a defined null node.
+YAML::Node key_of(const YAML::Node& map, std::string_view key) {
+  for (const auto& kv : map) {
+    if (kv.first.Scalar() == key) return kv.first;
+  }
+  return YAML::Node(YAML::NodeType::Undefined);
+}
+
 void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
   const YAML::Node modules = root["modules"];
   if (!modules) return in.problem(root, "modules", "missing (required): at least one module");
@@ -100,10 +219,11 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       in.problem(m, path, "must be a mapping with id and bus");
       continue;
     }
-    in.only_keys(m, path, {"id", "bus", "nodes"});
+    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos"});
     ModuleOptions module;
     auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
     auto bus = in.string(m, "bus", path, true);
+    if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
     if (bus && !buses.insert(*bus).second) {
       in.problem(m["bus"], path + ".bus", "bus '" + *bus + "' is used by two modules");
     }
@@ -159,17 +279,46 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   const YAML::Node backbone = root["backbone"];
-  if (!backbone || !backbone.IsMap()) {
-    in.problem(backbone ? backbone : root, "backbone",
-               "missing (required): needs 'connect: host:port'");
+  if (!backbone) {
+    in.problem(root, "backbone",
+               "missing (required): needs 'connect: host:port' (TCP) or 'serial:' (a serial line)");
+  } else if (!backbone.IsMap()) {
+    in.problem(backbone, "backbone",
+               "must be a mapping with 'connect: host:port' (TCP) or 'serial:' (a serial line)");
   } else {
-    in.only_keys(backbone, "backbone", {"connect", "reconnect_min_ms", "reconnect_max_ms"});
-    if (auto ep = in.endpoint(backbone, "connect", "backbone", true)) {
+    in.only_keys(
+        backbone, "backbone",
+        {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
+         "dead_after_ms", "retransmit_ms", "resend_buffer_messages", "resend_buffer_bytes",
+         "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+    // Exactly one transport: with both, which one the operator meant is anyone's guess.
+    const YAML::Node connect_key = key_of(backbone, "connect");
+    const YAML::Node serial_key = key_of(backbone, "serial");
+    if (connect_key && serial_key) {
+      const int connect_at = line_of(connect_key);
+      const int serial_at = line_of(serial_key);
+      in.problem(std::max(connect_at, serial_at), "backbone",
+                 "'connect' (line " + std::to_string(connect_at) + ") and 'serial' (line " +
+                     std::to_string(serial_at) + ") are both given: a gateway uses exactly one");
+    } else if (!connect_key && !serial_key) {
+      in.problem(key_of(root, "backbone"), "backbone",
+                 "needs 'connect: host:port' (TCP) or 'serial:' (a serial line): neither is given");
+    }
+    if (auto ep = in.endpoint(backbone, "connect", "backbone", false)) {
       if (ep->port == 0) {
         in.problem(backbone["connect"], "backbone.connect", "port 0 cannot be connected to");
       }
       out.connect = *ep;
     }
+    if (const YAML::Node serial = backbone["serial"]) {
+      if (serial.IsSequence()) {
+        in.problem(serial, "backbone.serial",
+                   "must be one mapping {device, baud, flow_control}: a gateway has one line");
+      } else {
+        out.serial = in.serial_line(serial, "backbone.serial");
+      }
+    }
+    // Also the back-off of reopening a serial line that failed or went dead.
     if (auto v = in.integer(backbone, "reconnect_min_ms", "backbone", 1, 600000, false)) {
       out.reconnect_min = std::chrono::milliseconds(*v);
     }
@@ -180,6 +329,7 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
       in.problem(backbone["reconnect_max_ms"], "backbone.reconnect_max_ms",
                  "must not be below reconnect_min_ms");
     }
+    in.session_tuning(backbone, out.session);
   }
   read_modules(in, root, out);
   in.can_options(root, out.can);
@@ -196,12 +346,53 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
   const YAML::Node backbone = root["backbone"];
-  if (!backbone || !backbone.IsMap()) {
-    in.problem(backbone ? backbone : root, "backbone",
-               "missing (required): needs 'listen: host:port'");
+  if (!backbone) {
+    in.problem(root, "backbone",
+               "missing (required): needs 'listen: host:port' (TCP), 'serial:' lines, or both");
+  } else if (!backbone.IsMap()) {
+    in.problem(backbone, "backbone",
+               "must be a mapping with 'listen: host:port' (TCP), 'serial:' lines, or both");
   } else {
-    in.only_keys(backbone, "backbone", {"listen"});
-    if (auto ep = in.endpoint(backbone, "listen", "backbone", true)) out.listen = *ep;
+    in.only_keys(
+        backbone, "backbone",
+        {"listen", "serial", "conflate_pdos", "keepalive_ms", "dead_after_ms", "retransmit_ms",
+         "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
+         "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+    // An empty list ("serial: []") reaches no gateway either.
+    const YAML::Node lines = backbone["serial"];
+    if (!key_of(backbone, "listen") && (!lines || (lines.IsSequence() && lines.size() == 0))) {
+      in.problem(key_of(root, "backbone"), "backbone",
+                 "needs 'listen: host:port' (TCP), 'serial:' lines, or both: neither is given");
+    }
+    if (auto ep = in.endpoint(backbone, "listen", "backbone", false)) out.listen = *ep;
+    if (const YAML::Node serial = backbone["serial"]) {
+      if (!serial.IsSequence()) {
+        in.problem(serial, "backbone.serial",
+                   "must be a list of serial lines, one '- device: ...' item per gateway");
+      } else {
+        // Two lines on one device would fight over its bytes: refused, naming both items.
+        std::map<std::string, std::size_t> devices;
+        for (std::size_t i = 0; i < serial.size(); ++i) {
+          const std::string path = item_path("backbone", "serial", i);
+          auto line = in.serial_line(serial[i], path);
+          // Checked on the device alone, so that it is reported even when another field is bad.
+          const YAML::Node device = serial[i].IsMap() ? serial[i]["device"] : YAML::Node();
+          if (device && device.IsScalar() && !device.Scalar().empty()) {
+            if (auto [it, fresh] = devices.emplace(device.Scalar(), i); !fresh) {
+              in.problem(device, path + ".device",
+                         "'" + device.Scalar() + "' is also the device of backbone.serial[" +
+                             std::to_string(it->second) + "]");
+              continue;
+            }
+          }
+          if (line) out.serial.push_back(std::move(*line));
+        }
+      }
+    }
+    if (auto conflate = in.boolean(backbone, "conflate_pdos", "backbone")) {
+      out.conflate_pdos = *conflate;
+    }
+    in.session_tuning(backbone, out.session);
   }
   in.can_options(root, out.can);
   in.log_options(root, out.log);

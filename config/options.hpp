@@ -3,6 +3,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -27,6 +28,33 @@ struct ModuleOptions {
   // (local node id, surface node id); the default mapping when the file gives none.
   std::vector<std::pair<std::uint8_t, std::uint8_t>> nodes;
   bool default_nodes = true;
+  // Under backlog, a queued PDO is replaced by a newer value of the same COB-ID (counted);
+  // false keeps every PDO in order and drops (counted) only when the queue is full.
+  bool conflate_pdos = true;
+};
+
+// A serial backbone line: 8N1, no flow control unless the cable carries RTS/CTS.
+struct SerialLineOptions {
+  std::string device;  // /dev/ttyS1, /dev/ttyUSB0, a pty path, ...
+  unsigned baud = 115200;
+  bool hardware_flow_control = false;
+};
+
+// Session behaviour, shared by both roles (see backbone/session.hpp for the semantics).
+struct SessionTuning {
+  std::chrono::milliseconds keepalive{500};
+  std::chrono::milliseconds dead_after{2000};  // must exceed keepalive
+  std::chrono::milliseconds retransmit{1000};
+  std::size_t resend_buffer_messages = 4096;
+  std::size_t resend_buffer_bytes = 4u << 20;
+  std::size_t max_write_bytes = 16 * 1024;
+  // Frames waiting for the link, per peer: reliable ones are never dropped once queued (a full
+  // queue refuses, counted and reported); process data is conflated or dropped.
+  std::size_t queue_reliable_frames = 1u << 16;
+  std::size_t queue_process_frames = 1u << 14;
+  // COBS + CRC-32C framing on TCP links too, for a TCP path that can corrupt bytes (a serial-to-
+  // Ethernet converter, a radio bridge). Both ends must agree.
+  bool tcp_crc_framing = false;
 };
 
 struct LogOptions {
@@ -36,7 +64,10 @@ struct LogOptions {
 
 struct GatewayOptions {
   std::string name = "gateway";
-  Endpoint connect;  // the surface's backbone listener
+  // Exactly one transport: a TCP connection to the surface's listener, or a serial line.
+  Endpoint connect;
+  std::optional<SerialLineOptions> serial;
+  SessionTuning session;
   std::chrono::milliseconds reconnect_min{100};
   std::chrono::milliseconds reconnect_max{5000};
   std::vector<ModuleOptions> modules;
@@ -46,8 +77,13 @@ struct GatewayOptions {
 
 struct SurfaceOptions {
   std::string name = "surface";
+  // Where gateways connect over TCP (empty host: no listener), and one serial line per gateway
+  // reached over a serial backbone. At least one of the two.
   Endpoint listen;
-  std::string bus;  // the one SocketCAN interface the surface master sees
+  std::vector<SerialLineOptions> serial;
+  SessionTuning session;
+  bool conflate_pdos = true;  // for surface -> gateway process data, as ModuleOptions
+  std::string bus;            // the one SocketCAN interface the surface master sees
   CanOptions can;
   LogOptions log;
 };

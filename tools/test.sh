@@ -15,6 +15,10 @@ cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCANBR
 cmake --build "$root/build-asan" -j "$jobs"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
 
+echo "=== fuzzing (clang, libFuzzer): a short run of every target (docs/fuzzing.md for long runs)"
+rm -rf "$root/build-fuzz"
+"$root/tools/fuzz.sh" --seconds 5 "$root/build-fuzz"
+
 echo "=== build: every test"
 rm -rf "$root/build"
 cmake -S "$root" -B "$root/build" -G Ninja >/dev/null

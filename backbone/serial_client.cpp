@@ -1,0 +1,101 @@
+#include "backbone/serial_client.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/serial_port.hpp>
+#include <boost/asio/use_awaitable.hpp>
+
+namespace canbridge::backbone {
+
+namespace asio = boost::asio;
+
+std::error_code open_serial_port(asio::serial_port& port, const SerialOptions& options) {
+  boost::system::error_code ec;
+  port.open(options.device, ec);  // asio puts the line in raw mode
+  if (ec) return ec;
+  using base = asio::serial_port_base;
+  port.set_option(base::baud_rate(options.baud), ec);
+  if (!ec) port.set_option(base::character_size(8), ec);
+  if (!ec) port.set_option(base::parity(base::parity::none), ec);
+  if (!ec) port.set_option(base::stop_bits(base::stop_bits::one), ec);
+  if (!ec) {
+    port.set_option(base::flow_control(options.hardware_flow_control ? base::flow_control::hardware
+                                                                     : base::flow_control::none),
+                    ec);
+  }
+  if (ec) {
+    boost::system::error_code ignored;
+    port.close(ignored);
+  }
+  return ec;
+}
+
+std::shared_ptr<SerialClient> SerialClient::create(asio::any_io_executor executor,
+                                                   SerialOptions options) {
+  return std::shared_ptr<SerialClient>(new SerialClient(std::move(executor), std::move(options)));
+}
+
+SerialClient::SerialClient(asio::any_io_executor executor, SerialOptions options)
+    : executor_(std::move(executor)), options_(std::move(options)), backoff_timer_(executor_) {
+  options_.backoff_min = std::max(options_.backoff_min, std::chrono::milliseconds{1});
+  options_.backoff_max = std::max(options_.backoff_max, options_.backoff_min);
+  backoff_ = options_.backoff_min;
+}
+
+SerialClient::~SerialClient() = default;
+
+void SerialClient::start(ConnectedHandler on_connected) {
+  if (started_ || stopped_) return;
+  started_ = true;
+  on_connected_ = std::move(on_connected);
+  asio::co_spawn(
+      executor_, [self = shared_from_this()] { return self->run(); },
+      [](std::exception_ptr error) {
+        if (error) std::rethrow_exception(error);
+      });
+}
+
+void SerialClient::stop() {
+  if (stopped_) return;
+  stopped_ = true;
+  backoff_timer_.cancel();
+  if (link_) link_->close();
+}
+
+asio::awaitable<void> SerialClient::run() {
+  constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+  while (!stopped_) {
+    asio::serial_port port(executor_);
+    if (const std::error_code ec = open_serial_port(port, options_)) {
+      ++counters_.open_failures;
+      if (!failing_) {
+        spdlog::warn("backbone: cannot open serial line {}: {} (retrying up to every {} ms)",
+                     options_.device, ec.message(), options_.backoff_max.count());
+      }
+      failing_ = true;
+    } else {
+      ++counters_.opens;
+      failing_ = false;
+      backoff_ = options_.backoff_min;
+      spdlog::info("backbone: serial line {} open at {} bit/s", options_.device, options_.baud);
+      auto link = MessageLink::create(std::move(port), options_.device, options_.link);
+      link_ = link;
+      if (on_connected_) on_connected_(link);
+      if (!link->started()) link->close();
+      const std::error_code reason = co_await link->async_wait_closed();
+      link_.reset();
+      if (stopped_) break;
+      spdlog::info("backbone: serial link {} ended: {}", options_.device, reason.message());
+    }
+    // A line that ends at once (peer gone, device unplugged) must not become a busy loop.
+    backoff_timer_.expires_after(backoff_);
+    backoff_ = std::min(backoff_ * 2, options_.backoff_max);
+    co_await backoff_timer_.async_wait(kNoError);
+  }
+  on_connected_ = nullptr;
+}
+
+}  // namespace canbridge::backbone

@@ -1,0 +1,443 @@
+#include "backbone/session.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <atomic>
+#include <random>
+
+#include "backbone/delimited_codec.hpp"
+
+namespace canbridge::backbone {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// Envelope field tags (field number << 3 | wire type), for the hot path that writes envelopes
+// by hand around a stored payload instead of copying it into a message object first.
+constexpr std::uint8_t kTagSeq = (v1::Envelope::kSeqFieldNumber << 3) | 0;
+constexpr std::uint8_t kTagAck = (v1::Envelope::kAckFieldNumber << 3) | 0;
+constexpr std::uint8_t kTagResend = (v1::Envelope::kResendFieldNumber << 3) | 0;
+constexpr std::uint8_t kTagKeepalive = (v1::Envelope::kKeepaliveFieldNumber << 3) | 2;
+constexpr std::uint8_t kTagPayload = (v1::Envelope::kPayloadFieldNumber << 3) | 2;
+
+std::size_t varint_length(std::uint64_t value) {
+  std::size_t n = 1;
+  while (value >= 0x80) {
+    value >>= 7;
+    ++n;
+  }
+  return n;
+}
+
+void put_varint(std::string& out, std::uint64_t value) {
+  while (value >= 0x80) {
+    out.push_back(static_cast<char>((value & 0x7F) | 0x80));
+    value >>= 7;
+  }
+  out.push_back(static_cast<char>(value));
+}
+
+const char* role_name(v1::Hello::Role role) {
+  switch (role) {
+    case v1::Hello::ROLE_GATEWAY:
+      return "gateway";
+    case v1::Hello::ROLE_SURFACE:
+      return "surface";
+    default:
+      return "unspecified";
+  }
+}
+
+std::atomic<bool> warned_malformed{false};
+
+}  // namespace
+
+std::uint64_t random_session_id() {
+  std::random_device device;
+  std::uint64_t id = 0;
+  while (id == 0) id = (std::uint64_t{device()} << 32) ^ device();
+  return id;
+}
+
+std::string describe_peer(const v1::Hello& hello) {
+  return "'" + hello.name() + "' (" + role_name(hello.role()) + ", protocol " +
+         std::to_string(hello.protocol_major()) + "." + std::to_string(hello.protocol_minor()) +
+         ")";
+}
+
+// ---------------------------------------------------------------------------------------------
+PeerStream::PeerStream(const SessionOptions& options, Handlers handlers)
+    : sender_(ReliableSender::Options{options.resend_buffer_messages, options.resend_buffer_bytes}),
+      handlers_(std::move(handlers)) {}
+
+void PeerStream::wake() {
+  if (link_) link_->message_link()->wake_writer();
+}
+
+void PeerStream::close_link() {
+  if (link_) link_->close();
+}
+
+// ---------------------------------------------------------------------------------------------
+// The producer's view of one write: what fits, and where payloads go.
+class SessionLink::Writer final : public PayloadSink {
+ public:
+  Writer(SessionLink& session, std::string& out, Clock::time_point now)
+      : session_(session), out_(out), start_(out.size()), now_(now) {}
+
+  std::size_t room() const override {
+    const std::size_t used = out_.size() - start_;
+    return used >= session_.options_.max_write_bytes ? 0 : session_.options_.max_write_bytes - used;
+  }
+  bool reliable_room(std::size_t bytes) const override {
+    return session_.stream_->sender_.can_accept(bytes);
+  }
+  void send_reliable(std::string payload) override {
+    if (!session_.stream_->sender_.push(std::move(payload))) return;  // counted by the sender
+    drain_reliable();
+  }
+  void send_unreliable(std::span<const std::uint8_t> payload) override {
+    session_.append_envelope(out_, 0, payload, false);
+    ++session_.counters_.unreliable_sent;
+  }
+
+  // Sends what the resend buffer holds and this link has not carried yet, as room allows.
+  void drain_reliable() {
+    ReliableSender& sender = session_.stream_->sender_;
+    while (room() > 0) {
+      auto next = sender.next_to_send(now_);
+      if (!next) break;
+      session_.append_envelope(
+          out_, next->seq,
+          {reinterpret_cast<const std::uint8_t*>(next->payload.data()), next->payload.size()},
+          false);
+      ++(next->retransmission ? session_.counters_.reliable_resent
+                              : session_.counters_.reliable_sent);
+    }
+  }
+
+  bool wrote() const { return out_.size() != start_; }
+
+ private:
+  SessionLink& session_;
+  std::string& out_;
+  std::size_t start_;
+  Clock::time_point now_;
+};
+
+// ---------------------------------------------------------------------------------------------
+std::shared_ptr<SessionLink> SessionLink::create(std::shared_ptr<MessageLink> link,
+                                                 const Identity& identity,
+                                                 const SessionOptions& options, PeerStream* preset,
+                                                 Binder binder, SessionCounters& counters) {
+  return std::shared_ptr<SessionLink>(
+      new SessionLink(std::move(link), identity, options, preset, std::move(binder), counters));
+}
+
+SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,
+                         const SessionOptions& options, PeerStream* preset, Binder binder,
+                         SessionCounters& counters)
+    : link_(std::move(link)),
+      identity_(identity),
+      options_(options),
+      stream_(preset),
+      binder_(std::move(binder)),
+      counters_(counters),
+      watchdog_(link_->executor()) {}
+
+SessionLink::~SessionLink() = default;
+
+void SessionLink::start() {
+  last_rx_ = last_tx_ = Clock::now();
+  std::weak_ptr<SessionLink> weak = weak_from_this();
+  link_->start(
+      [weak](std::span<const std::uint8_t> bytes) {
+        if (auto self = weak.lock()) self->on_message(bytes);
+      },
+      [weak](std::string& out) {
+        if (auto self = weak.lock()) self->fill(out);
+      },
+      [weak](std::error_code) {
+        if (auto self = weak.lock()) self->on_closed();
+      });
+  arm_watchdog();
+  link_->wake_writer();  // a preset stream's hello goes out at once
+}
+
+void SessionLink::close() {
+  link_->close();
+}
+
+void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
+                                  std::span<const std::uint8_t> payload, bool keepalive) {
+  const std::uint64_t ack = stream_->receiver_.cumulative_ack();
+  const bool resend = resend_owed_;
+  std::size_t size = 0;
+  if (seq != 0) size += 1 + varint_length(seq);
+  if (ack != 0) size += 1 + varint_length(ack);
+  if (resend) size += 2;
+  size += keepalive ? 2 : 1 + varint_length(payload.size()) + payload.size();
+  put_varint(out, size);
+  if (seq != 0) {
+    out.push_back(static_cast<char>(kTagSeq));
+    put_varint(out, seq);
+  }
+  if (ack != 0) {
+    out.push_back(static_cast<char>(kTagAck));
+    put_varint(out, ack);
+  }
+  if (resend) {
+    out.push_back(static_cast<char>(kTagResend));
+    out.push_back(1);
+    resend_owed_ = false;
+  }
+  if (keepalive) {
+    out.push_back(static_cast<char>(kTagKeepalive));
+    out.push_back(0);
+  } else {
+    out.push_back(static_cast<char>(kTagPayload));
+    put_varint(out, payload.size());
+    out.append(reinterpret_cast<const char*>(payload.data()), payload.size());
+  }
+  ack_owed_ = false;  // every envelope carries the current ack
+}
+
+// Called by the link's writer whenever it can send: hello, refusal, then reliable payloads
+// (retransmissions first), whatever the producer adds, and an ack or keepalive if nothing else.
+void SessionLink::fill(std::string& out) {
+  if (closed_) return;
+  if (closing_after_flush_) {
+    link_->close();  // the refusal has been written
+    return;
+  }
+  if (!refusal_.empty()) {
+    out += refusal_;
+    refusal_.clear();
+    closing_after_flush_ = true;
+    return;
+  }
+  const Clock::time_point now = Clock::now();
+  if (!hello_sent_ && stream_) {
+    scratch_.Clear();
+    scratch_.set_ack(stream_->receiver_.cumulative_ack());
+    v1::Hello& h = *scratch_.mutable_hello();
+    h.set_protocol_major(kProtocolMajor);
+    h.set_protocol_minor(kProtocolMinor);
+    h.set_role(identity_.role);
+    h.set_name(identity_.name);
+    for (std::uint32_t id : identity_.module_ids) h.add_module_ids(id);
+    h.set_session_id(identity_.session_id);
+    h.set_resume_session_id(stream_->peer_session_id_);
+    h.set_send_base(stream_->sender_.send_base());
+    for (const char* c : {"reliable", "conflation", "priority"}) h.add_capabilities(c);
+    h.add_capabilities(link_->crc_framed() ? "cobs-crc32c" : "delimited");
+    append_message(out, scratch_);
+    hello_sent_ = true;
+    last_tx_ = now;
+  }
+  if (hello_sent_ && peer_hello_ok_ && !ready_) {
+    ready_ = true;
+    ++counters_.links;
+    if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
+    stream_->link_ = shared_from_this();
+    spdlog::info("backbone: {} ready over {} (resuming: {} unacked to resend, next expected {})",
+                 describe_peer(stream_->peer_hello_), link_->peer_name(),
+                 stream_->sender_.unacked_count(), stream_->receiver_.cumulative_ack() + 1);
+    if (stream_->handlers_.on_up) stream_->handlers_.on_up(stream_->peer_hello_);
+    if (closed_) return;
+  }
+  if (!ready_) return;
+  Writer writer(*this, out, now);
+  writer.drain_reliable();
+  if (writer.room() > 0 && stream_->handlers_.produce) stream_->handlers_.produce(writer);
+  if (resend_owed_ || (!writer.wrote() && (ack_owed_ || keepalive_owed_))) {
+    append_envelope(out, 0, {}, true);
+    ++counters_.keepalives_sent;
+  }
+  if (writer.wrote()) {
+    last_tx_ = now;
+    keepalive_owed_ = false;
+  }
+}
+
+void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
+  if (closed_ || closing_after_flush_ || !refusal_.empty()) return;
+  if (!inbound_.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) {
+    ++counters_.malformed;
+    if (!warned_malformed.exchange(true)) {
+      spdlog::warn(
+          "backbone: a message from {} is not a valid envelope: dropped (counted; "
+          "further ones are only counted)",
+          link_->peer_name());
+    }
+    return;
+  }
+  const Clock::time_point now = Clock::now();
+  last_rx_ = now;
+  switch (inbound_.body_case()) {
+    case v1::Envelope::kHello:
+      return on_hello(inbound_);
+    case v1::Envelope::kRefusal:
+      ++counters_.refusals_received;
+      spdlog::error("backbone: {} refused this {}: {} ({})", link_->peer_name(),
+                    role_name(identity_.role), inbound_.refusal().detail(),
+                    v1::Refusal::Reason_Name(inbound_.refusal().reason()));
+      return link_->close();
+    default:
+      break;
+  }
+  if (!peer_hello_ok_) return protocol_error("message before the hello");
+  if (!ready_) return;  // our hello is still on its way; the peer cannot have sent data yet
+  ReliableSender& sender = stream_->sender_;
+  const std::size_t unacked = sender.unacked_count();
+  if (inbound_.ack() != 0) sender.on_ack(inbound_.ack(), now);
+  bool wake = sender.unacked_count() != unacked;  // room freed: the producer may go on
+  if (inbound_.resend() &&
+      sender.on_resend_request(inbound_.ack(), now, options_.retransmit_timeout)) {
+    wake = true;
+  }
+  if (inbound_.body_case() == v1::Envelope::kPayload) {
+    const std::string& payload = inbound_.payload();
+    const std::span<const std::uint8_t> view(reinterpret_cast<const std::uint8_t*>(payload.data()),
+                                             payload.size());
+    if (inbound_.seq() == 0) {
+      ++counters_.unreliable_delivered;
+      if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(view, false);
+    } else {
+      switch (stream_->receiver_.accept(inbound_.seq())) {
+        case ReliableReceiver::Verdict::deliver:
+          ++counters_.reliable_delivered;
+          ack_owed_ = true;
+          if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(view, true);
+          break;
+        case ReliableReceiver::Verdict::duplicate:
+          ++counters_.reliable_duplicates;
+          ack_owed_ = true;  // our ack may have been lost: repeat it
+          break;
+        case ReliableReceiver::Verdict::gap:
+          if (stream_->receiver_.should_request_resend(now, options_.retransmit_timeout)) {
+            ++counters_.resend_requests;
+            resend_owed_ = true;
+          }
+          break;
+      }
+      wake = true;
+    }
+  }
+  if (wake && !closed_) link_->wake_writer();
+}
+
+void SessionLink::on_hello(const v1::Envelope& envelope) {
+  const v1::Hello& h = envelope.hello();
+  if (peer_hello_ok_) return protocol_error("second hello from " + describe_peer(h));
+  if (h.protocol_major() != kProtocolMajor) {
+    return refuse(v1::Refusal::INCOMPATIBLE_VERSION,
+                  "peer " + describe_peer(h) + " speaks protocol " +
+                      std::to_string(h.protocol_major()) + "." +
+                      std::to_string(h.protocol_minor()) + ", '" + identity_.name + "' speaks " +
+                      std::to_string(kProtocolMajor) + "." + std::to_string(kProtocolMinor) +
+                      ": incompatible major version");
+  }
+  if (h.role() != identity_.expected_peer) {
+    return refuse(v1::Refusal::WRONG_ROLE, "peer " + describe_peer(h) + " is a " +
+                                               role_name(h.role()) + ", '" + identity_.name +
+                                               "' expects a " + role_name(identity_.expected_peer));
+  }
+  const BindResult bound = binder_ ? binder_(h, *this) : BindResult{stream_, {}, {}};
+  if (!bound.stream) return refuse(bound.reason, bound.detail);
+  stream_ = bound.stream;
+  PeerStream& stream = *stream_;
+  if (h.session_id() != stream.peer_session_id_) {
+    if (stream.peer_session_id_ != 0) {
+      ++counters_.peer_restarts;
+      spdlog::warn("backbone: {} restarted (new session): its reliable stream starts afresh",
+                   describe_peer(h));
+    }
+    stream.receiver_.reset(h.send_base());
+    stream.peer_session_id_ = h.session_id();
+  }
+  const Clock::time_point now = Clock::now();
+  // The peer's ack counts only if it refers to this process's stream.
+  if (h.resume_session_id() == identity_.session_id && envelope.ack() != 0) {
+    stream.sender_.on_ack(envelope.ack(), now);
+  }
+  stream.sender_.on_link_up();
+  stream.sender_.rewind();
+  stream.peer_hello_ = h;
+  peer_hello_ok_ = true;
+  link_->wake_writer();  // our hello (if not out yet), then what waited for the link
+}
+
+void SessionLink::refuse(v1::Refusal::Reason reason, const std::string& detail) {
+  ++counters_.refusals_sent;
+  spdlog::error("backbone: refusing {}: {}", link_->peer_name(), detail);
+  scratch_.Clear();
+  v1::Refusal& r = *scratch_.mutable_refusal();
+  r.set_reason(reason);
+  r.set_detail(detail);
+  refusal_.clear();
+  append_message(refusal_, scratch_);
+  link_->wake_writer();
+}
+
+void SessionLink::protocol_error(const std::string& why) {
+  ++counters_.protocol_errors;
+  spdlog::error("backbone: protocol error on {}: {}; closing the link", link_->peer_name(), why);
+  link_->close();
+}
+
+void SessionLink::on_closed() {
+  if (closed_) return;
+  closed_ = true;
+  auto self = shared_from_this();  // the stream may hold the last reference
+  watchdog_.cancel();
+  if (ready_ && stream_ && stream_->link_.get() == this) {
+    stream_->link_.reset();
+    stream_->sender_.on_link_down();
+    spdlog::info("backbone: link to {} over {} closed ({})", describe_peer(stream_->peer_hello_),
+                 link_->peer_name(), link_->counters().close_reason.message());
+    if (stream_->handlers_.on_down) stream_->handlers_.on_down();
+  }
+}
+
+void SessionLink::arm_watchdog() {
+  // One deadline per link covers dead-link detection, keepalives and retransmission.
+  const auto shortest =
+      std::min({options_.keepalive_interval, options_.dead_after, options_.retransmit_timeout});
+  const auto tick =
+      std::clamp(shortest / 4, std::chrono::milliseconds{5}, std::chrono::milliseconds{250});
+  watchdog_.expires_after(tick);
+  watchdog_.async_wait([weak = weak_from_this()](boost::system::error_code ec) {
+    auto self = weak.lock();
+    if (!ec && self) self->on_watchdog();
+  });
+}
+
+void SessionLink::on_watchdog() {
+  if (closed_) return;
+  const Clock::time_point now = Clock::now();
+  if (now - last_rx_ > options_.dead_after) {
+    ++counters_.dead_links;
+    spdlog::warn("backbone: nothing from {} for {} ms: link dead, closing it", link_->peer_name(),
+                 std::chrono::duration_cast<std::chrono::milliseconds>(now - last_rx_).count());
+    link_->close();
+    return;
+  }
+  if (ready_) {
+    bool wake = false;
+    if (stream_->sender_.retransmit_due(now, options_.retransmit_timeout)) {
+      stream_->sender_.rewind();
+      wake = true;
+    }
+    if (now - last_tx_ >= options_.keepalive_interval) {
+      keepalive_owed_ = true;
+      wake = true;
+    }
+    if (wake) link_->wake_writer();
+  }
+  arm_watchdog();
+}
+
+}  // namespace canbridge::backbone

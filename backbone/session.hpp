@@ -1,0 +1,186 @@
+// The backbone session layer over any MessageLink: hello exchange with version/role checks,
+// keepalive and dead-link detection, and reliable streams (sequence numbers, cumulative acks,
+// retransmission) that survive link cuts, so each reliable payload arrives exactly once, in order.
+#pragma once
+
+#include <boost/asio/steady_timer.hpp>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "backbone/message_link.hpp"
+#include "backbone/reliable_channel.hpp"
+#include "session.pb.h"
+
+namespace canbridge::backbone {
+
+inline constexpr std::uint32_t kProtocolMajor = 2;
+inline constexpr std::uint32_t kProtocolMinor = 0;
+
+struct SessionOptions {
+  // Nothing sent for this long: send a keepalive (it carries the current ack).
+  std::chrono::milliseconds keepalive_interval{500};
+  // Nothing valid received for this long (hello included): the link is dead and is closed; the
+  // transport's client reconnects with backoff.
+  std::chrono::milliseconds dead_after{2000};
+  // Oldest unacknowledged reliable message sent this long ago: go back and resend from it.
+  std::chrono::milliseconds retransmit_timeout{1000};
+  // Bounds of the resend buffer (reliable payloads sent and not yet acknowledged). When full,
+  // new reliable payloads wait upstream (PayloadSink::reliable_room() says no).
+  std::size_t resend_buffer_messages = 4096;
+  std::size_t resend_buffer_bytes = 4u << 20;
+  // Upper bound of one write: what is urgent does not wait behind a long write on a slow line.
+  std::size_t max_write_bytes = 16 * 1024;
+};
+
+// Counters of one side, summed over all its peers and links.
+struct SessionCounters {
+  std::uint64_t links = 0;              // links that completed the hello exchange
+  std::uint64_t dead_links = 0;         // closed by dead-link detection
+  std::uint64_t refusals_sent = 0;      // hellos this side refused (version, role, duplicate)
+  std::uint64_t refusals_received = 0;  // the peer refused this side
+  std::uint64_t protocol_errors = 0;    // data before hello, second hello, ...
+  std::uint64_t malformed = 0;          // messages that are not a valid Envelope
+  std::uint64_t keepalives_sent = 0;
+  std::uint64_t resend_requests = 0;  // gaps seen in a peer's reliable stream
+  std::uint64_t peer_restarts = 0;    // a known peer came back with a new session id
+  std::uint64_t reliable_sent = 0;    // payloads, first transmissions
+  std::uint64_t reliable_resent = 0;  // payloads, retransmissions
+  std::uint64_t reliable_delivered = 0;
+  std::uint64_t reliable_duplicates = 0;  // dropped: already delivered
+  std::uint64_t unreliable_sent = 0;
+  std::uint64_t unreliable_delivered = 0;
+};
+
+class SessionLink;
+
+// What a PeerStream's producer writes into: it asks for room, then hands over payloads.
+class PayloadSink {
+ public:
+  virtual ~PayloadSink() = default;
+  // Bytes the current write can still take.
+  virtual std::size_t room() const = 0;
+  // Whether the resend buffer can hold a reliable payload of `bytes` (else: keep it upstream).
+  virtual bool reliable_room(std::size_t bytes) const = 0;
+  virtual void send_reliable(std::string payload) = 0;
+  virtual void send_unreliable(std::span<const std::uint8_t> payload) = 0;
+};
+
+// Reliable state toward one peer; outlives the links that carry it.
+class PeerStream {
+ public:
+  struct Handlers {
+    // Fills the current write (called whenever the link can take more).
+    std::function<void(PayloadSink&)> produce;
+    // One received payload: reliable ones exactly once and in order.
+    std::function<void(std::span<const std::uint8_t> payload, bool reliable)> on_payload;
+    std::function<void(const v1::Hello& peer)> on_up;  // a link to the peer is ready
+    std::function<void()> on_down;                     // that link ended
+  };
+
+  PeerStream(const SessionOptions& options, Handlers handlers);
+
+  // Asks the current link (if any) to call produce() soon. Cheap; call after queueing.
+  void wake();
+  bool up() const { return link_ != nullptr; }
+  const v1::Hello& peer_hello() const { return peer_hello_; }
+  const ReliableSender& sender() const { return sender_; }
+  const ReliableReceiver& receiver() const { return receiver_; }
+  // Closes the current link, if any.
+  void close_link();
+
+ private:
+  friend class SessionLink;
+  ReliableSender sender_;
+  ReliableReceiver receiver_;
+  std::uint64_t peer_session_id_ = 0;  // 0: never heard of the peer
+  v1::Hello peer_hello_;
+  Handlers handlers_;
+  std::shared_ptr<SessionLink> link_;  // set while a link to the peer is ready
+};
+
+// Decides, on the peer's hello, which stream a link carries (the surface has one per gateway).
+struct BindResult {
+  PeerStream* stream = nullptr;  // null: refused
+  v1::Refusal::Reason reason = v1::Refusal::PROTOCOL_ERROR;
+  std::string detail;  // why, for both sides' logs
+};
+
+// One link's session: drives a MessageLink for the stream its peer's hello binds to.
+class SessionLink : public std::enable_shared_from_this<SessionLink> {
+ public:
+  struct Identity {
+    v1::Hello::Role role = v1::Hello::ROLE_UNSPECIFIED;
+    v1::Hello::Role expected_peer = v1::Hello::ROLE_UNSPECIFIED;
+    std::string name;
+    std::vector<std::uint32_t> module_ids;
+    std::uint64_t session_id = 0;  // random per process start (random_session_id())
+  };
+  // Called once with the peer's hello after version and role were accepted.
+  using Binder = std::function<BindResult(const v1::Hello& peer, SessionLink& link)>;
+
+  // `preset` is the stream of a side with exactly one peer (the gateway), whose hello can go out
+  // before the peer's arrives; null when the binder picks the stream (the surface).
+  static std::shared_ptr<SessionLink> create(std::shared_ptr<MessageLink> link,
+                                             const Identity& identity,
+                                             const SessionOptions& options, PeerStream* preset,
+                                             Binder binder, SessionCounters& counters);
+  ~SessionLink();
+
+  void start();
+  void close();
+  bool ready() const { return ready_; }
+  PeerStream* stream() const { return stream_; }
+  const std::shared_ptr<MessageLink>& message_link() const { return link_; }
+
+ private:
+  SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,
+              const SessionOptions& options, PeerStream* preset, Binder binder,
+              SessionCounters& counters);
+  class Writer;
+
+  void on_message(std::span<const std::uint8_t> bytes);
+  void on_hello(const v1::Envelope& envelope);
+  void on_closed();
+  void fill(std::string& out);
+  void refuse(v1::Refusal::Reason reason, const std::string& detail);
+  void protocol_error(const std::string& why);
+  void arm_watchdog();
+  void on_watchdog();
+  void append_envelope(std::string& out, std::uint64_t seq, std::span<const std::uint8_t> payload,
+                       bool keepalive);
+
+  std::shared_ptr<MessageLink> link_;
+  Identity identity_;
+  SessionOptions options_;
+  PeerStream* stream_;
+  Binder binder_;
+  SessionCounters& counters_;
+  boost::asio::steady_timer watchdog_;
+  std::chrono::steady_clock::time_point last_rx_;
+  std::chrono::steady_clock::time_point last_tx_;
+  std::string refusal_;  // serialized Refusal envelope waiting to go out
+  v1::Envelope inbound_;
+  v1::Envelope scratch_;
+  bool hello_sent_ = false;
+  bool peer_hello_ok_ = false;
+  bool ready_ = false;
+  bool closing_after_flush_ = false;
+  bool ack_owed_ = false;
+  bool resend_owed_ = false;
+  bool keepalive_owed_ = false;
+  bool closed_ = false;
+};
+
+// A random 64-bit id (never 0) for SessionLink::Identity::session_id.
+std::uint64_t random_session_id();
+
+// "name (role, protocol a.b)", for logs.
+std::string describe_peer(const v1::Hello& hello);
+
+}  // namespace canbridge::backbone

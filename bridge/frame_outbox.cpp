@@ -1,0 +1,76 @@
+#include "bridge/frame_outbox.hpp"
+
+#include "bridge/delivery_class.hpp"
+
+namespace canbridge::bridge {
+
+namespace {
+// Upper bound of one frame's share of a FrameBatch: head (2), payload (8), an escaped id (5).
+constexpr std::size_t kMaxFrameBytes = 15;
+// Envelope, payload and batch headers around the frames: tags, lengths, module id, seq, ack.
+constexpr std::size_t kBatchOverhead = 40;
+
+std::size_t frame_bytes(const can::Frame& f) {
+  const bool escaped = f.is_extended() || f.is_remote();
+  return 2 + (f.is_remote() ? 0 : f.len) + (escaped ? 5 : 0);
+}
+}  // namespace
+
+FrameOutbox::FrameOutbox(Options options)
+    : options_(options), queue_({options.max_reliable_frames, options.max_process_frames}) {}
+
+bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate) {
+  using Push = backbone::PriorityScheduler<Entry>::Push;
+  const std::uint32_t priority = arbitration_priority(frame);
+  const Push result = is_process_data(frame)
+                          ? queue_.push_process(priority, conflation_key(module_id, frame),
+                                                conflate, Entry{module_id, frame})
+                          : queue_.push_reliable(priority, Entry{module_id, frame});
+  return result != Push::refused;
+}
+
+void FrameOutbox::produce(backbone::PayloadSink& sink) {
+  while (sink.room() > kBatchOverhead + kMaxFrameBytes) {
+    const auto front = queue_.front();
+    if (!front) return;
+    const std::uint32_t module_id = front->item->module_id;
+    const bool reliable = front->reliable;
+    const std::size_t budget = std::min(sink.room(), options_.max_batch_bytes) - kBatchOverhead;
+    // Reliable payloads wait here, in order, while the resend buffer is full.
+    if (reliable && !sink.reliable_room(budget + kBatchOverhead)) return;
+    v1::FrameBatch& batch = *payload_.mutable_frames();
+    builder_.start(batch, module_id);
+    std::size_t used = 0;
+    std::size_t frames = 0;
+    for (auto next = queue_.front(); next; next = queue_.front()) {
+      if (next->reliable != reliable || next->item->module_id != module_id) break;
+      const std::size_t bytes = frame_bytes(next->item->frame);
+      if (used + bytes > budget) break;
+      builder_.append(batch, queue_.pop()->item.frame);
+      used += bytes;
+      ++frames;
+    }
+    serialized_.clear();
+    payload_.AppendToString(&serialized_);
+    if (reliable) {
+      sink.send_reliable(serialized_);
+    } else {
+      sink.send_unreliable(
+          {reinterpret_cast<const std::uint8_t*>(serialized_.data()), serialized_.size()});
+    }
+    counters_.frames_sent += frames;
+    ++counters_.batches_sent;
+  }
+}
+
+OutboxCounters FrameOutbox::counters() const {
+  const auto& q = queue_.counters();
+  OutboxCounters c = counters_;
+  c.queued = q.reliable_queued + q.process_queued;
+  c.conflated = q.conflated;
+  c.process_dropped = q.process_dropped;
+  c.reliable_refused = q.reliable_refused;
+  return c;
+}
+
+}  // namespace canbridge::bridge

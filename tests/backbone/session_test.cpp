@@ -1,0 +1,286 @@
+// The session layer over real loopback TCP and real pty pairs (serial framing): hello exchange,
+// refusals, keepalive and dead-link detection, and reliable streams resuming across link cuts.
+#include "backbone/session.hpp"
+
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <pty.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <boost/asio/serial_port.hpp>
+#include <boost/asio/write.hpp>
+
+#include "backbone/delimited_codec.hpp"
+#include "tests/backbone/session_peers.hpp"
+#include "tests/backbone/test_support.hpp"
+
+namespace canbridge::backbone {
+namespace {
+
+namespace asio = boost::asio;
+using namespace std::chrono_literals;
+using testing::connected_sockets;
+using testing::exactly_once_in_order;
+using testing::run_until;
+using testing::SessionEnd;
+
+SessionOptions fast_options() {
+  SessionOptions o;
+  o.keepalive_interval = 50ms;
+  o.dead_after = 300ms;
+  o.retransmit_timeout = 200ms;
+  o.resend_buffer_messages = 512;
+  o.resend_buffer_bytes = 64 * 1024;
+  return o;
+}
+
+// A raw pty pair as two serial ports (the master side assigned from its descriptor).
+struct PtyPair {
+  asio::serial_port a;
+  asio::serial_port b;
+};
+
+PtyPair pty_pair(asio::io_context& io) {
+  int master = -1, slave = -1;
+  if (::openpty(&master, &slave, nullptr, nullptr, nullptr) != 0) throw std::runtime_error("pty");
+  termios raw{};
+  ::tcgetattr(slave, &raw);
+  ::cfmakeraw(&raw);
+  ::tcsetattr(slave, TCSANOW, &raw);
+  asio::serial_port a(io), b(io);
+  a.assign(master);
+  b.assign(slave);
+  return {std::move(a), std::move(b)};
+}
+
+class SessionTest : public ::testing::Test {
+ protected:
+  void connect_tcp() {
+    auto [client, server] = connected_sockets(io);
+    gateway.attach(MessageLink::create(std::move(client)));
+    surface.attach(MessageLink::create(std::move(server)));
+  }
+  void connect_pty() {
+    auto [a, b] = pty_pair(io);
+    gateway.attach(MessageLink::create(std::move(a), "pty-master"));
+    surface.attach(MessageLink::create(std::move(b), "pty-slave"));
+  }
+  void cut() {
+    for (auto& l : gateway.links) l->close();
+    for (auto& l : surface.links) l->close();
+    gateway.links.clear();
+    surface.links.clear();
+  }
+  bool both_up() { return gateway.stream().up() && surface.stream().up(); }
+  void TearDown() override {
+    cut();
+    io.run_for(20ms);
+  }
+
+  asio::io_context io{1};
+  SessionEnd gateway{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1, 2}};
+  SessionEnd surface{"surface", v1::Hello::ROLE_SURFACE, fast_options()};
+};
+
+TEST_F(SessionTest, HelloExchangeBringsBothEndsUpAndTellsWhoIsWho) {
+  connect_tcp();
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  EXPECT_EQ(surface.stream().peer_hello().name(), "gw");
+  EXPECT_EQ(surface.stream().peer_hello().module_ids_size(), 2);
+  EXPECT_EQ(surface.stream().peer_hello().protocol_major(), kProtocolMajor);
+  EXPECT_EQ(gateway.stream().peer_hello().role(), v1::Hello::ROLE_SURFACE);
+  const auto& caps = gateway.stream().peer_hello().capabilities();
+  EXPECT_NE(std::find(caps.begin(), caps.end(), "reliable"), caps.end());
+  EXPECT_EQ(gateway.ups, 1);
+  EXPECT_EQ(surface.ups, 1);
+}
+
+TEST_F(SessionTest, ReliablePayloadsArriveOnceInOrderBothWays) {
+  connect_tcp();
+  gateway.send_up_to(20000);
+  surface.send_up_to(5000);
+  ASSERT_TRUE(run_until(
+      io, [&] { return surface.received.size() == 20000 && gateway.received.size() == 5000; }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 20000));
+  EXPECT_TRUE(exactly_once_in_order(gateway.received, 5000));
+  // Everything gets acknowledged, so the resend buffers drain.
+  ASSERT_TRUE(run_until(io, [&] {
+    return gateway.stream().sender().unacked_count() == 0 &&
+           surface.stream().sender().unacked_count() == 0;
+  }));
+}
+
+TEST_F(SessionTest, ResendBufferBoundHoldsBackTheProducerInsteadOfLosing) {
+  connect_tcp();
+  gateway.send_up_to(3000);  // far beyond 512 unacked messages
+  std::size_t peak = 0;
+  ASSERT_TRUE(run_until(io, [&] {
+    peak = std::max(peak, gateway.stream().sender().unacked_count());
+    return surface.received.size() == 3000;
+  }));
+  EXPECT_LE(peak, 512u);
+  EXPECT_EQ(gateway.stream().sender().counters().overflow, 0u);
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 3000));
+}
+
+TEST_F(SessionTest, ACutAndReconnectResumesExactlyOnce) {
+  connect_tcp();
+  for (int round = 1; round <= 5; ++round) {
+    gateway.send_up_to(20000u * round);
+    surface.send_up_to(6000u * round);
+    // Cut while payloads are in flight: sent, not yet acknowledged.
+    const std::size_t before = surface.received.size();
+    ASSERT_TRUE(run_until(io, [&] {
+      return surface.received.size() > before && gateway.stream().sender().unacked_count() > 0;
+    }));
+    cut();
+    ASSERT_TRUE(run_until(io, [&] { return !gateway.stream().up() && !surface.stream().up(); }));
+    connect_tcp();
+  }
+  ASSERT_TRUE(run_until(io, [&] {
+    return both_up() && surface.received.size() == 100000 && gateway.received.size() == 30000;
+  }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 100000));
+  EXPECT_TRUE(exactly_once_in_order(gateway.received, 30000));
+  EXPECT_EQ(surface.ups, 6);
+  EXPECT_EQ(surface.downs, 5);
+}
+
+TEST_F(SessionTest, APeerThatRestartsStartsAFreshStreamAndIsCounted) {
+  connect_tcp();
+  gateway.send_up_to(100);
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 100; }));
+  cut();
+  ASSERT_TRUE(run_until(io, [&] { return !surface.stream().up(); }));
+  // The same gateway name from a new process: a new session id, its stream starts at 1 again.
+  SessionEnd restarted{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1, 2}};
+  auto [client, server] = connected_sockets(io);
+  restarted.attach(MessageLink::create(std::move(client)));
+  surface.attach(MessageLink::create(std::move(server)));
+  restarted.send_up_to(50);
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 150; }));
+  EXPECT_EQ(surface.counters.peer_restarts, 1u);
+  EXPECT_EQ(surface.received[100], 1u);
+  EXPECT_EQ(surface.received[149], 50u);
+  for (auto& l : restarted.links) l->close();
+}
+
+TEST_F(SessionTest, KeepalivesHoldAnIdleLinkUpAndSilenceKillsIt) {
+  connect_tcp();
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  // Idle for three dead-after periods: keepalives keep it up.
+  io.restart();
+  io.run_for(900ms);
+  EXPECT_TRUE(both_up());
+  EXPECT_GT(gateway.counters.keepalives_sent, 5u);
+  EXPECT_EQ(gateway.counters.dead_links + surface.counters.dead_links, 0u);
+}
+
+TEST_F(SessionTest, APeerThatGoesSilentIsDeclaredDeadWithinDeadAfter) {
+  auto [client, server] = connected_sockets(io);
+  surface.attach(MessageLink::create(std::move(server)));
+  // A raw peer: a valid hello, then nothing (a half-open connection).
+  v1::Envelope hello;
+  hello.mutable_hello()->set_protocol_major(kProtocolMajor);
+  hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);
+  hello.mutable_hello()->set_name("mute");
+  hello.mutable_hello()->set_session_id(7);
+  std::string bytes;
+  append_message(bytes, hello);
+  asio::write(client, asio::buffer(bytes));
+  ASSERT_TRUE(run_until(io, [&] { return surface.stream().up(); }));
+  const auto up_at = std::chrono::steady_clock::now();
+  ASSERT_TRUE(run_until(io, [&] { return !surface.stream().up(); }));
+  const auto took = std::chrono::steady_clock::now() - up_at;
+  EXPECT_EQ(surface.counters.dead_links, 1u);
+  EXPECT_GE(took, 250ms);
+  EXPECT_LE(took, 600ms);
+}
+
+TEST_F(SessionTest, IncompatibleMajorIsRefusedWithTheReasonOnBothSides) {
+  gateway.identity().name = "old-gw";
+  auto [client, server] = connected_sockets(io);
+  // The gateway's hello claims another major: build it by hand through a raw link.
+  v1::Envelope hello;
+  hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
+  hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);
+  hello.mutable_hello()->set_name("future-gw");
+  std::string bytes;
+  append_message(bytes, hello);
+  surface.attach(MessageLink::create(std::move(server)));
+  asio::write(client, asio::buffer(bytes));
+  // The refusal arrives before the close.
+  std::string got;
+  client.non_blocking(true);
+  ASSERT_TRUE(run_until(io, [&] {
+    char buf[512];
+    boost::system::error_code ec;
+    const std::size_t n = client.read_some(asio::buffer(buf), ec);
+    got.append(buf, n);
+    return ec == asio::error::eof;
+  }));
+  DelimitedDecoder decoder;
+  std::span<const std::uint8_t> input(reinterpret_cast<const std::uint8_t*>(got.data()),
+                                      got.size());
+  auto message = decoder.next(input);
+  ASSERT_TRUE(message);
+  v1::Envelope refusal;
+  ASSERT_TRUE(refusal.ParseFromArray(message->data(), static_cast<int>(message->size())));
+  ASSERT_TRUE(refusal.has_refusal());
+  EXPECT_EQ(refusal.refusal().reason(), v1::Refusal::INCOMPATIBLE_VERSION);
+  EXPECT_NE(refusal.refusal().detail().find("incompatible major"), std::string::npos);
+  EXPECT_EQ(surface.counters.refusals_sent, 1u);
+  EXPECT_FALSE(surface.stream().up());
+}
+
+TEST_F(SessionTest, TheRefusedSideLogsAndCountsTheRefusal) {
+  // Two gateways talking to each other: each refuses the other's role.
+  SessionEnd other{"gw2", v1::Hello::ROLE_GATEWAY, fast_options(), {3}};
+  auto [client, server] = connected_sockets(io);
+  gateway.attach(MessageLink::create(std::move(client)));
+  other.attach(MessageLink::create(std::move(server)));
+  ASSERT_TRUE(run_until(io, [&] {
+    return gateway.links.front()->message_link()->is_open() == false &&
+           other.links.front()->message_link()->is_open() == false;
+  }));
+  EXPECT_EQ(gateway.counters.refusals_sent + other.counters.refusals_sent, 2u);
+  EXPECT_FALSE(gateway.stream().up());
+}
+
+TEST_F(SessionTest, DataBeforeHelloIsAProtocolError) {
+  auto [client, server] = connected_sockets(io);
+  surface.attach(MessageLink::create(std::move(server)));
+  v1::Envelope data;
+  data.set_seq(1);
+  data.set_payload("12345678");
+  std::string bytes;
+  append_message(bytes, data);
+  asio::write(client, asio::buffer(bytes));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters.protocol_errors == 1; }));
+  EXPECT_TRUE(surface.received.empty());
+}
+
+TEST_F(SessionTest, SerialLinkOverAPtyCarriesTheStreamAndSurvivesGarbage) {
+  auto [a, b] = pty_pair(io);
+  const int raw_fd = ::dup(a.native_handle());  // to inject noise into the line
+  gateway.attach(MessageLink::create(std::move(a), "pty-master"));
+  surface.attach(MessageLink::create(std::move(b), "pty-slave"));
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  gateway.payload_size = surface.payload_size = 40;
+  gateway.send_up_to(3000);
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() > 1000; }));
+  const char noise[] = "\x13\x37garbage\x00\xff\xfe\x01\x00";
+  ASSERT_EQ(::write(raw_fd, noise, sizeof noise), static_cast<ssize_t>(sizeof noise));
+  gateway.send_up_to(6000);  // frames behind the noise: it must be read and survived
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 6000; }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 6000));
+  EXPECT_EQ(surface.corrupt, 0u);
+  const auto serial = surface.links.front()->message_link()->counters().deframer;
+  EXPECT_GT(serial.discarded_bytes, 0u);
+  EXPECT_TRUE(surface.links.front()->message_link()->is_serial());
+  ::close(raw_fd);
+}
+
+}  // namespace
+}  // namespace canbridge::backbone

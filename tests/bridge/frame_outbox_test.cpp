@@ -1,0 +1,347 @@
+// FrameOutbox against a fake session sink: arbitration order, conflation, the reliable bounds and
+// backpressure, the write budget, batch boundaries, and the wire cost per frame.
+#include "bridge/frame_outbox.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <cstdio>
+#include <string>
+#include <vector>
+
+#include "backbone/session.hpp"
+#include "bridge/frame_batch_codec.hpp"
+#include "can/frame.hpp"
+#include "canbridge.pb.h"
+
+namespace canbridge::bridge {
+namespace {
+
+// Bytes the session adds around one payload in a write: length prefix, seq, ack, payload tag and
+// length (session.cpp append_envelope), generously for small sequence numbers.
+constexpr std::size_t kEnvelopeBytes = 12;
+
+// Stands in for one SessionLink write after another: each produce() call is one write with
+// `room_per_write` bytes; records every payload in the order it was handed over.
+class FakeSink final : public backbone::PayloadSink {
+ public:
+  struct Sent {
+    std::string bytes;
+    bool reliable;
+    std::size_t room_before;  // room() when the payload was handed over
+  };
+
+  explicit FakeSink(std::size_t room_per_write = 16 * 1024) : room_per_write_(room_per_write) {}
+
+  // Starts the next write (the real session calls produce() once per write).
+  void next_write() { used_ = 0; }
+
+  std::size_t room() const override {
+    return used_ >= room_per_write_ ? 0 : room_per_write_ - used_;
+  }
+  bool reliable_room(std::size_t) const override { return reliable_room_; }
+  void send_reliable(std::string payload) override {
+    if (!reliable_room_) ++reliable_calls_while_full_;  // the outbox should have asked first
+    record(std::move(payload), true);
+  }
+  void send_unreliable(std::span<const std::uint8_t> payload) override {
+    record({reinterpret_cast<const char*>(payload.data()), payload.size()}, false);
+  }
+
+  std::vector<Sent> sent;
+  bool reliable_room_ = true;
+  std::size_t reliable_calls_while_full_ = 0;
+
+ private:
+  void record(std::string payload, bool reliable) {
+    const std::size_t before = room();
+    used_ += payload.size() + kEnvelopeBytes;
+    sent.push_back({std::move(payload), reliable, before});
+  }
+
+  std::size_t room_per_write_;
+  std::size_t used_ = 0;
+};
+
+struct DecodedBatch {
+  std::uint32_t module_id;
+  bool reliable;
+  std::vector<can::Frame> frames;
+};
+
+// Parses every recorded payload as the receiving role does (v1::Payload -> decode_frame_batch).
+std::vector<DecodedBatch> decode(const FakeSink& sink) {
+  std::vector<DecodedBatch> out;
+  for (const auto& s : sink.sent) {
+    v1::Payload payload;
+    EXPECT_TRUE(payload.ParseFromString(s.bytes));
+    EXPECT_TRUE(payload.has_frames());
+    DecodedBatch b{payload.frames().module_id(), s.reliable, {}};
+    EXPECT_EQ(decode_frame_batch(payload.frames(), b.frames), BatchError::none);
+    out.push_back(std::move(b));
+  }
+  return out;
+}
+
+std::vector<can::Frame> all_frames(const std::vector<DecodedBatch>& batches) {
+  std::vector<can::Frame> out;
+  for (const auto& b : batches) out.insert(out.end(), b.frames.begin(), b.frames.end());
+  return out;
+}
+
+std::vector<std::uint32_t> ids(const std::vector<can::Frame>& frames) {
+  std::vector<std::uint32_t> out;
+  for (const auto& f : frames) out.push_back(f.id);
+  return out;
+}
+
+// Produces until the outbox is empty, one fresh write per call; false if it stops making progress.
+bool drain(FrameOutbox& outbox, FakeSink& sink) {
+  for (int writes = 0; !outbox.empty(); ++writes) {
+    if (writes > 100000) return false;
+    sink.next_write();
+    const std::size_t before = outbox.size();
+    outbox.produce(sink);
+    if (outbox.size() == before) return false;
+  }
+  return true;
+}
+
+can::Frame extended(std::uint32_t id, std::initializer_list<std::uint8_t> bytes) {
+  return can::Frame::make(id, can::FrameFlags::extended, bytes);
+}
+
+TEST(FrameOutbox, FramesLeaveInCanArbitrationOrder) {
+  FrameOutbox outbox({});
+  const std::uint32_t kModule = 1;
+  // Pushed in reverse of the expected order, and the extended frame before its standard twin.
+  const can::Frame heartbeat = can::Frame::standard(0x701, {0x05});
+  const can::Frame sdo = can::Frame::standard(0x581, {0x43, 0x00, 0x10});
+  const can::Frame pdo_next = can::Frame::standard(0x182, {0x22});
+  const can::Frame ext_same_base = extended((0x181u << 18) | 0x5, {0xEE});
+  const can::Frame pdo = can::Frame::standard(0x181, {0x11});
+  const can::Frame emcy = can::Frame::standard(0x081, {0x00, 0x10});
+  const can::Frame sync = can::Frame::standard(0x080, {});
+  const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x00});
+  for (const auto& f : {heartbeat, sdo, pdo_next, ext_same_base, pdo, emcy, sync, nmt}) {
+    ASSERT_TRUE(outbox.push(kModule, f, true));
+  }
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  const auto frames = all_frames(decode(sink));
+  EXPECT_EQ(frames, (std::vector{nmt, sync, emcy, pdo, ext_same_base, pdo_next, sdo, heartbeat}));
+  EXPECT_EQ(outbox.counters().frames_sent, 8u);
+}
+
+TEST(FrameOutbox, FramesOfOneCobIdStayInArrivalOrder) {
+  FrameOutbox outbox({});
+  for (std::uint8_t i = 0; i < 20; ++i) {
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), true));  // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {i}), true));        // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), false));       // process
+  }
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  std::vector<std::uint8_t> sdo, heartbeat, pdo;
+  for (const auto& f : all_frames(decode(sink))) {
+    if (f.id == 0x585) sdo.push_back(f.data[1]);
+    if (f.id == 0x705) heartbeat.push_back(f.data[0]);
+    if (f.id == 0x185) pdo.push_back(f.data[0]);
+  }
+  std::vector<std::uint8_t> expected(20);
+  for (std::uint8_t i = 0; i < 20; ++i) expected[i] = i;
+  EXPECT_EQ(sdo, expected);
+  EXPECT_EQ(heartbeat, expected);
+  EXPECT_EQ(pdo, expected);
+}
+
+TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
+  FrameOutbox conflating({});
+  for (std::uint8_t v = 1; v <= 5; ++v) {
+    ASSERT_TRUE(conflating.push(1, can::Frame::standard(0x181, {v}), true));
+  }
+  // Same COB-ID on another module is another signal: not conflated with module 1's.
+  ASSERT_TRUE(conflating.push(2, can::Frame::standard(0x181, {9}), true));
+  EXPECT_EQ(conflating.size(), 2u);
+  EXPECT_EQ(conflating.counters().conflated, 4u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(conflating, sink));
+  const auto batches = decode(sink);
+  ASSERT_EQ(batches.size(), 2u);
+  EXPECT_EQ(batches[0].module_id, 1u);
+  EXPECT_EQ(batches[0].frames, (std::vector{can::Frame::standard(0x181, {5})}));
+  EXPECT_EQ(batches[1].module_id, 2u);
+
+  FrameOutbox keeping({});
+  for (std::uint8_t v = 1; v <= 5; ++v) {
+    ASSERT_TRUE(keeping.push(1, can::Frame::standard(0x181, {v}), false));
+  }
+  EXPECT_EQ(keeping.counters().conflated, 0u);
+  FakeSink all;
+  ASSERT_TRUE(drain(keeping, all));
+  std::vector<can::Frame> expected;
+  for (std::uint8_t v = 1; v <= 5; ++v) expected.push_back(can::Frame::standard(0x181, {v}));
+  EXPECT_EQ(all_frames(decode(all)), expected);
+}
+
+TEST(FrameOutbox, ReliableFramesAreNeverConflated) {
+  FrameOutbox outbox({});
+  const std::vector<can::Frame> frames = {can::Frame::standard(0x585, {0x60, 1}),
+                                          can::Frame::standard(0x585, {0x60, 2}),
+                                          can::Frame::standard(0x085, {0x00, 0x10}),
+                                          can::Frame::standard(0x085, {0x00, 0x20}),
+                                          can::Frame::standard(0x705, {0x05}),
+                                          can::Frame::standard(0x705, {0x05}),
+                                          extended(0x1234567, {1}),
+                                          extended(0x1234567, {2})};
+  for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, true));
+  EXPECT_EQ(outbox.size(), frames.size());
+  EXPECT_EQ(outbox.counters().conflated, 0u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  const auto batches = decode(sink);
+  EXPECT_EQ(all_frames(batches).size(), frames.size());
+  for (const auto& b : batches) EXPECT_TRUE(b.reliable);
+}
+
+TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
+  FrameOutbox::Options options;
+  options.max_reliable_frames = 4;
+  options.max_process_frames = 2;
+  FrameOutbox outbox(options);
+  for (std::uint8_t i = 0; i < 4; ++i) {
+    EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {i}), true));
+  }
+  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x585, {4}), true));
+  EXPECT_EQ(outbox.counters().reliable_refused, 1u);
+  // Process data has its own bound, so a full reliable queue does not block it (and vice versa).
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), false));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), false));
+  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x183, {1}), false));
+  const OutboxCounters c = outbox.counters();
+  EXPECT_EQ(c.process_dropped, 1u);
+  EXPECT_EQ(c.reliable_refused, 1u);
+  EXPECT_EQ(c.queued, 6u);
+
+  // Room again once the queue drains.
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), true));
+}
+
+TEST(FrameOutbox, ReliableFramesWaitWhileTheResendBufferIsFull) {
+  FrameOutbox outbox({});
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {0x00, 0x10}), true));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x60}), true));
+  FakeSink sink;
+  sink.reliable_room_ = false;
+  for (int write = 0; write < 3; ++write) {
+    sink.next_write();
+    outbox.produce(sink);
+  }
+  EXPECT_TRUE(sink.sent.empty());
+  EXPECT_EQ(sink.reliable_calls_while_full_, 0u);
+  EXPECT_EQ(outbox.size(), 2u);  // held, not popped and lost
+
+  sink.reliable_room_ = true;
+  sink.next_write();
+  outbox.produce(sink);
+  EXPECT_TRUE(outbox.empty());
+  const auto frames = all_frames(decode(sink));
+  EXPECT_EQ(frames, (std::vector{can::Frame::standard(0x085, {0x00, 0x10}),
+                                 can::Frame::standard(0x585, {0x60})}));
+}
+
+TEST(FrameOutbox, NoPayloadExceedsTheRoomOfItsWrite) {
+  // Full PDOs of one module and small extended (reliable, escaped) frames of another.
+  auto fill = [](FrameOutbox& outbox) {
+    for (int i = 0; i < 300; ++i) {
+      const auto v = static_cast<std::uint8_t>(i);
+      const auto pdo = static_cast<std::uint32_t>(0x181 + i % 50);
+      if (!outbox.push(1, can::Frame::standard(pdo, {v, v, v, v, v, v, v, v}), false)) return false;
+      if (!outbox.push(2, extended(0x100000u + static_cast<std::uint32_t>(i), {v}), true)) {
+        return false;
+      }
+    }
+    return true;
+  };
+  for (std::size_t room :
+       {std::size_t{64}, std::size_t{100}, std::size_t{250}, std::size_t{5000}}) {
+    FrameOutbox outbox({});
+    ASSERT_TRUE(fill(outbox));
+    FakeSink sink(room);
+    ASSERT_TRUE(drain(outbox, sink)) << "room " << room;
+    for (const auto& s : sink.sent) {
+      // The payload and its envelope both fit in what the write had left.
+      EXPECT_LE(s.bytes.size() + kEnvelopeBytes, s.room_before) << "room " << room;
+    }
+    EXPECT_EQ(all_frames(decode(sink)).size(), 600u) << "room " << room;
+  }
+  // A write too small for one frame is left alone rather than overfilled.
+  FrameOutbox outbox({});
+  ASSERT_TRUE(fill(outbox));
+  FakeSink tiny(20);
+  outbox.produce(tiny);
+  EXPECT_TRUE(tiny.sent.empty());
+  EXPECT_EQ(outbox.size(), 600u);
+}
+
+TEST(FrameOutbox, BatchesSplitByModuleAndClass) {
+  FrameOutbox outbox({});
+  // Arbitration order interleaves modules and classes: 0x181(m1) 0x182(m1) | 0x183(m2) |
+  // 0x184(m1) | 0x585(m1, reliable) 0x586(m1, reliable) | 0x705(m2, reliable).
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), false));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), false));
+  // SDO and heartbeat are reliable whatever the conflate flag says.
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), false));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {7}), false));
+  FakeSink sink;
+  sink.next_write();
+  outbox.produce(sink);  // everything fits one write
+  EXPECT_TRUE(outbox.empty());
+  const auto batches = decode(sink);
+  ASSERT_EQ(batches.size(), 5u);
+  const std::vector<std::uint32_t> modules = {1, 2, 1, 1, 2};
+  const std::vector<bool> reliable = {false, false, false, true, true};
+  const std::vector<std::vector<std::uint32_t>> expected_ids = {
+      {0x181, 0x182}, {0x183}, {0x184}, {0x585, 0x586}, {0x705}};
+  for (std::size_t i = 0; i < batches.size(); ++i) {
+    EXPECT_EQ(batches[i].module_id, modules[i]) << "batch " << i;
+    EXPECT_EQ(batches[i].reliable, reliable[i]) << "batch " << i;
+    EXPECT_EQ(ids(batches[i].frames), expected_ids[i]) << "batch " << i;
+  }
+  EXPECT_EQ(outbox.counters().batches_sent, 5u);
+  EXPECT_EQ(outbox.counters().frames_sent, 7u);
+}
+
+TEST(FrameOutbox, StandardFramesCostAboutTenBytesEach) {
+  constexpr std::size_t kFrames = 10000;
+  FrameOutbox outbox({});
+  for (std::size_t i = 0; i < kFrames; ++i) {
+    const auto v = static_cast<std::uint8_t>(i);
+    const auto id = static_cast<std::uint32_t>(0x181 + i % 0x3FF);  // 0x181..0x57F: PDOs
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(id, {v, 1, 2, 3, 4, 5, 6, 7}), false));
+  }
+  FakeSink sink(16 * 1024);
+  ASSERT_TRUE(drain(outbox, sink));
+  std::size_t payload_bytes = 0;
+  for (const auto& s : sink.sent) payload_bytes += s.bytes.size();
+  const auto frames = all_frames(decode(sink));
+  ASSERT_EQ(frames.size(), kFrames);
+  const double per_frame = static_cast<double>(payload_bytes) / kFrames;
+  const double with_envelopes =
+      static_cast<double>(payload_bytes + sink.sent.size() * kEnvelopeBytes) / kFrames;
+  std::printf(
+      "FrameOutbox: %zu frames in %zu payloads, %.3f payload bytes/frame (%.3f with "
+      "envelopes)\n",
+      kFrames, sink.sent.size(), per_frame, with_envelopes);
+  ::testing::Test::RecordProperty("payload_bytes_per_frame", std::to_string(per_frame));
+  EXPECT_LE(per_frame, 10.5);
+  EXPECT_LE(with_envelopes, 10.5);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge

@@ -1,0 +1,370 @@
+// One surface and several real gateways in process, over loopback TCP: each gateway is bound by
+// the name in its hello, traffic is routed by module both ways, a gateway announcing a module
+// another one serves is refused without disturbing the others, a restarted gateway comes back,
+// and reliable frames cross link cuts exactly once and in order.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/detached.hpp>
+#include <boost/asio/io_context.hpp>
+#include <cstdint>
+#include <cstdio>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "backbone/tcp_client.hpp"
+#include "backbone/tcp_server.hpp"
+#include "bridge/gateway.hpp"
+#include "bridge/node_map.hpp"
+#include "bridge/surface.hpp"
+#include "can/virtual_bus.hpp"
+#include "tests/support/event_loop.hpp"
+
+namespace canbridge::bridge {
+namespace {
+
+namespace asio = boost::asio;
+using namespace std::chrono_literals;
+
+using test::run_until;
+
+// Records every frame one bus endpoint receives, from a coroutine that runs until the bus closes;
+// `on_frames` (optional) runs after each received batch. close() and then waiting for done() must
+// precede destruction (the coroutine uses the bus).
+class BusRecorder {
+ public:
+  BusRecorder(asio::io_context& io, std::unique_ptr<can::Bus> bus) : bus_(std::move(bus)) {
+    asio::co_spawn(
+        io,
+        [this]() -> asio::awaitable<void> {
+          while (!co_await bus_->receive_batch(frames)) {
+            if (on_frames) on_frames();
+          }
+          done_ = true;
+        },
+        asio::detached);
+  }
+  bool send(const can::Frame& f) { return bus_->send(f); }
+  void close() { bus_->close(); }
+  bool done() const { return done_; }
+  std::size_t count(std::uint32_t id) const {
+    return static_cast<std::size_t>(std::count_if(frames.begin(), frames.end(),
+                                                  [&](const can::Frame& f) { return f.id == id; }));
+  }
+  bool saw(const can::Frame& frame) const {
+    return std::find(frames.begin(), frames.end(), frame) != frames.end();
+  }
+
+  std::vector<can::Frame> frames;
+  std::function<void()> on_frames;
+
+ private:
+  std::unique_ptr<can::Bus> bus_;
+  bool done_ = false;
+};
+
+// One gateway "process": its own module buses (a node endpoint on each, to write and to record),
+// a Gateway and a TcpClient to the surface.
+class GatewayRig {
+ public:
+  GatewayRig(asio::io_context& io, const std::string& name, const std::vector<ModuleId>& ids,
+             std::uint16_t port) {
+    NodeMap map;
+    std::vector<GatewayModule> modules;
+    for (ModuleId id : ids) {
+      media.push_back(
+          std::make_unique<can::VirtualBus>(io.get_executor(), name + "-m" + std::to_string(id)));
+      EXPECT_TRUE(map.add_module(id, NodeMap::default_pairs(id)).empty());
+      modules.push_back({id, media.back()->connect("gateway"), true});
+      nodes.push_back(std::make_unique<BusRecorder>(io, media.back()->connect("node")));
+    }
+    gateway =
+        std::make_unique<Gateway>(io.get_executor(), name, std::move(map), std::move(modules));
+    gateway->start();
+    backbone::ClientOptions options;
+    options.backoff_min = 10ms;  // reconnects (after cuts and refusals) within the test's time
+    options.backoff_max = 50ms;
+    client = backbone::TcpClient::create(io.get_executor(), "127.0.0.1", port, options);
+    client->start([g = gateway.get()](auto link) { g->attach(std::move(link)); });
+  }
+
+  // The process "exits": its link closes, its buses stop.
+  void stop() {
+    client->stop();
+    gateway->stop();
+    for (auto& n : nodes) n->close();
+  }
+  bool stopped() const {
+    return std::all_of(nodes.begin(), nodes.end(), [](const auto& n) { return n->done(); });
+  }
+  bool connected() const { return gateway->connected(); }
+  BusRecorder& node(std::size_t module_index = 0) { return *nodes.at(module_index); }
+
+  std::vector<std::unique_ptr<can::VirtualBus>> media;  // first: outlive the endpoints below
+  std::vector<std::unique_ptr<BusRecorder>> nodes;
+  std::unique_ptr<Gateway> gateway;
+  std::shared_ptr<backbone::TcpClient> client;
+};
+
+// An SDO response (expedited upload) from local node `node` carrying `n`: a reliable frame whose
+// number shows order and duplicates.
+can::Frame sdo_response(std::uint8_t node, std::uint32_t n) {
+  return can::Frame::standard(0x580 + node, {0x43, 0x00, 0x20, 0x00, static_cast<std::uint8_t>(n),
+                                             static_cast<std::uint8_t>(n >> 8), 0, 0});
+}
+can::Frame sdo_request(std::uint8_t node, std::uint32_t n) {
+  return can::Frame::standard(0x600 + node, {0x40, 0x00, 0x20, 0x00, static_cast<std::uint8_t>(n),
+                                             static_cast<std::uint8_t>(n >> 8), 0, 0});
+}
+
+// True when the frames with `id` carry exactly the numbers 0..n-1, in order.
+::testing::AssertionResult exactly_once_in_order(const BusRecorder& r, std::uint32_t id,
+                                                 std::uint32_t n) {
+  std::vector<std::uint32_t> got;
+  for (const auto& f : r.frames) {
+    if (f.id == id) got.push_back(f.data[4] | (std::uint32_t{f.data[5]} << 8));
+  }
+  if (got.size() != n) {
+    return ::testing::AssertionFailure()
+           << "0x" << std::hex << id << std::dec << ": " << got.size() << " frames, expected " << n;
+  }
+  for (std::uint32_t i = 0; i < n; ++i) {
+    if (got[i] != i) {
+      return ::testing::AssertionFailure()
+             << "0x" << std::hex << id << std::dec << ": frame " << i << " carries " << got[i];
+    }
+  }
+  return ::testing::AssertionSuccess();
+}
+
+bool drains(asio::io_context& io) {
+  io.restart();
+  io.run_for(2s);
+  return io.stopped();
+}
+
+// Default mapping: surface node = local + 32 x module. Local node 5 is surface node 37 on module 1
+// (gateway A) and 69 on module 2 (gateway B).
+constexpr std::uint8_t kLocal = 5;
+constexpr std::uint32_t kSurfaceNodeA = 37;
+constexpr std::uint32_t kSurfaceNodeB = 69;
+
+class SurfaceGateways : public ::testing::Test {
+ protected:
+  SurfaceGateways() {
+    surface.start();
+    EXPECT_FALSE(server->start("127.0.0.1", 0, [this](auto link) { surface.attach(link); }));
+  }
+  void TearDown() override {
+    for (auto& rig : rigs) rig->stop();
+    server->stop();
+    surface.stop();
+    master.close();
+    EXPECT_TRUE(run_until(io, [&] {
+      return master.done() &&
+             std::all_of(rigs.begin(), rigs.end(), [](const auto& r) { return r->stopped(); });
+    }));
+    EXPECT_TRUE(drains(io));  // nothing left pending: every coroutine saw its bus or link close
+  }
+
+  GatewayRig& add_gateway(const std::string& name, const std::vector<ModuleId>& modules) {
+    rigs.push_back(std::make_unique<GatewayRig>(io, name, modules, server->port()));
+    return *rigs.back();
+  }
+  // Gateways A (module 1) and B (module 2), both up.
+  void start_a_and_b() {
+    a = &add_gateway("gw-a", {1});
+    b = &add_gateway("gw-b", {2});
+    ASSERT_TRUE(run_until(
+        io, [&] { return surface.gateways_ready() == 2 && a->connected() && b->connected(); }));
+  }
+
+  asio::io_context io{1};
+  can::VirtualBus medium{io.get_executor(), "surface-bus"};
+  BusRecorder master{io, medium.connect("master")};  // the CANopen master on the surface bus
+  Surface surface{io.get_executor(), "surface", medium.connect("surface")};
+  std::shared_ptr<backbone::TcpServer> server = backbone::TcpServer::create(io.get_executor());
+  std::vector<std::unique_ptr<GatewayRig>> rigs;
+  GatewayRig* a = nullptr;
+  GatewayRig* b = nullptr;
+};
+
+TEST_F(SurfaceGateways, TwoGatewaysComeUpAndTrafficIsRoutedByModule) {
+  start_a_and_b();
+  EXPECT_EQ(surface.counters().session.links, 2u);
+
+  // Module buses -> surface, with node ids translated per module.
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x180 + kLocal, {0xA1})));
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x05})));
+  ASSERT_TRUE(b->node().send(can::Frame::standard(0x180 + kLocal, {0xB1})));
+  ASSERT_TRUE(b->node().send(can::Frame::standard(0x700 + kLocal, {0x7F})));
+  ASSERT_TRUE(run_until(io, [&] { return master.frames.size() >= 4; }));
+  EXPECT_EQ(master.frames.size(), 4u);
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x180 + kSurfaceNodeA, {0xA1})));
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x700 + kSurfaceNodeA, {0x05})));
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x180 + kSurfaceNodeB, {0xB1})));
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x700 + kSurfaceNodeB, {0x7F})));
+
+  // Surface -> the one module owning the node: both gateways get the frame, only B delivers it.
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, 1)));
+  ASSERT_TRUE(run_until(io, [&] {
+    return !b->node().frames.empty() && a->gateway->counters().frames_received >= 1;
+  }));
+  EXPECT_EQ(b->node().frames, std::vector{sdo_request(kLocal, 1)});
+  EXPECT_TRUE(a->node().frames.empty());
+  EXPECT_EQ(a->gateway->counters().to_buses, 0u);
+  EXPECT_EQ(a->gateway->counters().translation[static_cast<std::size_t>(DropReason::unknown_node)],
+            1u);
+
+  // NMT addressed to A's node: the node id in the payload is translated too.
+  ASSERT_TRUE(master.send(can::Frame::standard(0x000, {0x01, kSurfaceNodeA})));
+  ASSERT_TRUE(run_until(io, [&] {
+    return !a->node().frames.empty() && b->gateway->counters().frames_received >= 2;
+  }));
+  EXPECT_EQ(a->node().frames, std::vector{can::Frame::standard(0x000, {0x01, kLocal})});
+  EXPECT_EQ(b->node().frames.size(), 1u);
+}
+
+TEST_F(SurfaceGateways, AGatewayAnnouncingAServedModuleIsRefusedAndTheOthersKeepWorking) {
+  start_a_and_b();
+  GatewayRig& c = add_gateway("gw-c", {3, 1});  // module 1 is A's
+  ASSERT_TRUE(run_until(io, [&] {
+    return surface.counters().session.refusals_sent >= 2 &&
+           c.gateway->counters().session.refusals_received >= 2;  // it keeps trying, and is refused
+  }));
+  EXPECT_FALSE(c.connected());
+  EXPECT_EQ(surface.gateways_ready(), 2u);
+  EXPECT_EQ(c.gateway->counters().session.links, 0u);
+
+  // A and B work on while C keeps knocking.
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x180 + kLocal, {0xA2})));
+  ASSERT_TRUE(b->node().send(can::Frame::standard(0x180 + kLocal, {0xB2})));
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 2)));
+  ASSERT_TRUE(
+      run_until(io, [&] { return master.frames.size() >= 2 && !a->node().frames.empty(); }));
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x180 + kSurfaceNodeA, {0xA2})));
+  EXPECT_TRUE(master.saw(can::Frame::standard(0x180 + kSurfaceNodeB, {0xB2})));
+  EXPECT_EQ(a->node().frames, std::vector{sdo_request(kLocal, 2)});
+  // Module 3 of the refused gateway never reached the surface: its frames go nowhere.
+  EXPECT_TRUE(c.node(1).frames.empty());
+  // Neither A nor B lost its link over C.
+  EXPECT_EQ(a->gateway->counters().session.links, 1u);
+  EXPECT_EQ(b->gateway->counters().session.links, 1u);
+  EXPECT_TRUE(a->connected());
+  EXPECT_TRUE(b->connected());
+  EXPECT_EQ(a->gateway->counters().session.refusals_received, 0u);
+}
+
+TEST_F(SurfaceGateways, ARestartedGatewayComesBackOnceTheOldLinkIsGone) {
+  start_a_and_b();
+  // A's new process starts while the surface still has the old one's link: refused.
+  GatewayRig& again = add_gateway("gw-a", {1});
+  ASSERT_TRUE(
+      run_until(io, [&] { return again.gateway->counters().session.refusals_received >= 1; }));
+  EXPECT_FALSE(again.connected());
+  EXPECT_TRUE(a->connected());
+
+  a->stop();  // the old process exits
+  ASSERT_TRUE(run_until(io, [&] { return again.connected() && surface.gateways_ready() == 2; }));
+  EXPECT_EQ(surface.counters().session.peer_restarts, 1u);
+
+  ASSERT_TRUE(again.node().send(can::Frame::standard(0x180 + kLocal, {0xEE})));
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 3)));
+  ASSERT_TRUE(
+      run_until(io, [&] { return !master.frames.empty() && !again.node().frames.empty(); }));
+  EXPECT_EQ(master.frames, std::vector{can::Frame::standard(0x180 + kSurfaceNodeA, {0xEE})});
+  EXPECT_EQ(again.node().frames, std::vector{sdo_request(kLocal, 3)});
+  EXPECT_TRUE(a->node().frames.empty());  // the old process is gone
+  EXPECT_TRUE(b->connected());
+}
+
+TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {
+  start_a_and_b();
+  constexpr std::uint32_t kSdoA = 0x580 + kSurfaceNodeA;
+  constexpr std::uint32_t kSdoB = 0x580 + kSurfaceNodeB;
+  constexpr std::uint32_t kHeartbeatA = 0x700 + kSurfaceNodeA;
+
+  // Every reliable payload A sent (first transmissions) was delivered by the surface exactly once.
+  auto delivered_once = [&] {
+    return surface.counters().session.reliable_delivered ==
+           a->gateway->counters().session.reliable_sent +
+               b->gateway->counters().session.reliable_sent;
+  };
+
+  // Cut 1, on the gateway side, at the moment the first responses reach the surface bus; the rest
+  // of the burst is then in A's queue, in its resend buffer or on the wire.
+  bool cut = false;
+  master.on_frames = [&] {
+    if (cut || master.count(kSdoA) == 0) return;
+    cut = true;
+    if (auto link = a->client->link()) link->close();
+  };
+  for (std::uint32_t n = 0; n < 300; ++n) ASSERT_TRUE(a->node().send(sdo_response(kLocal, n)));
+  ASSERT_TRUE(run_until(io, [&] { return cut && !a->connected(); }));
+  // Written while the link is down: queued by the gateway until the next link.
+  for (std::uint32_t n = 300; n < 600; ++n) ASSERT_TRUE(a->node().send(sdo_response(kLocal, n)));
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x05})));
+  ASSERT_TRUE(run_until(io, [&] {
+    return a->connected() && master.count(kSdoA) >= 600 && master.count(kHeartbeatA) >= 1 &&
+           a->gateway->stream().sender().unacked_count() == 0;  // no retransmission can follow
+  }));
+  EXPECT_TRUE(exactly_once_in_order(master, kSdoA, 600));
+  EXPECT_EQ(master.count(kHeartbeatA), 1u);
+  EXPECT_TRUE(delivered_once());
+
+  // Cut 2, on the surface side, every link at once, while a long burst from A is arriving: what
+  // A sent and the surface had not processed is lost with the link and must be resent.
+  cut = false;
+  std::uint64_t sent_at_cut = 0;
+  std::uint64_t delivered_at_cut = 0;
+  std::uint64_t resent_before = a->gateway->counters().session.reliable_resent;
+  master.on_frames = [&] {
+    if (cut || master.count(kSdoA) <= 600) return;
+    cut = true;
+    sent_at_cut = a->gateway->counters().session.reliable_sent;
+    delivered_at_cut = surface.counters().session.reliable_delivered;
+    for (const auto& link : server->links()) link->close();
+  };
+  for (std::uint32_t n = 600; n < 3000; ++n) ASSERT_TRUE(a->node().send(sdo_response(kLocal, n)));
+  ASSERT_TRUE(run_until(io, [&] { return cut && !a->connected() && !b->connected(); }));
+  master.on_frames = nullptr;
+  // While both links are down, both directions queue.
+  for (std::uint32_t n = 0; n < 300; ++n) ASSERT_TRUE(b->node().send(sdo_response(kLocal, n)));
+  for (std::uint32_t n = 0; n < 100; ++n) ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, n)));
+  ASSERT_TRUE(run_until(io, [&] {
+    return a->connected() && b->connected() && master.count(kSdoA) >= 3000 &&
+           master.count(kSdoB) >= 300 && b->node().frames.size() >= 100 &&
+           a->gateway->stream().sender().unacked_count() == 0 &&
+           b->gateway->stream().sender().unacked_count() == 0;
+  }));
+  EXPECT_TRUE(exactly_once_in_order(master, kSdoA, 3000));
+  EXPECT_TRUE(exactly_once_in_order(master, kSdoB, 300));
+  EXPECT_TRUE(exactly_once_in_order(b->node(), 0x600 + kLocal, 100));
+  EXPECT_TRUE(a->node().frames.empty());  // requests to B's node never reach A's module
+  EXPECT_TRUE(delivered_once());
+  const std::uint64_t resent = a->gateway->counters().session.reliable_resent - resent_before;
+  // The surface processed nothing on a link after closing it: anything sent beyond what it had
+  // delivered by then was lost with the link, and only a resend can have brought it.
+  if (sent_at_cut > delivered_at_cut) {
+    EXPECT_GT(resent, 0u);
+  }
+  std::printf("cut 2: A had sent %llu payloads, the surface delivered %llu; %llu resent\n",
+              static_cast<unsigned long long>(sent_at_cut),
+              static_cast<unsigned long long>(delivered_at_cut),
+              static_cast<unsigned long long>(resent));
+
+  // The same processes resumed their streams; nobody restarted or refused anything.
+  const SurfaceCounters s = surface.counters();
+  EXPECT_EQ(s.session.peer_restarts, 0u);
+  EXPECT_EQ(s.session.refusals_sent, 0u);
+  EXPECT_EQ(s.outbox.reliable_refused, 0u);
+  EXPECT_EQ(a->gateway->counters().session.links, 3u);
+  EXPECT_EQ(b->gateway->counters().session.links, 2u);
+  EXPECT_EQ(a->gateway->counters().outbox.reliable_refused, 0u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge
