@@ -44,6 +44,16 @@ struct DeframerCounters {
   std::uint64_t cobs_errors = 0;  // a code byte announced more data than the frame had
   std::uint64_t oversize = 0;     // longer than max_payload allows; skipped, never buffered
   std::uint64_t runts = 0;        // decoded to fewer bytes than the CRC alone
+
+  DeframerCounters& operator+=(const DeframerCounters& o) {
+    frames += o.frames;
+    discarded_bytes += o.discarded_bytes;
+    crc_errors += o.crc_errors;
+    cobs_errors += o.cobs_errors;
+    oversize += o.oversize;
+    runts += o.runts;
+    return *this;
+  }
 };
 
 // Splits a serial byte stream, fed in chunks split anywhere, into the payloads of intact frames.

@@ -21,6 +21,9 @@ constexpr std::uint8_t kTagAck = (v1::Envelope::kAckFieldNumber << 3) | 0;
 constexpr std::uint8_t kTagResend = (v1::Envelope::kResendFieldNumber << 3) | 0;
 constexpr std::uint8_t kTagKeepalive = (v1::Envelope::kKeepaliveFieldNumber << 3) | 2;
 constexpr std::uint8_t kTagPayload = (v1::Envelope::kPayloadFieldNumber << 3) | 2;
+constexpr std::uint8_t kTagMissing = (v1::Envelope::kMissingFieldNumber << 3) | 2;  // packed
+// Holes listed in one resend request: enough to repair a burst in one round trip.
+constexpr std::size_t kMaxMissingListed = 16;
 
 std::size_t varint_length(std::uint64_t value) {
   std::size_t n = 1;
@@ -70,6 +73,9 @@ std::string describe_peer(const v1::Hello& hello) {
 // ---------------------------------------------------------------------------------------------
 PeerStream::PeerStream(const SessionOptions& options, Handlers handlers)
     : sender_(ReliableSender::Options{options.resend_buffer_messages, options.resend_buffer_bytes}),
+      // The reorder buffer matches the peer's send window (both ends use the same tuning), so
+      // everything in flight behind a lost message is kept, not resent.
+      receiver_(options.resend_buffer_messages, options.resend_buffer_bytes),
       handlers_(std::move(handlers)) {}
 
 void PeerStream::wake() {
@@ -143,6 +149,7 @@ SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& iden
       identity_(identity),
       options_(options),
       stream_(preset),
+      initiator_(preset != nullptr),
       binder_(std::move(binder)),
       counters_(counters),
       watchdog_(link_->executor()) {}
@@ -174,10 +181,18 @@ void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
                                   std::span<const std::uint8_t> payload, bool keepalive) {
   const std::uint64_t ack = stream_->receiver_.cumulative_ack();
   const bool resend = resend_owed_;
+  std::size_t missing_bytes = 0;
+  if (resend) {
+    // The first hole is ack + 1 (implied); list the further ones.
+    missing_ = stream_->receiver_.missing(kMaxMissingListed + 1);
+    if (!missing_.empty()) missing_.erase(missing_.begin());
+    for (std::uint64_t m : missing_) missing_bytes += varint_length(m);
+  }
   std::size_t size = 0;
   if (seq != 0) size += 1 + varint_length(seq);
   if (ack != 0) size += 1 + varint_length(ack);
   if (resend) size += 2;
+  if (missing_bytes != 0) size += 1 + varint_length(missing_bytes) + missing_bytes;
   size += keepalive ? 2 : 1 + varint_length(payload.size()) + payload.size();
   put_varint(out, size);
   if (seq != 0) {
@@ -192,6 +207,11 @@ void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
     out.push_back(static_cast<char>(kTagResend));
     out.push_back(1);
     resend_owed_ = false;
+  }
+  if (missing_bytes != 0) {
+    out.push_back(static_cast<char>(kTagMissing));
+    put_varint(out, missing_bytes);
+    for (std::uint64_t m : missing_) put_varint(out, m);
   }
   if (keepalive) {
     out.push_back(static_cast<char>(kTagKeepalive));
@@ -219,6 +239,12 @@ void SessionLink::fill(std::string& out) {
     return;
   }
   const Clock::time_point now = Clock::now();
+  if (hello_please_owed_) {
+    scratch_.Clear();
+    scratch_.mutable_keepalive()->set_hello_please(true);
+    append_message(out, scratch_);
+    hello_please_owed_ = false;
+  }
   if (!hello_sent_ && stream_) {
     scratch_.Clear();
     scratch_.set_ack(stream_->receiver_.cumulative_ack());
@@ -237,17 +263,8 @@ void SessionLink::fill(std::string& out) {
     hello_sent_ = true;
     last_tx_ = now;
   }
-  if (hello_sent_ && peer_hello_ok_ && !ready_) {
-    ready_ = true;
-    ++counters_.links;
-    if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
-    stream_->link_ = shared_from_this();
-    spdlog::info("backbone: {} ready over {} (resuming: {} unacked to resend, next expected {})",
-                 describe_peer(stream_->peer_hello_), link_->peer_name(),
-                 stream_->sender_.unacked_count(), stream_->receiver_.cumulative_ack() + 1);
-    if (stream_->handlers_.on_up) stream_->handlers_.on_up(stream_->peer_hello_);
-    if (closed_) return;
-  }
+  if (hello_sent_ && peer_hello_ok_ && !ready_) become_ready();
+  if (closed_) return;
   if (!ready_) return;
   Writer writer(*this, out, now);
   writer.drain_reliable();
@@ -260,6 +277,23 @@ void SessionLink::fill(std::string& out) {
     last_tx_ = now;
     keepalive_owed_ = false;
   }
+}
+
+// Both hellos are through: the link carries the stream from now on. Called as soon as the second
+// of the two happens, so data that follows the peer's hello in the same read is not dropped.
+void SessionLink::become_ready() {
+  ready_ = true;
+  ++counters_.links;
+  if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
+  stream_->link_ = shared_from_this();
+  const v1::Hello& peer = stream_->peer_hello_;
+  spdlog::info(
+      "backbone: {} '{}' ready over {} (protocol {}.{}; resuming: {} unacked to resend, next "
+      "expected {})",
+      role_name(peer.role()), peer.name(), link_->peer_name(), peer.protocol_major(),
+      peer.protocol_minor(), stream_->sender_.unacked_count(),
+      stream_->receiver_.cumulative_ack() + 1);
+  if (stream_->handlers_.on_up) stream_->handlers_.on_up(stream_->peer_hello_);
 }
 
 void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
@@ -285,18 +319,42 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
                     role_name(identity_.role), inbound_.refusal().detail(),
                     v1::Refusal::Reason_Name(inbound_.refusal().reason()));
       return link_->close();
+    case v1::Envelope::kKeepalive:
+      if (inbound_.keepalive().hello_please()) {
+        // The peer reopened its end of a line we still had open: it needs our hello again.
+        if (initiator_ && stream_) {
+          hello_sent_ = false;
+          link_->wake_writer();
+        }
+        return;
+      }
+      break;
     default:
       break;
   }
-  if (!peer_hello_ok_) return protocol_error("message before the hello");
-  if (!ready_) return;  // our hello is still on its way; the peer cannot have sent data yet
+  if (!peer_hello_ok_ || !ready_) {
+    // A new TCP connection starts with a hello, so anything else is a broken peer. On a serial
+    // line the peer may still be on its previous link (it has not noticed we reopened): ask it
+    // for a hello instead of closing, at most once per keepalive interval.
+    if (!link_->crc_framed()) return protocol_error("message before the hello");
+    ++counters_.before_hello;
+    if (!initiator_ && now - last_hello_request_ >= options_.keepalive_interval) {
+      last_hello_request_ = now;
+      hello_please_owed_ = true;
+      link_->wake_writer();
+    }
+    return;
+  }
   ReliableSender& sender = stream_->sender_;
   const std::size_t unacked = sender.unacked_count();
   if (inbound_.ack() != 0) sender.on_ack(inbound_.ack(), now);
   bool wake = sender.unacked_count() != unacked;  // room freed: the producer may go on
-  if (inbound_.resend() &&
-      sender.on_resend_request(inbound_.ack(), now, options_.retransmit_timeout)) {
-    wake = true;
+  if (inbound_.resend()) {
+    // Selective repeat: only what the peer names as missing goes again.
+    if (sender.on_resend_request(inbound_.ack(), now, resend_interval())) wake = true;
+    for (std::uint64_t seq : inbound_.missing()) {
+      if (sender.on_nack(seq, now, resend_interval())) wake = true;
+    }
   }
   if (inbound_.body_case() == v1::Envelope::kPayload) {
     const std::string& payload = inbound_.payload();
@@ -306,22 +364,34 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
       ++counters_.unreliable_delivered;
       if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(view, false);
     } else {
-      switch (stream_->receiver_.accept(inbound_.seq())) {
-        case ReliableReceiver::Verdict::deliver:
+      ReliableReceiver& receiver = stream_->receiver_;
+      switch (receiver.accept(inbound_.seq(), payload)) {
+        case ReliableReceiver::Verdict::deliver: {
           ++counters_.reliable_delivered;
           ack_owed_ = true;
-          if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(view, true);
+          auto& deliver = stream_->handlers_.on_payload;
+          if (deliver) deliver(view, true);
+          // What arrived after a gap that this payload closed follows, in order.
+          receiver.drain([&](std::string&& buffered) {
+            ++counters_.reliable_delivered;
+            if (deliver) {
+              deliver({reinterpret_cast<const std::uint8_t*>(buffered.data()), buffered.size()},
+                      true);
+            }
+          });
           break;
+        }
         case ReliableReceiver::Verdict::duplicate:
           ++counters_.reliable_duplicates;
           ack_owed_ = true;  // our ack may have been lost: repeat it
           break;
+        case ReliableReceiver::Verdict::buffered:
         case ReliableReceiver::Verdict::gap:
-          if (stream_->receiver_.should_request_resend(now, options_.retransmit_timeout)) {
-            ++counters_.resend_requests;
-            resend_owed_ = true;
-          }
           break;
+      }
+      if (receiver.should_request_resend(now, resend_interval())) {
+        ++counters_.resend_requests;
+        resend_owed_ = true;
       }
       wake = true;
     }
@@ -331,7 +401,22 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
 
 void SessionLink::on_hello(const v1::Envelope& envelope) {
   const v1::Hello& h = envelope.hello();
-  if (peer_hello_ok_) return protocol_error("second hello from " + describe_peer(h));
+  if (peer_hello_ok_) {
+    if (h.session_id() != stream_->peer_session_id_ || h.name() != stream_->peer_hello_.name()) {
+      return protocol_error("second hello, from another peer: " + describe_peer(h));
+    }
+    // The same peer started its handshake again: our hello was lost, or it reopened its end of
+    // a serial line. Settle what it acknowledges, resend the rest, and (as the responder)
+    // answer with our hello.
+    const Clock::time_point now = Clock::now();
+    if (h.resume_session_id() == identity_.session_id && envelope.ack() != 0) {
+      stream_->sender_.on_ack(envelope.ack(), now);
+    }
+    stream_->sender_.rewind();
+    if (!initiator_) hello_sent_ = false;
+    link_->wake_writer();
+    return;
+  }
   if (h.protocol_major() != kProtocolMajor) {
     return refuse(v1::Refusal::INCOMPATIBLE_VERSION,
                   "peer " + describe_peer(h) + " speaks protocol " +
@@ -367,7 +452,8 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
   stream.sender_.rewind();
   stream.peer_hello_ = h;
   peer_hello_ok_ = true;
-  link_->wake_writer();  // our hello (if not out yet), then what waited for the link
+  if (hello_sent_) become_ready();
+  if (!closed_) link_->wake_writer();  // our hello (if not out yet), then what waited for the link
 }
 
 void SessionLink::refuse(v1::Refusal::Reason reason, const std::string& detail) {
@@ -402,6 +488,13 @@ void SessionLink::on_closed() {
   }
 }
 
+// Resend requests and single retransmissions are throttled to this, well below the retransmit
+// timeout, so a lost retransmission is asked for again long before the timeout falls back.
+std::chrono::steady_clock::duration SessionLink::resend_interval() const {
+  return std::max<std::chrono::steady_clock::duration>(options_.retransmit_timeout / 4,
+                                                       std::chrono::milliseconds{1});
+}
+
 void SessionLink::arm_watchdog() {
   // One deadline per link covers dead-link detection, keepalives and retransmission.
   const auto shortest =
@@ -425,10 +518,20 @@ void SessionLink::on_watchdog() {
     link_->close();
     return;
   }
+  if (initiator_ && !ready_ && hello_sent_ && now - last_tx_ >= options_.keepalive_interval) {
+    hello_sent_ = false;  // no answer yet: the hello may have been lost on a noisy line
+    link_->wake_writer();
+  }
   if (ready_) {
     bool wake = false;
     if (stream_->sender_.retransmit_due(now, options_.retransmit_timeout)) {
-      stream_->sender_.rewind();
+      stream_->sender_.on_retransmit_timeout();  // the oldest alone, or go back N
+      wake = true;
+    }
+    // A resend request (or the message it asked for) can be lost too: ask again.
+    if (stream_->receiver_.should_request_resend(now, resend_interval())) {
+      ++counters_.resend_requests;
+      resend_owed_ = true;
       wake = true;
     }
     if (now - last_tx_ >= options_.keepalive_interval) {

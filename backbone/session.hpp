@@ -45,6 +45,7 @@ struct SessionCounters {
   std::uint64_t refusals_sent = 0;      // hellos this side refused (version, role, duplicate)
   std::uint64_t refusals_received = 0;  // the peer refused this side
   std::uint64_t protocol_errors = 0;    // data before hello, second hello, ...
+  std::uint64_t before_hello = 0;       // serial: messages ignored while waiting for a hello
   std::uint64_t malformed = 0;          // messages that are not a valid Envelope
   std::uint64_t keepalives_sent = 0;
   std::uint64_t resend_requests = 0;  // gaps seen in a peer's reliable stream
@@ -146,6 +147,8 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
 
   void on_message(std::span<const std::uint8_t> bytes);
   void on_hello(const v1::Envelope& envelope);
+  void become_ready();
+  std::chrono::steady_clock::duration resend_interval() const;
   void on_closed();
   void fill(std::string& out);
   void refuse(v1::Refusal::Reason reason, const std::string& detail);
@@ -159,6 +162,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   Identity identity_;
   SessionOptions options_;
   PeerStream* stream_;
+  bool initiator_;  // sends its hello first (has a preset stream); the other side answers
   Binder binder_;
   SessionCounters& counters_;
   boost::asio::steady_timer watchdog_;
@@ -167,6 +171,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   std::string refusal_;  // serialized Refusal envelope waiting to go out
   v1::Envelope inbound_;
   v1::Envelope scratch_;
+  std::vector<std::uint64_t> missing_;  // holes listed in the resend request being written
   bool hello_sent_ = false;
   bool peer_hello_ok_ = false;
   bool ready_ = false;
@@ -174,6 +179,8 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   bool ack_owed_ = false;
   bool resend_owed_ = false;
   bool keepalive_owed_ = false;
+  bool hello_please_owed_ = false;
+  std::chrono::steady_clock::time_point last_hello_request_{};
   bool closed_ = false;
 };
 

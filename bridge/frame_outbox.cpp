@@ -35,9 +35,15 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     if (!front) return;
     const std::uint32_t module_id = front->item->module_id;
     const bool reliable = front->reliable;
-    const std::size_t budget = std::min(sink.room(), options_.max_batch_bytes) - kBatchOverhead;
-    // Reliable payloads wait here, in order, while the resend buffer is full.
-    if (reliable && !sink.reliable_room(budget + kBatchOverhead)) return;
+    std::size_t budget = std::min(sink.room(), options_.max_batch_bytes) - kBatchOverhead;
+    if (reliable) {
+      // A smaller batch when the resend buffer has less room than a full one; nothing at all
+      // (reliable payloads wait here, in order) when it cannot take even one frame.
+      while (!sink.reliable_room(budget + kBatchOverhead)) {
+        if (budget <= kMaxFrameBytes) return;
+        budget = std::max(kMaxFrameBytes, budget / 2);
+      }
+    }
     v1::FrameBatch& batch = *payload_.mutable_frames();
     builder_.start(batch, module_id);
     std::size_t used = 0;
@@ -50,6 +56,7 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
       used += bytes;
       ++frames;
     }
+    if (frames == 0) return;  // cannot happen with budget >= kMaxFrameBytes; never loop on it
     serialized_.clear();
     payload_.AppendToString(&serialized_);
     if (reliable) {

@@ -42,7 +42,10 @@ void Gateway::start() {
 
 void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (stopped_) return link->close();
-  if (link_) link_->close();
+  if (link_) {
+    link_->close();
+    old_links_framing_ += link_->message_link()->counters().deframer;
+  }
   link_ = backbone::SessionLink::create(std::move(link), identity_, tuning_.session, &stream_,
                                         nullptr, counters_.session);
   link_->start();
@@ -127,6 +130,8 @@ GatewayCounters Gateway::counters() const {
   GatewayCounters c = counters_;
   c.translation = translator_.drops();
   c.outbox = outbox_.counters();
+  c.framing = old_links_framing_;
+  if (link_) c.framing += link_->message_link()->counters().deframer;
   return c;
 }
 
@@ -145,10 +150,9 @@ std::string Gateway::stats_line() const {
       c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused);
-  if (link_ && link_->message_link()->crc_framed()) {
-    const auto serial = link_->message_link()->counters().deframer;
-    s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", serial.frames,
-                     serial.crc_errors, serial.discarded_bytes);
+  if (c.framing.frames + c.framing.discarded_bytes != 0) {
+    s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", c.framing.frames,
+                     c.framing.crc_errors, c.framing.discarded_bytes);
   }
   for (const auto& m : modules_) {
     const can::BusCounters b = m.bus->counters();

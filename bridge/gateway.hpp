@@ -35,6 +35,7 @@ struct GatewayCounters {
   std::uint64_t bus_refused = 0;         // a module bus's transmit queue was full
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
+  backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
 };
 
 class Gateway {
@@ -71,7 +72,8 @@ class Gateway {
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;
   backbone::PeerStream stream_;
-  std::shared_ptr<backbone::SessionLink> link_;  // the newest link, ready or not
+  std::shared_ptr<backbone::SessionLink> link_;     // the newest link, ready or not
+  backbone::DeframerCounters old_links_framing_{};  // of the links before link_
   GatewayCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;

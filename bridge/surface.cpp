@@ -52,7 +52,11 @@ void Surface::start() {
 
 void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (stopped_) return link->close();
-  std::erase_if(links_, [](const auto& l) { return !l->message_link()->is_open(); });
+  std::erase_if(links_, [this](const auto& l) {
+    if (l->message_link()->is_open()) return false;
+    closed_links_framing_ += l->message_link()->counters().deframer;
+    return true;
+  });
   auto session = backbone::SessionLink::create(
       std::move(link), identity_, tuning_.session, nullptr,
       [this](const v1::Hello& hello, backbone::SessionLink&) { return bind(hello); },
@@ -176,6 +180,8 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
 
 SurfaceCounters Surface::counters() const {
   SurfaceCounters c = counters_;
+  c.framing = closed_links_framing_;
+  for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
     const OutboxCounters o = g->outbox.counters();
     c.outbox.queued += o.queued;

@@ -27,6 +27,7 @@ struct SurfaceCounters {
   std::uint64_t bus_refused = 0;         // surface bus transmit queue full
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
+  backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
 };
 
 class Surface {
@@ -71,6 +72,7 @@ class Surface {
   backbone::SessionLink::Identity identity_;
   std::map<std::string, std::unique_ptr<Gateway>> gateways_;   // by name, once seen
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
+  backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_
   SurfaceCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;

@@ -12,6 +12,7 @@
 #include <boost/asio/write.hpp>
 
 #include "backbone/delimited_codec.hpp"
+#include "backbone/serial_client.hpp"
 #include "tests/backbone/session_peers.hpp"
 #include "tests/backbone/test_support.hpp"
 
@@ -248,6 +249,40 @@ TEST_F(SessionTest, TheRefusedSideLogsAndCountsTheRefusal) {
   EXPECT_FALSE(gateway.stream().up());
 }
 
+TEST_F(SessionTest, DataInTheSameReadAsThePeersHelloIsDelivered) {
+  auto [client, server] = connected_sockets(io);
+  gateway.attach(MessageLink::create(std::move(client)));
+  // A raw surface: its hello and two reliable payloads in one write, as a real surface sends them
+  // when it has data queued for a gateway that reconnects.
+  v1::Envelope hello;
+  hello.mutable_hello()->set_protocol_major(kProtocolMajor);
+  hello.mutable_hello()->set_role(v1::Hello::ROLE_SURFACE);
+  hello.mutable_hello()->set_name("raw-surface");
+  hello.mutable_hello()->set_session_id(9);
+  hello.mutable_hello()->set_send_base(1);
+  std::string bytes;
+  append_message(bytes, hello);
+  for (std::uint64_t seq : {1, 2}) {
+    v1::Envelope data;
+    data.set_seq(seq);
+    data.set_payload(std::string("\x01\0\0\0\0\0\0\0", 8));
+    data.mutable_payload()->at(0) = static_cast<char>(seq);
+    append_message(bytes, data);
+  }
+  // Wait for the gateway's hello first, so both messages land in one read on its side.
+  server.non_blocking(true);
+  ASSERT_TRUE(run_until(io, [&] {
+    char buf[256];
+    boost::system::error_code ec;
+    return server.read_some(asio::buffer(buf), ec) > 0;
+  }));
+  asio::write(server, asio::buffer(bytes));
+  ASSERT_TRUE(run_until(io, [&] { return gateway.received.size() == 2; }));
+  EXPECT_EQ(gateway.received, (std::vector<std::uint64_t>{1, 2}));
+  EXPECT_EQ(gateway.counters.resend_requests, 0u);
+  EXPECT_EQ(gateway.counters.protocol_errors, 0u);
+}
+
 TEST_F(SessionTest, DataBeforeHelloIsAProtocolError) {
   auto [client, server] = connected_sockets(io);
   surface.attach(MessageLink::create(std::move(server)));
@@ -280,6 +315,76 @@ TEST_F(SessionTest, SerialLinkOverAPtyCarriesTheStreamAndSurvivesGarbage) {
   EXPECT_GT(serial.discarded_bytes, 0u);
   EXPECT_TRUE(surface.links.front()->message_link()->is_serial());
   ::close(raw_fd);
+}
+
+// A pty whose slave end can be reopened by path, as a serial port is; an extra descriptor keeps
+// the slave open so the master does not see a hangup while the test's end is closed.
+struct ReopenablePty {
+  explicit ReopenablePty(asio::io_context& io) : master(io) {
+    int m = -1, s = -1;
+    char name[128] = {};
+    if (::openpty(&m, &s, name, nullptr, nullptr) != 0) throw std::runtime_error("pty");
+    termios raw{};
+    ::tcgetattr(s, &raw);
+    ::cfmakeraw(&raw);
+    ::tcsetattr(s, TCSANOW, &raw);
+    master.assign(m);
+    keep_slave_open = s;
+    slave_path = name;
+  }
+  ~ReopenablePty() { ::close(keep_slave_open); }
+  std::shared_ptr<MessageLink> open_slave(asio::io_context& io) {
+    asio::serial_port port(io);
+    SerialOptions options;
+    options.device = slave_path;
+    if (open_serial_port(port, options)) throw std::runtime_error("open " + slave_path);
+    return MessageLink::create(std::move(port), slave_path);
+  }
+  asio::serial_port master;
+  int keep_slave_open = -1;
+  std::string slave_path;
+};
+
+TEST_F(SessionTest, SurfaceReopeningItsSerialPortAsksTheGatewayForANewHello) {
+  ReopenablePty pty(io);
+  gateway.attach(MessageLink::create(std::move(pty.master), "pty-master"));
+  surface.attach(pty.open_slave(io));
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  gateway.send_up_to(500);
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 500; }));
+  // The surface closes and reopens its end; the gateway's link never noticed (a serial line has
+  // no connection to lose) and goes on sending keepalives, not a hello.
+  surface.links.front()->close();
+  surface.links.clear();
+  ASSERT_TRUE(run_until(io, [&] { return !surface.stream().up(); }));
+  surface.attach(pty.open_slave(io));
+  gateway.send_up_to(1000);
+  ASSERT_TRUE(
+      run_until(io, [&] { return surface.stream().up() && surface.received.size() == 1000; }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 1000));
+  EXPECT_GT(surface.counters.before_hello, 0u);  // it waited, asked, and did not close
+  EXPECT_EQ(gateway.counters.dead_links + surface.counters.dead_links, 0u);
+  EXPECT_EQ(gateway.counters.protocol_errors + surface.counters.protocol_errors, 0u);
+}
+
+TEST_F(SessionTest, GatewayReopeningItsSerialPortIsAnsweredOnTheSurfacesOldLink) {
+  ReopenablePty pty(io);
+  surface.attach(MessageLink::create(std::move(pty.master), "pty-master"));
+  gateway.attach(pty.open_slave(io));
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  surface.send_up_to(300);
+  ASSERT_TRUE(run_until(io, [&] { return gateway.received.size() == 300; }));
+  gateway.links.front()->close();
+  gateway.links.clear();
+  ASSERT_TRUE(run_until(io, [&] { return !gateway.stream().up(); }));
+  // A second hello from the same gateway process on the surface's old link: answered, resumed.
+  gateway.attach(pty.open_slave(io));
+  surface.send_up_to(600);
+  ASSERT_TRUE(
+      run_until(io, [&] { return gateway.stream().up() && gateway.received.size() == 600; }));
+  EXPECT_TRUE(exactly_once_in_order(gateway.received, 600));
+  EXPECT_EQ(gateway.counters.protocol_errors + surface.counters.protocol_errors, 0u);
+  EXPECT_EQ(surface.counters.dead_links, 0u);
 }
 
 }  // namespace

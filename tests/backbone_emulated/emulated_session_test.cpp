@@ -41,10 +41,10 @@ SessionOptions lossy_line_options() {
   o.keepalive_interval = 25ms;
   o.dead_after = 100ms;  // cuts last 150 ms or more, so each one is noticed
   o.retransmit_timeout = 100ms;
-  // Go-back-N resends everything after a loss: a small window keeps that cheap at 1e-4 (about
-  // one message in 60 is hit), and on this fast line 16 in flight still fill it.
-  o.resend_buffer_messages = 16;
-  o.resend_buffer_bytes = 4 * 1024;
+  // About one message in 60 is hit at 1e-4; selective repeat resends only those, and the
+  // receiver keeps what follows a hole in a reorder buffer as large as this window.
+  o.resend_buffer_messages = 64;
+  o.resend_buffer_bytes = 16 * 1024;
   o.max_write_bytes = 1024;
   return o;
 }

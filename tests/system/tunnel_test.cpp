@@ -100,10 +100,11 @@ class Tunnel : public ::testing::Test {
       EXPECT_EQ(surface_->stop(), 0) << surface_->output();
       const std::string line = last_line(surface_->output());
       std::smatch m;
-      EXPECT_TRUE(std::regex_search(line, m,
-                                    std::regex("surface test-surface: [0-9]+ gateway\\(s\\), "
-                                               "bus->backbone ([0-9]+) frames, backbone->bus "
-                                               "([0-9]+),")))
+      EXPECT_TRUE(
+          std::regex_search(line, m,
+                            std::regex("surface test-surface: [0-9]+/[0-9]+ gateway\\(s\\) up, "
+                                       "bus->backbone ([0-9]+) frames, backbone->bus "
+                                       "([0-9]+),")))
           << "final line: " << line;
       if (!m.empty()) {
         EXPECT_GT(std::stoull(m[1].str()), 0u) << line;
