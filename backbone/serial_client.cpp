@@ -39,11 +39,10 @@ std::shared_ptr<SerialClient> SerialClient::create(asio::any_io_executor executo
 }
 
 SerialClient::SerialClient(asio::any_io_executor executor, SerialOptions options)
-    : executor_(std::move(executor)), options_(std::move(options)), backoff_timer_(executor_) {
-  options_.backoff_min = std::max(options_.backoff_min, std::chrono::milliseconds{1});
-  options_.backoff_max = std::max(options_.backoff_max, options_.backoff_min);
-  backoff_ = options_.backoff_min;
-}
+    : executor_(std::move(executor)),
+      options_(std::move(options)),
+      backoff_timer_(executor_),
+      backoff_(options_.backoff_min, options_.backoff_max) {}
 
 SerialClient::~SerialClient() = default;
 
@@ -73,13 +72,13 @@ asio::awaitable<void> SerialClient::run() {
       ++counters_.open_failures;
       if (!failing_) {
         spdlog::warn("backbone: cannot open serial line {}: {} (retrying up to every {} ms)",
-                     options_.device, ec.message(), options_.backoff_max.count());
+                     options_.device, ec.message(), backoff_.max().count());
       }
       failing_ = true;
     } else {
       ++counters_.opens;
       failing_ = false;
-      backoff_ = options_.backoff_min;
+      backoff_.reset();
       spdlog::info("backbone: serial line {} open at {} bit/s", options_.device, options_.baud);
       auto link = MessageLink::create(std::move(port), options_.device, options_.link);
       link_ = link;
@@ -91,8 +90,7 @@ asio::awaitable<void> SerialClient::run() {
       spdlog::info("backbone: serial link {} ended: {}", options_.device, reason.message());
     }
     // A line that ends at once (peer gone, device unplugged) must not become a busy loop.
-    backoff_timer_.expires_after(backoff_);
-    backoff_ = std::min(backoff_ * 2, options_.backoff_max);
+    backoff_timer_.expires_after(backoff_.next());
     co_await backoff_timer_.async_wait(kNoError);
   }
   on_connected_ = nullptr;

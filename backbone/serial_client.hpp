@@ -12,6 +12,7 @@
 #include <string>
 
 #include "backbone/message_link.hpp"
+#include "backbone/reconnect_backoff.hpp"
 
 namespace canbridge::backbone {
 
@@ -58,7 +59,7 @@ class SerialClient : public std::enable_shared_from_this<SerialClient> {
   boost::asio::any_io_executor executor_;
   SerialOptions options_;
   boost::asio::steady_timer backoff_timer_;
-  std::chrono::milliseconds backoff_;
+  ReconnectBackoff backoff_;
   ConnectedHandler on_connected_;
   std::shared_ptr<MessageLink> link_;
   SerialCounters counters_;

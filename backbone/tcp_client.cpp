@@ -34,11 +34,7 @@ TcpClient::TcpClient(asio::any_io_executor executor, std::string host, std::uint
       socket_(executor_),
       deadline_(executor_),
       backoff_timer_(executor_),
-      backoff_(options.backoff_min) {
-  options_.backoff_min = std::max(options_.backoff_min, std::chrono::milliseconds{1});
-  options_.backoff_max = std::max(options_.backoff_max, options_.backoff_min);
-  backoff_ = options_.backoff_min;
-}
+      backoff_(options.backoff_min, options.backoff_max) {}
 
 TcpClient::~TcpClient() = default;
 
@@ -74,7 +70,7 @@ asio::awaitable<void> TcpClient::run() {
       ++counters_.connect_failures;
       if (!failing_) {
         spdlog::warn("backbone: cannot connect to {}:{}: {} (retrying up to every {} ms)", host_,
-                     port_, ec.message(), options_.backoff_max.count());
+                     port_, ec.message(), backoff_.max().count());
       } else {
         spdlog::debug("backbone: connect to {}:{} failed: {}", host_, port_, ec.message());
       }
@@ -85,7 +81,7 @@ asio::awaitable<void> TcpClient::run() {
 
     ++counters_.connects;
     failing_ = false;
-    backoff_ = options_.backoff_min;
+    backoff_.reset();
     auto link = MessageLink::create(std::move(socket_), options_.link);
     socket_ = tcp::socket(executor_);
     spdlog::info("backbone: connected to {}:{}", host_, port_);
@@ -136,8 +132,7 @@ asio::awaitable<std::error_code> TcpClient::connect_once() {
 }
 
 asio::awaitable<void> TcpClient::back_off() {
-  backoff_timer_.expires_after(backoff_);
-  backoff_ = std::min(backoff_ * 2, options_.backoff_max);
+  backoff_timer_.expires_after(backoff_.next());
   co_await backoff_timer_.async_wait(kNoError);
 }
 

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "backbone/message_link.hpp"
+#include "backbone/reconnect_backoff.hpp"
 
 namespace canbridge::backbone {
 
@@ -72,7 +73,7 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
   boost::asio::ip::tcp::socket socket_;  // the connection being attempted
   boost::asio::steady_timer deadline_;   // connect_timeout of the current attempt
   boost::asio::steady_timer backoff_timer_;
-  std::chrono::milliseconds backoff_;
+  ReconnectBackoff backoff_;
   ConnectedHandler on_connected_;
   std::shared_ptr<MessageLink> link_;
   ClientCounters counters_;

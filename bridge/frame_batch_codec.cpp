@@ -172,4 +172,19 @@ BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Fram
   return BatchError::none;
 }
 
+std::optional<std::string> decode_frame_payload(std::span<const std::uint8_t> bytes,
+                                                v1::Payload& payload,
+                                                std::vector<can::Frame>& frames) {
+  frames.clear();
+  if (!payload.ParseFromArray(bytes.data(), static_cast<int>(bytes.size())) ||
+      !payload.has_frames()) {
+    return std::string("not a frame batch");
+  }
+  if (const BatchError err = decode_frame_batch(payload.frames(), frames);
+      err != BatchError::none) {
+    return "malformed frame batch (" + std::string(to_string(err)) + ")";
+  }
+  return std::nullopt;
+}
+
 }  // namespace canbridge::bridge

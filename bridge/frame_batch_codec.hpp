@@ -2,6 +2,9 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
+#include <span>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -50,5 +53,13 @@ std::string_view to_string(BatchError error);
 // Decodes every frame of `batch` into `out` (appending). On error `out` is left as it was: the
 // batch is validated completely before the first frame is appended.
 BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Frame>& out);
+
+// A received session payload (a serialized v1::Payload) decoded into frames: `payload` receives
+// the parsed message (reused across calls, so parsing allocates only while it grows), `frames`
+// the frames (cleared first). Returns nullopt when it holds a valid frame batch, else why not,
+// for a counter and a warning.
+std::optional<std::string> decode_frame_payload(std::span<const std::uint8_t> bytes,
+                                                v1::Payload& payload,
+                                                std::vector<can::Frame>& frames);
 
 }  // namespace canbridge::bridge

@@ -86,20 +86,12 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
 }
 
 void Gateway::on_payload(std::span<const std::uint8_t> payload) {
-  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
-      !inbound_.has_frames()) {
+  if (auto error = decode_frame_payload(payload, inbound_, decoded_)) {
     ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "gateway: a backbone payload is not a frame batch (counted)");
+    warn_.warn(Warn::kMalformed, "gateway: dropped a backbone payload: {} (counted)", *error);
     return;
   }
   const v1::FrameBatch& batch = inbound_.frames();
-  decoded_.clear();
-  if (const BatchError err = decode_frame_batch(batch, decoded_); err != BatchError::none) {
-    ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "gateway: malformed frame batch ({}): dropped (counted)",
-               to_string(err));
-    return;
-  }
   counters_.frames_received += decoded_.size();
   std::optional<std::size_t> only;
   if (batch.module_id() != kAnyModule) {

@@ -144,26 +144,19 @@ asio::awaitable<void> Surface::read_bus() {
 }
 
 void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
-  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
-      !inbound_.has_frames()) {
+  if (auto error = decode_frame_payload(payload, inbound_, decoded_)) {
     ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "surface: a backbone payload is not a frame batch (counted)");
+    warn_.warn(Warn::kMalformed, "surface: dropped a backbone payload: {} (counted)", *error);
     return;
   }
   const v1::FrameBatch& batch = inbound_.frames();
   if (std::find(from.modules.begin(), from.modules.end(), batch.module_id()) ==
       from.modules.end()) {
+    decoded_.clear();
     ++counters_.unknown_module;
     warn_.warn(Warn::kUnknownModule,
                "surface: gateway '{}' sent frames for module {} it did not announce (counted)",
                from.name, batch.module_id());
-    return;
-  }
-  decoded_.clear();
-  if (const BatchError err = decode_frame_batch(batch, decoded_); err != BatchError::none) {
-    ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "surface: malformed frame batch ({}): dropped (counted)",
-               to_string(err));
     return;
   }
   counters_.frames_received += decoded_.size();

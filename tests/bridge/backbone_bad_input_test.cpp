@@ -4,8 +4,6 @@
 // the peer cannot be served (then with a Refusal saying why).
 #include <gtest/gtest.h>
 
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/write.hpp>
@@ -24,6 +22,7 @@
 #include "can/virtual_bus.hpp"
 #include "canbridge.pb.h"
 #include "session.pb.h"
+#include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
 namespace canbridge::bridge {
@@ -33,6 +32,7 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 using namespace std::chrono_literals;
 
+using test::BusRecorder;
 using test::run_until;
 
 // Raw peers never send keepalives: a generous dead-link timeout keeps the role under test from
@@ -43,31 +43,6 @@ BackboneTuning patient_tuning() {
   t.session.dead_after = 30s;
   return t;
 }
-
-// Records every frame one bus endpoint receives, from a coroutine that runs until the bus closes.
-// close() and then waiting for done() must precede destruction (the coroutine uses the bus).
-class BusRecorder {
- public:
-  BusRecorder(asio::io_context& io, std::unique_ptr<can::Bus> bus) : bus_(std::move(bus)) {
-    asio::co_spawn(
-        io,
-        [this]() -> asio::awaitable<void> {
-          while (!co_await bus_->receive_batch(frames)) {
-          }
-          done_ = true;
-        },
-        asio::detached);
-  }
-  can::Bus& bus() { return *bus_; }
-  void close() { bus_->close(); }
-  bool done() const { return done_; }
-
-  std::vector<can::Frame> frames;
-
- private:
-  std::unique_ptr<can::Bus> bus_;
-  bool done_ = false;
-};
 
 // A raw TCP socket playing one backbone peer: writes whatever bytes a test wants and decodes what
 // the role under test sends back into envelopes, without ever blocking the loop.

@@ -5,12 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
 #include <cstdio>
-#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -21,6 +18,7 @@
 #include "bridge/node_map.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
+#include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
 namespace canbridge::bridge {
@@ -29,42 +27,8 @@ namespace {
 namespace asio = boost::asio;
 using namespace std::chrono_literals;
 
+using test::BusRecorder;
 using test::run_until;
-
-// Records every frame one bus endpoint receives, from a coroutine that runs until the bus closes;
-// `on_frames` (optional) runs after each received batch. close() and then waiting for done() must
-// precede destruction (the coroutine uses the bus).
-class BusRecorder {
- public:
-  BusRecorder(asio::io_context& io, std::unique_ptr<can::Bus> bus) : bus_(std::move(bus)) {
-    asio::co_spawn(
-        io,
-        [this]() -> asio::awaitable<void> {
-          while (!co_await bus_->receive_batch(frames)) {
-            if (on_frames) on_frames();
-          }
-          done_ = true;
-        },
-        asio::detached);
-  }
-  bool send(const can::Frame& f) { return bus_->send(f); }
-  void close() { bus_->close(); }
-  bool done() const { return done_; }
-  std::size_t count(std::uint32_t id) const {
-    return static_cast<std::size_t>(std::count_if(frames.begin(), frames.end(),
-                                                  [&](const can::Frame& f) { return f.id == id; }));
-  }
-  bool saw(const can::Frame& frame) const {
-    return std::find(frames.begin(), frames.end(), frame) != frames.end();
-  }
-
-  std::vector<can::Frame> frames;
-  std::function<void()> on_frames;
-
- private:
-  std::unique_ptr<can::Bus> bus_;
-  bool done_ = false;
-};
 
 // One gateway "process": its own module buses (a node endpoint on each, to write and to record),
 // a Gateway and a TcpClient to the surface.

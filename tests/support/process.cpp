@@ -132,4 +132,11 @@ RunResult run(std::vector<std::string> argv, std::chrono::milliseconds timeout, 
   return r;
 }
 
+std::string last_line(const std::string& text) {
+  const std::size_t end = text.find_last_not_of('\n');
+  if (end == std::string::npos) return "";
+  const std::size_t begin = text.rfind('\n', end);
+  return text.substr(begin == std::string::npos ? 0 : begin + 1, end + 1 - (begin + 1));
+}
+
 }  // namespace canbridge::test

@@ -63,4 +63,8 @@ RunResult run(std::vector<std::string> argv,
               std::chrono::milliseconds timeout = std::chrono::milliseconds(10000),
               Capture capture = Capture::stdout_and_stderr);
 
+// The last non-empty line of a child's output (e.g. the counter line a process prints on exit),
+// without its newline; "" when there is none.
+std::string last_line(const std::string& text);
+
 }  // namespace canbridge::test

@@ -97,6 +97,19 @@ std::optional<can::Frame> RawCanSocket::receive(std::chrono::milliseconds timeou
   }
 }
 
+FramesUntil receive_until(RawCanSocket& socket, const can::Frame& marker,
+                          std::chrono::milliseconds gap) {
+  FramesUntil got;
+  while (auto f = socket.receive(gap)) {
+    got.frames.push_back(*f);
+    if (*f == marker) {
+      got.marker_seen = true;
+      break;
+    }
+  }
+  return got;
+}
+
 int receivers_on(const std::string& interface) {
   std::ifstream in("/proc/net/can/rcvlist_all");
   std::string line;

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "can/frame.hpp"
 
@@ -27,6 +28,16 @@ class RawCanSocket {
  private:
   int fd_ = -1;
 };
+
+// What receive_until() read: every frame in arrival order, the marker last if it came.
+struct FramesUntil {
+  std::vector<can::Frame> frames;
+  bool marker_seen = false;
+};
+// Reads frames from `socket` up to and including `marker`, each within `gap` of the one before;
+// stops early (marker_seen false) once a gap passes without a frame. The caller asserts.
+FramesUntil receive_until(RawCanSocket& socket, const can::Frame& marker,
+                          std::chrono::milliseconds gap);
 
 // Receivers registered on `interface` in the kernel's rx_all list (/proc/net/can/rcvlist_all):
 // every CAN_RAW socket without filters, candump's included.

@@ -28,7 +28,9 @@ namespace {
 using namespace std::chrono_literals;
 using can::Frame;
 using test::ChildProcess;
+using test::last_line;
 using test::RawCanSocket;
+using test::receive_until;
 using Clock = std::chrono::steady_clock;
 
 // Upper bound for one awaited event in the (slow) UML guest; the events themselves come much
@@ -78,26 +80,6 @@ std::vector<std::string> texts(const std::vector<Frame>& frames) {
   std::vector<std::string> out;
   for (const Frame& f : frames) out.push_back(can::format_cansend_frame(f));
   return out;
-}
-
-// Frames on `socket` until `marker` (inclusive), each within `gap` of the one before.
-std::vector<Frame> until(RawCanSocket& socket, const Frame& marker,
-                         std::chrono::milliseconds gap = kEvent) {
-  std::vector<Frame> seen;
-  while (auto f = socket.receive(gap)) {
-    seen.push_back(*f);
-    if (*f == marker) return seen;
-  }
-  ADD_FAILURE() << "marker " << can::to_string(marker) << " never arrived; got " << seen.size()
-                << " frame(s) before giving up";
-  return seen;
-}
-
-std::string last_line(const std::string& text) {
-  const std::size_t end = text.find_last_not_of('\n');
-  if (end == std::string::npos) return "";
-  const std::size_t begin = text.rfind('\n', end);
-  return text.substr(begin == std::string::npos ? 0 : begin + 1, end + 1 - (begin + 1));
 }
 
 // The number after `label` in a counter line ("dead-links 2"), or -1.
@@ -231,19 +213,23 @@ TEST_F(SerialTunnel, SdoRequestAndResponseCrossTheLineTranslated) {
   ASSERT_NO_FATAL_FAILURE(cansend("vcan0", "622#4000100000000000"));
   ASSERT_NO_FATAL_FAILURE(cansend("vcan0", "000#8000"));
   const Frame marker = Frame::standard(0x000, {0x80, 0x00});
-  const auto at1 = until(vcan1, marker);
-  ASSERT_EQ(at1.size(), 2u) << testing::PrintToString(texts(at1));
-  EXPECT_EQ(at1[0], Frame::standard(0x602, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0}))
-      << can::to_string(at1[0]);
-  const auto at2 = until(vcan2, marker);
-  EXPECT_EQ(at2.size(), 1u) << "the SDO request leaked to module 2: "
-                            << testing::PrintToString(texts(at2));
+  const auto at1 = receive_until(vcan1, marker, kEvent);
+  EXPECT_TRUE(at1.marker_seen) << "the marker never reached vcan1";
+  ASSERT_EQ(at1.frames.size(), 2u) << testing::PrintToString(texts(at1.frames));
+  EXPECT_EQ(at1.frames[0], Frame::standard(0x602, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0}))
+      << can::to_string(at1.frames[0]);
+  const auto at2 = receive_until(vcan2, marker, kEvent);
+  EXPECT_TRUE(at2.marker_seen) << "the marker never reached vcan2";
+  EXPECT_EQ(at2.frames.size(), 1u)
+      << "the SDO request leaked to module 2: " << testing::PrintToString(texts(at2.frames));
 
   // The node's answer (device type 0x00020192) comes back as surface node 34's.
   ASSERT_NO_FATAL_FAILURE(cansend("vcan1", "582#4300100092010200"));
   const Frame reply = Frame::standard(0x5A2, {0x43, 0x00, 0x10, 0x00, 0x92, 0x01, 0x02, 0x00});
-  const auto at0 = until(vcan0, reply);  // vcan0 also shows the two frames cansend put there
-  EXPECT_EQ(texts(at0),
+  // vcan0 also shows the two frames cansend put there.
+  const auto at0 = receive_until(vcan0, reply, kEvent);
+  EXPECT_TRUE(at0.marker_seen) << "the reply never reached vcan0";
+  EXPECT_EQ(texts(at0.frames),
             (std::vector<std::string>{"622#4000100000000000", "000#8000", "5A2#4300100092010200"}));
   ASSERT_NO_FATAL_FAILURE(expect_running());
   stop_all();
@@ -295,9 +281,11 @@ TEST_F(SerialTunnel, ReliableFramesSentDuringACutArriveOnceAndInOrderAfterIt) {
   // duplicate of one of them).
   vcan1.send(marker);
   expected.push_back(on_surface(marker));
-  const auto got = until(vcan0, on_surface(marker));
+  const auto got = receive_until(vcan0, on_surface(marker), kEvent);
   const long long all_arrived = since_ready();
-  EXPECT_EQ(texts(got), texts(expected));
+  EXPECT_TRUE(got.marker_seen) << "the marker never reached vcan0; got " << got.frames.size()
+                               << " frame(s) before giving up";
+  EXPECT_EQ(texts(got.frames), texts(expected));
 
   // can-utils sees the same on the bus.
   ASSERT_TRUE(candump.wait(kEvent)) << candump.output();
