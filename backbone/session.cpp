@@ -55,6 +55,16 @@ const char* role_name(v1::Hello::Role role) {
 
 std::atomic<bool> warned_malformed{false};
 
+// A refused gateway retries with backoff and is refused again, for as long as the configuration
+// stays wrong: the first refusal is an error, the same one again only a debug line (the stats
+// line counts them all).
+bool same_as_last_refusal(const std::string& text) {
+  static std::string last;  // the roles run on one thread
+  if (text == last) return true;
+  last = text;
+  return false;
+}
+
 }  // namespace
 
 std::uint64_t random_session_id() {
@@ -313,12 +323,15 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
   switch (inbound_.body_case()) {
     case v1::Envelope::kHello:
       return on_hello(inbound_);
-    case v1::Envelope::kRefusal:
+    case v1::Envelope::kRefusal: {
       ++counters_.refusals_received;
-      spdlog::error("backbone: {} refused this {}: {} ({})", link_->peer_name(),
-                    role_name(identity_.role), inbound_.refusal().detail(),
-                    v1::Refusal::Reason_Name(inbound_.refusal().reason()));
+      const std::string text = fmt::format("{} refused this {}: {} ({})", link_->peer_name(),
+                                           role_name(identity_.role), inbound_.refusal().detail(),
+                                           v1::Refusal::Reason_Name(inbound_.refusal().reason()));
+      spdlog::log(same_as_last_refusal(text) ? spdlog::level::debug : spdlog::level::err,
+                  "backbone: {}", text);
       return link_->close();
+    }
     case v1::Envelope::kKeepalive:
       if (inbound_.keepalive().hello_please()) {
         // The peer reopened its end of a line we still had open: it needs our hello again.
@@ -458,7 +471,8 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
 
 void SessionLink::refuse(v1::Refusal::Reason reason, const std::string& detail) {
   ++counters_.refusals_sent;
-  spdlog::error("backbone: refusing {}: {}", link_->peer_name(), detail);
+  spdlog::log(same_as_last_refusal(detail) ? spdlog::level::debug : spdlog::level::err,
+              "backbone: refusing {}: {}", link_->peer_name(), detail);
   scratch_.Clear();
   v1::Refusal& r = *scratch_.mutable_refusal();
   r.set_reason(reason);
