@@ -15,17 +15,21 @@ namespace asio = boost::asio;
 
 // One gateway as the surface knows it, kept across its links so reliable streams resume.
 struct Surface::Gateway {
-  Gateway(std::string gateway_name, const BackboneTuning& tuning, Surface& surface)
+  Gateway(std::string gateway_name, SdoLinkGuard::GatewayId gateway_id,
+          const BackboneTuning& tuning, Surface& surface)
       : name(std::move(gateway_name)),
+        id(gateway_id),
         outbox(tuning.outbox),
         stream(tuning.session, backbone::PeerStream::Handlers{
                                    [this](backbone::PayloadSink& sink) { outbox.produce(sink); },
                                    [this, &surface](std::span<const std::uint8_t> payload, bool) {
                                      surface.on_payload(*this, payload);
                                    },
-                                   nullptr, nullptr}) {}
+                                   nullptr, [this, &surface] { surface.on_gateway_down(*this); }}) {
+  }
 
   std::string name;
+  SdoLinkGuard::GatewayId id;
   std::vector<std::uint32_t> modules;  // as announced in its latest accepted hello
   FrameOutbox outbox;
   backbone::PeerStream stream;
@@ -88,7 +92,11 @@ backbone::BindResult Surface::bind(const v1::Hello& hello) {
     }
   }
   auto& slot = gateways_[hello.name()];
-  if (!slot) slot = std::make_unique<Gateway>(hello.name(), tuning_, *this);
+  if (!slot) {
+    slot = std::make_unique<Gateway>(
+        hello.name(), static_cast<SdoLinkGuard::GatewayId>(by_id_.size()), tuning_, *this);
+    by_id_.push_back(slot.get());
+  }
   if (slot->stream.up() && slot->stream.peer_hello().session_id() != hello.session_id()) {
     refused.detail = "a gateway named '" + hello.name() +
                      "' is already connected (another process); names must be unique";
@@ -126,11 +134,20 @@ asio::awaitable<void> Surface::read_bus() {
                  "surface: no gateway has connected yet: surface frames are dropped (counted)");
       continue;
     }
+    // SDO requests to nodes whose gateway link is down are answered here, with an abort, and
+    // go no further.
+    forward_.clear();
+    for (const can::Frame& frame : batch) {
+      if (frame.is_error()) continue;
+      const auto verdict = guard_.on_surface_frame(
+          frame, [this](SdoLinkGuard::GatewayId g) { return by_id_[g]->stream.up(); });
+      if (verdict.reply) send_to_bus(*verdict.reply);
+      if (verdict.forward) forward_.push_back(frame);
+    }
     // Every known gateway gets the surface traffic (queued while its link is down, so reliable
     // frames reach it exactly once); each routes by COB-ID to its own modules.
     for (auto& [name, gateway] : gateways_) {
-      for (const can::Frame& frame : batch) {
-        if (frame.is_error()) continue;
+      for (const can::Frame& frame : forward_) {
         if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_) && !is_process_data(frame)) {
           warn_.warn(Warn::kRefused,
                      "surface: backbone queue to gateway '{}' full: reliable frames refused "
@@ -161,18 +178,30 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
   }
   counters_.frames_received += decoded_.size();
   for (const can::Frame& frame : decoded_) {
-    if (bus_->send(frame)) {
-      ++counters_.to_bus;
-    } else {
-      ++counters_.bus_refused;
-      warn_.warn(Warn::kBusRefused,
-                 "surface: bus {} refused a frame (transmit queue full; counted)", bus_->name());
-    }
+    guard_.on_gateway_frame(from.id, frame);
+    send_to_bus(frame);
   }
+}
+
+void Surface::send_to_bus(const can::Frame& frame) {
+  if (bus_->send(frame)) {
+    ++counters_.to_bus;
+  } else {
+    ++counters_.bus_refused;
+    warn_.warn(Warn::kBusRefused, "surface: bus {} refused a frame (transmit queue full; counted)",
+               bus_->name());
+  }
+}
+
+// A master waiting on one of the gateway's nodes must not wait for a timeout of its own.
+void Surface::on_gateway_down(Gateway& gateway) {
+  if (stopped_) return;
+  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id)) send_to_bus(abort);
 }
 
 SurfaceCounters Surface::counters() const {
   SurfaceCounters c = counters_;
+  c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
@@ -193,14 +222,15 @@ std::string Surface::stats_line() const {
   std::string s = fmt::format(
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, bus-refused {}, malformed {}, unknown-module {}; {} rx {} tx {} "
+      "refusals {}/{}, sdo-aborted-link-down {}, bus-refused {}, malformed {}, unknown-module {}; "
+      "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.bus_refused, c.malformed_payloads + c.session.malformed,
-      c.unknown_module, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
-      can::to_string(b.state));
+      c.session.refusals_received, c.sdo_aborted, c.bus_refused,
+      c.malformed_payloads + c.session.malformed, c.unknown_module, bus_->name(), b.rx_frames,
+      b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
   return s;
 }
 

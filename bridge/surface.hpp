@@ -12,6 +12,7 @@
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
@@ -28,6 +29,7 @@ struct SurfaceCounters {
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
+  std::uint64_t sdo_aborted = 0;         // SDO requests answered with 0x05040000: gateway link down
 };
 
 class Surface {
@@ -54,6 +56,8 @@ class Surface {
   boost::asio::awaitable<void> read_bus();
   backbone::BindResult bind(const v1::Hello& hello);
   void on_payload(Gateway& from, std::span<const std::uint8_t> payload);
+  void on_gateway_down(Gateway& gateway);
+  void send_to_bus(const can::Frame& frame);
 
   enum Warn : std::size_t {
     kUnknownModule,
@@ -70,7 +74,10 @@ class Surface {
   BackboneTuning tuning_;
   bool conflate_pdos_;
   backbone::SessionLink::Identity identity_;
-  std::map<std::string, std::unique_ptr<Gateway>> gateways_;   // by name, once seen
+  std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
+  std::vector<Gateway*> by_id_;                               // the same, by SdoLinkGuard id
+  SdoLinkGuard guard_;
+  std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_
   SurfaceCounters counters_;

@@ -332,3 +332,42 @@ TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {
 
 }  // namespace
 }  // namespace canbridge::bridge
+
+namespace canbridge::bridge {
+namespace {
+
+// Abort 0x05040000 from surface node `node` for object 2000h:00, as the surface must answer.
+can::Frame link_down_abort(std::uint32_t node) {
+  return can::Frame::standard(0x580 + node, {0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x04, 0x05});
+}
+
+TEST_F(SurfaceGateways, SdoToANodeBehindALostLinkIsAbortedPromptlyNotLeftHanging) {
+  start_a_and_b();
+  // The surface learns who owns which node from the gateways' traffic (here: heartbeats).
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x05})));
+  ASSERT_TRUE(b->node().send(can::Frame::standard(0x700 + kLocal, {0x05})));
+  ASSERT_TRUE(run_until(io, [&] { return master.frames.size() >= 2; }));
+  // A request in flight (the node has not answered) when A's link drops: aborted at once.
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 1)));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().count(0x600 + kLocal) == 1; }));
+  const auto cut_at = std::chrono::steady_clock::now();
+  a->client->stop();  // the link is lost and stays lost
+  ASSERT_TRUE(run_until(io, [&] { return master.saw(link_down_abort(kSurfaceNodeA)); }));
+  EXPECT_LT(std::chrono::steady_clock::now() - cut_at, 500ms);
+  EXPECT_FALSE(a->connected());
+  // A new request to A's node: answered by the surface, never queued for the dead link.
+  const std::size_t aborts_before = master.count(0x580 + kSurfaceNodeA);
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 2)));
+  ASSERT_TRUE(
+      run_until(io, [&] { return master.count(0x580 + kSurfaceNodeA) == aborts_before + 1; }));
+  EXPECT_EQ(surface.counters().sdo_aborted, 2u);
+  // B's node is untouched: its request goes through, its answer comes back.
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, 3)));
+  ASSERT_TRUE(run_until(io, [&] { return b->node().count(0x600 + kLocal) == 1; }));
+  ASSERT_TRUE(b->node().send(sdo_response(kLocal, 3)));
+  ASSERT_TRUE(run_until(io, [&] { return master.count(0x580 + kSurfaceNodeB) == 1; }));
+  EXPECT_EQ(surface.counters().sdo_aborted, 2u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge

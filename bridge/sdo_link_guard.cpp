@@ -1,0 +1,49 @@
+#include "bridge/sdo_link_guard.hpp"
+
+namespace canbridge::bridge {
+
+canopen::NodeId SdoLinkGuard::request_node(const can::Frame& frame) {
+  if (frame.is_extended() || frame.is_remote() || frame.len != 8) return 0;
+  if (frame.id <= canopen::cob::sdo_rx || frame.id > canopen::cob::sdo_rx + canopen::kMaxNodeId) {
+    return 0;
+  }
+  return static_cast<canopen::NodeId>(frame.id - canopen::cob::sdo_rx);
+}
+
+can::Frame SdoLinkGuard::abort_for(canopen::NodeId node, const Node& n) {
+  return can::Frame::standard(
+      canopen::cob::sdo_tx + node,
+      {0x80, n.mux[0], n.mux[1], n.mux[2], static_cast<std::uint8_t>(kLinkDownAbort),
+       static_cast<std::uint8_t>(kLinkDownAbort >> 8),
+       static_cast<std::uint8_t>(kLinkDownAbort >> 16),
+       static_cast<std::uint8_t>(kLinkDownAbort >> 24)});
+}
+
+void SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) {
+  if (frame.is_extended()) return;
+  const auto address = canopen::split_predefined(frame.id);
+  if (!address || address->node == 0) return;
+  Node& n = nodes_[address->node];
+  n.owned = true;
+  n.gateway = gateway;
+  if (address->function_base == canopen::cob::sdo_tx) n.pending = false;
+}
+
+std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
+  std::vector<can::Frame> aborts;
+  for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
+    Node& n = nodes_[node];
+    if (!n.owned || n.gateway != gateway || !n.pending) continue;
+    n.pending = false;
+    ++counters_.aborted_in_flight;
+    aborts.push_back(abort_for(node, n));
+  }
+  return aborts;
+}
+
+std::optional<SdoLinkGuard::GatewayId> SdoLinkGuard::owner_of(canopen::NodeId node) const {
+  if (node == 0 || node > canopen::kMaxNodeId || !nodes_[node].owned) return std::nullopt;
+  return nodes_[node].gateway;
+}
+
+}  // namespace canbridge::bridge

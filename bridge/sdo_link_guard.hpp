@@ -1,0 +1,92 @@
+// Keeps a surface master's SDO client from hanging on nodes whose gateway link is down: a request
+// to such a node is answered at once with abort 0x05040000 (SDO protocol timed out) instead of
+// silence, and requests in flight when a link drops are aborted the same way.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <vector>
+
+#include "bridge/canopen/cob_id.hpp"
+#include "can/frame.hpp"
+
+namespace canbridge::bridge {
+
+// The abort code a master sees for a node behind a lost link (CiA 301: SDO protocol timed out).
+inline constexpr std::uint32_t kLinkDownAbort = 0x05040000;
+
+// Pure: frames in, frames out, no clock. Gateways are small integers chosen by the caller.
+class SdoLinkGuard {
+ public:
+  using GatewayId = std::uint32_t;
+
+  struct Counters {
+    std::uint64_t aborted_at_once = 0;    // requests to a node whose gateway was down
+    std::uint64_t aborted_in_flight = 0;  // requests pending when their gateway went down
+  };
+
+  // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
+  // PDOs, SDO responses) tell which surface nodes the gateway owns; an SDO response ends the
+  // transfer step in flight for that node.
+  void on_gateway_frame(GatewayId gateway, const can::Frame& frame);
+
+  // A frame from the surface bus, while `gateway_up(g)` tells which gateways have a live link.
+  // An SDO request to a node owned by a gateway that is down gets `reply` (the abort) and must
+  // not be forwarded; everything else is forwarded (and an SDO request is noted as in flight).
+  struct Verdict {
+    bool forward = true;
+    std::optional<can::Frame> reply;
+  };
+  template <typename GatewayUp>
+  Verdict on_surface_frame(const can::Frame& frame, GatewayUp&& gateway_up);
+
+  // The gateway's link went down: the aborts for every SDO request in flight to its nodes.
+  std::vector<can::Frame> on_gateway_down(GatewayId gateway);
+
+  std::optional<GatewayId> owner_of(canopen::NodeId node) const;
+  const Counters& counters() const { return counters_; }
+
+ private:
+  struct Node {
+    bool owned = false;
+    GatewayId gateway = 0;
+    bool pending = false;             // a request went out and no response came back yet
+    std::uint8_t mux[3] = {0, 0, 0};  // index (LE) and sub-index of the transfer in progress
+  };
+  static can::Frame abort_for(canopen::NodeId node, const Node& n);
+  // The node of an SDO request on the default server channel (0x601..0x67F), or 0.
+  static canopen::NodeId request_node(const can::Frame& frame);
+
+  std::array<Node, 128> nodes_{};
+  Counters counters_;
+};
+
+template <typename GatewayUp>
+SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
+                                                     GatewayUp&& gateway_up) {
+  const canopen::NodeId node = request_node(frame);
+  if (node == 0) return {};
+  Node& n = nodes_[node];
+  if (!n.owned) return {};
+  const std::uint8_t command = frame.data[0] >> 5;
+  // Initiate and block commands name the object; segments continue the one already noted.
+  if (command == 1 || command == 2 || command == 5 || command == 6) {
+    n.mux[0] = frame.data[1];
+    n.mux[1] = frame.data[2];
+    n.mux[2] = frame.data[3];
+  }
+  if (command == 4) {  // the master aborts: nothing is in flight any more
+    n.pending = false;
+    return {};
+  }
+  if (!gateway_up(n.gateway)) {
+    ++counters_.aborted_at_once;
+    n.pending = false;
+    return {false, abort_for(node, n)};
+  }
+  n.pending = true;
+  return {};
+}
+
+}  // namespace canbridge::bridge

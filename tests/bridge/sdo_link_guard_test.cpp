@@ -1,0 +1,92 @@
+// The surface's answer for nodes behind a lost link: abort 0x05040000 at once, never silence.
+#include "bridge/sdo_link_guard.hpp"
+
+#include <gtest/gtest.h>
+
+namespace canbridge::bridge {
+namespace {
+
+const can::Frame kHeartbeat34 = can::Frame::standard(0x722, {0x05});  // node 34: gateway 1
+const can::Frame kHeartbeat70 = can::Frame::standard(0x746, {0x05});  // node 70: gateway 2
+const can::Frame kRead1018 = can::Frame::standard(0x622, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0});
+
+can::Frame abort_of(std::uint32_t cob, std::uint16_t index, std::uint8_t sub) {
+  return can::Frame::standard(
+      cob, {0x80, static_cast<std::uint8_t>(index), static_cast<std::uint8_t>(index >> 8), sub,
+            0x00, 0x00, 0x04, 0x05});
+}
+
+TEST(SdoLinkGuard, ANodeWhoseGatewayIsDownIsAnsweredWithAnAbortAtOnce) {
+  SdoLinkGuard guard;
+  guard.on_gateway_frame(1, kHeartbeat34);
+  bool up = false;
+  const auto verdict = guard.on_surface_frame(kRead1018, [&](auto g) { return g == 1 && up; });
+  EXPECT_FALSE(verdict.forward);
+  ASSERT_TRUE(verdict.reply);
+  EXPECT_EQ(*verdict.reply, abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_EQ(guard.counters().aborted_at_once, 1u);
+  up = true;  // the link returns: requests flow again
+  const auto again = guard.on_surface_frame(kRead1018, [&](auto) { return up; });
+  EXPECT_TRUE(again.forward);
+  EXPECT_FALSE(again.reply);
+}
+
+TEST(SdoLinkGuard, RequestsInFlightWhenTheLinkDropsAreAbortedOnlyForThatGateway) {
+  SdoLinkGuard guard;
+  guard.on_gateway_frame(1, kHeartbeat34);
+  guard.on_gateway_frame(2, kHeartbeat70);
+  auto all_up = [](auto) { return true; };
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, all_up).forward);
+  const can::Frame write_1017 =
+      can::Frame::standard(0x646, {0x2B, 0x17, 0x10, 0x00, 0xC8, 0x00, 0, 0});
+  EXPECT_TRUE(guard.on_surface_frame(write_1017, all_up).forward);
+  const auto aborts = guard.on_gateway_down(1);
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_EQ(guard.counters().aborted_in_flight, 1u);
+  EXPECT_TRUE(guard.on_gateway_down(1).empty());  // once
+  const auto other = guard.on_gateway_down(2);
+  ASSERT_EQ(other.size(), 1u);
+  EXPECT_EQ(other[0], abort_of(0x5C6, 0x1017, 0x00));
+}
+
+TEST(SdoLinkGuard, AnsweredTransfersAndMasterAbortsAreNotInFlight) {
+  SdoLinkGuard guard;
+  guard.on_gateway_frame(1, kHeartbeat34);
+  auto up = [](auto) { return true; };
+  guard.on_surface_frame(kRead1018, up);
+  guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4}));
+  EXPECT_TRUE(guard.on_gateway_down(1).empty());
+  guard.on_surface_frame(kRead1018, up);
+  guard.on_surface_frame(can::Frame::standard(0x622, {0x80, 0x18, 0x10, 0x01, 0, 0, 4, 5}), up);
+  EXPECT_TRUE(guard.on_gateway_down(1).empty());
+}
+
+TEST(SdoLinkGuard, SegmentsAbortWithTheObjectOfTheirTransfer) {
+  SdoLinkGuard guard;
+  guard.on_gateway_frame(1, kHeartbeat34);
+  auto up = [](auto) { return true; };
+  guard.on_surface_frame(can::Frame::standard(0x622, {0x40, 0x08, 0x10, 0x00, 0, 0, 0, 0}), up);
+  guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x41, 0x08, 0x10, 0x00, 33, 0, 0, 0}));
+  guard.on_surface_frame(can::Frame::standard(0x622, {0x60, 0, 0, 0, 0, 0, 0, 0}), up);  // segment
+  const auto aborts = guard.on_gateway_down(1);
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1008, 0x00));
+}
+
+TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
+  SdoLinkGuard guard;
+  auto down = [](auto) { return false; };
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, down).forward);  // nobody owns node 34 yet
+  guard.on_gateway_frame(1, kHeartbeat34);
+  EXPECT_TRUE(guard.on_surface_frame(can::Frame::standard(0x000, {0x01, 0x22}), down).forward);
+  EXPECT_TRUE(guard.on_surface_frame(can::Frame::standard(0x222, {1, 2}), down).forward);
+  EXPECT_TRUE(
+      guard.on_surface_frame(can::Frame::standard(0x622, {0x40, 0x18, 0x10}), down).forward);
+  EXPECT_EQ(guard.owner_of(34), 1u);
+  EXPECT_FALSE(guard.owner_of(35));
+  EXPECT_EQ(guard.counters().aborted_at_once, 0u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge
