@@ -18,6 +18,7 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       name_(std::move(name)),
       map_(std::move(map)),
       modules_(std::move(modules)),
+      loop_guards_(modules_.size()),
       tuning_(tuning),
       outbox_(tuning_.outbox),
       stream_(tuning_.session,
@@ -70,8 +71,15 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       co_return;
     }
     counters_.from_buses += batch.size();
+    const auto now = LoopGuard::Clock::now();
     for (const can::Frame& frame : batch) {
       if (frame.is_error()) continue;  // bus state, counted by the bus itself
+      // A frame this gateway wrote, coming back (another bridge, a gateway daemon, a loop in
+      // the wiring): forwarding it again would start a storm.
+      if (loop_guards_[module_index].is_echo(frame, now)) {
+        ++counters_.echoes_dropped;
+        continue;
+      }
       auto surface = translator_.to_surface(module_index, frame);
       if (!surface) continue;
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
@@ -107,6 +115,7 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
     translator_.to_modules(frame, [&](std::size_t m, const can::Frame& local) {
       if (only && *only != m) return;
       if (modules_[m].bus->send(local)) {
+        loop_guards_[m].wrote(local, LoopGuard::Clock::now());
         ++counters_.to_buses;
       } else {
         ++counters_.bus_refused;
@@ -136,12 +145,13 @@ std::string Gateway::stats_line() const {
       "gateway {}: link {}, bus->backbone {} frames ({} batches), backbone->bus {}, "
       "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
       "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
-      "bus-refused {}",
+      "bus-refused {}, echoes-dropped {}",
       name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
       dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
       c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused);
+      c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
+      c.echoes_dropped);
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
     s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", c.framing.frames,
                      c.framing.crc_errors, c.framing.discarded_bytes);

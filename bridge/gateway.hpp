@@ -13,6 +13,7 @@
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/cob_id_translator.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/loop_guard.hpp"
 #include "bridge/node_map.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -36,6 +37,7 @@ struct GatewayCounters {
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
+  std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
 };
 
 class Gateway {
@@ -68,6 +70,7 @@ class Gateway {
   NodeMap map_;
   CobIdTranslator translator_{map_};
   std::vector<GatewayModule> modules_;
+  std::vector<LoopGuard> loop_guards_;  // one per module bus, same order
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;

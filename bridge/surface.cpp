@@ -137,8 +137,13 @@ asio::awaitable<void> Surface::read_bus() {
     // SDO requests to nodes whose gateway link is down are answered here, with an abort, and
     // go no further.
     forward_.clear();
+    const auto now = LoopGuard::Clock::now();
     for (const can::Frame& frame : batch) {
       if (frame.is_error()) continue;
+      if (loop_guard_.is_echo(frame, now)) {  // ours, coming back: never forwarded again
+        ++counters_.echoes_dropped;
+        continue;
+      }
       const auto verdict = guard_.on_surface_frame(
           frame, [this](SdoLinkGuard::GatewayId g) { return by_id_[g]->stream.up(); });
       if (verdict.reply) send_to_bus(*verdict.reply);
@@ -185,6 +190,7 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
 
 void Surface::send_to_bus(const can::Frame& frame) {
   if (bus_->send(frame)) {
+    loop_guard_.wrote(frame, LoopGuard::Clock::now());
     ++counters_.to_bus;
   } else {
     ++counters_.bus_refused;
@@ -222,13 +228,14 @@ std::string Surface::stats_line() const {
   std::string s = fmt::format(
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, sdo-aborted-link-down {}, bus-refused {}, malformed {}, unknown-module {}; "
+      "refusals {}/{}, sdo-aborted-link-down {}, echoes-dropped {}, bus-refused {}, "
+      "malformed {}, unknown-module {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.sdo_aborted, c.bus_refused,
+      c.session.refusals_received, c.sdo_aborted, c.echoes_dropped, c.bus_refused,
       c.malformed_payloads + c.session.malformed, c.unknown_module, bus_->name(), b.rx_frames,
       b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
   return s;

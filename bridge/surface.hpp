@@ -12,6 +12,7 @@
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/loop_guard.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -30,6 +31,7 @@ struct SurfaceCounters {
   std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
   std::uint64_t sdo_aborted = 0;         // SDO requests answered with 0x05040000: gateway link down
+  std::uint64_t echoes_dropped = 0;      // frames the surface wrote, read back from its bus
 };
 
 class Surface {
@@ -77,6 +79,7 @@ class Surface {
   std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
   std::vector<Gateway*> by_id_;                               // the same, by SdoLinkGuard id
   SdoLinkGuard guard_;
+  LoopGuard loop_guard_;
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_

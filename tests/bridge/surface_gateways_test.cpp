@@ -371,3 +371,36 @@ TEST_F(SurfaceGateways, SdoToANodeBehindALostLinkIsAbortedPromptlyNotLeftHanging
 
 }  // namespace
 }  // namespace canbridge::bridge
+
+namespace canbridge::bridge {
+namespace {
+
+TEST_F(SurfaceGateways, FramesTheBridgeWroteAreNeverForwardedAgainWhenABusEchoesThem) {
+  start_a_and_b();
+  // Module side: the surface's SDO request reaches A's bus as 0x605; something on that bus (a
+  // second bridge, a gateway daemon) sends it again. The gateway must not carry it back.
+  const can::Frame request = sdo_request(kSurfaceNodeA, 7);
+  ASSERT_TRUE(master.send(request));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().count(0x600 + kLocal) == 1; }));
+  const can::Frame at_module = a->node().frames.back();
+  ASSERT_TRUE(a->node().send(at_module));  // the echo
+  const can::Frame marker = can::Frame::standard(0x700 + kLocal, {0x05});
+  ASSERT_TRUE(a->node().send(marker));
+  ASSERT_TRUE(run_until(
+      io, [&] { return master.saw(can::Frame::standard(0x700 + kSurfaceNodeA, {0x05})); }));
+  EXPECT_EQ(master.count(0x600 + kSurfaceNodeA), 0u);  // its own request never came back
+  EXPECT_EQ(a->gateway->counters().echoes_dropped, 1u);
+
+  // Surface side: the heartbeat the surface wrote, sent again on the surface bus, does not go
+  // back to the module as a frame from the surface.
+  const std::size_t at_node_before = a->node().frames.size();
+  ASSERT_TRUE(master.send(can::Frame::standard(0x700 + kSurfaceNodeA, {0x05})));  // the echo
+  const can::Frame surface_marker = sdo_request(kSurfaceNodeA, 8);
+  ASSERT_TRUE(master.send(surface_marker));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().count(0x600 + kLocal) == 2; }));
+  EXPECT_EQ(a->node().frames.size(), at_node_before + 1);  // only the marker arrived
+  EXPECT_EQ(surface.counters().echoes_dropped, 1u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge
