@@ -24,19 +24,17 @@ std::optional<can::Frame> CobIdTranslator::to_surface(std::size_t module_index,
     count(DropReason::extended_id);
     return std::nullopt;
   }
-  auto address = canopen::split_predefined(frame.id);
-  if (!address) {
-    // NMT, SYNC and TIME belong to the surface master; a module's own would collide.
-    count(DropReason::not_routable);
-    return std::nullopt;
-  }
-  const NodeId surface = map_.surface_of(module_index, address->node);
+  const std::uint16_t surface = map_.surface_cob_of(module_index, frame.id);
   if (surface == 0) {
-    count(DropReason::unknown_node);
+    // NMT, SYNC and TIME belong to the surface master; a module's own would collide. A
+    // node-addressed COB-ID (under the module's profile) of an unmapped node is counted apart.
+    const IdProfile profile = map_.modules()[module_index].profile;
+    count(is_node_addressed(profile, frame.id) ? DropReason::unknown_node
+                                               : DropReason::not_routable);
     return std::nullopt;
   }
   can::Frame out = frame;
-  out.id = address->function_base + surface;
+  out.id = surface;
   return out;
 }
 

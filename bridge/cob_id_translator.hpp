@@ -58,6 +58,7 @@ bool CobIdTranslator::to_modules(const can::Frame& frame, Emit&& emit) {
       count(DropReason::malformed_nmt);
       return false;
     }
+    // Node-specific NMT addresses surface node ids, i.e. slot 0 of a pdop/qd node.
     const NodeId target = frame.data[1];
     if (target == 0) {  // broadcast: every module, unchanged
       for (std::size_t m = 0; m < module_count; ++m) emit(m, frame);
@@ -77,18 +78,16 @@ bool CobIdTranslator::to_modules(const can::Frame& frame, Emit&& emit) {
     for (std::size_t m = 0; m < module_count; ++m) emit(m, frame);
     return module_count != 0;
   }
-  auto address = canopen::split_predefined(frame.id);
-  if (!address) {
-    count(DropReason::not_routable);
-    return false;
-  }
-  auto owner = map_.owner_of_surface(address->node);
+  // Every module's image is in one table, whatever its profile: the owner and its local COB-ID.
+  auto owner = map_.owner_of_surface_cob(frame.id);
   if (!owner) {
-    count(DropReason::unknown_node);
+    // A CiA 301 node-addressed COB-ID nobody owns is an unknown node; the rest is never routed.
+    count(canopen::split_predefined(frame.id) ? DropReason::unknown_node
+                                              : DropReason::not_routable);
     return false;
   }
   can::Frame local = frame;
-  local.id = address->function_base + owner->local;
+  local.id = owner->local_cob;
   emit(owner->module_index, local);
   return true;
 }

@@ -58,7 +58,7 @@ int run_gateway(const config::GatewayOptions& options) {
   NodeMap map;
   std::vector<GatewayModule> modules;
   for (const auto& m : options.modules) {
-    auto problems = map.add_module(m.id, m.nodes);  // validated by the loader already
+    auto problems = map.add_module(m.id, m.nodes, m.profile);  // validated by the loader already
     if (!problems.empty()) throw std::runtime_error(problems.front());
     modules.push_back({m.id, open_bus(io.get_executor(), m.bus, options.can), m.conflate_pdos});
   }

@@ -219,10 +219,22 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       in.problem(m, path, "must be a mapping with id and bus");
       continue;
     }
-    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos"});
+    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos", "profile"});
     ModuleOptions module;
     auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
     auto bus = in.string(m, "bus", path, true);
+    bool profile_ok = true;
+    if (auto profile = in.string(m, "profile", path, false)) {
+      if (auto p = bridge::parse_id_profile(*profile)) {
+        module.profile = *p;
+      } else {
+        in.problem(m["profile"], path + ".profile",
+                   "'" + *profile + "' is not one of cia301, pdop, qd");
+        profile_ok = false;
+      }
+    } else if (m["profile"]) {
+      profile_ok = false;
+    }
     if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
     if (bus && !buses.insert(*bus).second) {
       in.problem(m["bus"], path + ".bus", "bus '" + *bus + "' is used by two modules");
@@ -261,9 +273,21 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
     module.id = static_cast<std::uint32_t>(*id);
     module.bus = *bus;
     if (module.default_nodes) module.nodes = bridge::NodeMap::default_pairs(module.id);
-    if (nodes_ok) {
-      for (const std::string& p : map.add_module(module.id, module.nodes)) {
-        in.problem(nodes ? nodes : m, path, p);
+    if (nodes_ok && profile_ok && module.default_nodes && module.id != 0 &&
+        module.profile != bridge::IdProfile::cia301) {
+      // One problem, not one per node: the default map of module 1.. starts at surface 33.
+      in.problem(m["profile"], path + ".profile",
+                 std::string("a ") + bridge::to_string(module.profile) +
+                     " module needs surface node ids 1..31 and the default map (local + 32 x " +
+                     std::to_string(module.id) + ") leaves them: give 'nodes'");
+      nodes_ok = false;
+    }
+    if (nodes_ok && profile_ok) {
+      // Range and image problems are the node map's; without 'nodes' the profile line is where
+      // the default map stopped fitting.
+      const YAML::Node at = nodes ? nodes : m["profile"] ? m["profile"] : m;
+      for (const std::string& p : map.add_module(module.id, module.nodes, module.profile)) {
+        in.problem(at, path, p);
       }
     }
     out.modules.push_back(std::move(module));

@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include "bridge/id_profile.hpp"
+
 namespace canbridge::config {
 
 struct Endpoint {
@@ -28,6 +30,8 @@ struct ModuleOptions {
   // (local node id, surface node id); the default mapping when the file gives none.
   std::vector<std::pair<std::uint8_t, std::uint8_t>> nodes;
   bool default_nodes = true;
+  // How the module bus lays out node-addressed COB-IDs (docs/id-profiles.md).
+  bridge::IdProfile profile = bridge::IdProfile::cia301;
   // Under backlog, a queued PDO is replaced by a newer value of the same COB-ID (counted);
   // false keeps every PDO in order and drops (counted) only when the queue is full.
   bool conflate_pdos = true;

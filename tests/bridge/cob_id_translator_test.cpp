@@ -112,5 +112,19 @@ TEST(NodeMap, RefusesOverlapNamingTheOwner) {
   EXPECT_EQ(NodeMap::default_pairs(3).back().second, 127);
 }
 
+// The default map puts module 1 on surface 33..63: a qd module 0 owns those COB-IDs as its
+// slot 1, so the two cannot share a gateway (the operator maps one of them elsewhere).
+TEST_F(TranslatorTest, QdModuleOnTheDefaultMapCollidesWithTheNextModule) {
+  auto problems = map.add_module(0, NodeMap::default_pairs(0), IdProfile::qd);
+  ASSERT_FALSE(problems.empty());
+  EXPECT_NE(problems[0].find("COB-ID 0x1A1: module 0 (qd) local node 1 -> surface 1 TPDO2 "
+                             "collides with module 1 (cia301) local node 1 -> surface 33 TPDO1"),
+            std::string::npos)
+      << problems[0];
+  EXPECT_EQ(map.modules().size(), 2u);
+  // Existing routing is untouched by the refused module.
+  EXPECT_EQ(translator.to_surface(0, Frame::standard(0x181, {}))->id, 0x1A1u);
+}
+
 }  // namespace
 }  // namespace canbridge::bridge

@@ -321,6 +321,36 @@ TEST(Config, OverlappingSurfaceIdsNameBothOwners) {
       << ps[0].message;
 }
 
+TEST(Config, ModuleProfilesLoadWithCia301ByDefault) {
+  const GatewayOptions g = load_gateway(kFixtures + "gateway_profiles.yaml");
+  ASSERT_EQ(g.modules.size(), 4u);
+  EXPECT_EQ(g.modules[0].profile, bridge::IdProfile::qd);
+  EXPECT_EQ(g.modules[1].profile, bridge::IdProfile::pdop);
+  EXPECT_EQ(g.modules[2].profile, bridge::IdProfile::cia301);
+  EXPECT_EQ(g.modules[3].profile, bridge::IdProfile::cia301);
+}
+
+// A qd module's slot 1 (bits 6-5 = 01) is where a CiA 301 module's surface node 37 lives.
+TEST(Config, OverlappingProfileImagesNameBothOwnersAndTheCobId) {
+  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_overlap.yaml"); });
+  ASSERT_EQ(ps.size(), 1u) << dump(ps);
+  EXPECT_TRUE(has(ps, 11, "modules[1]",
+                  "COB-ID 0x1A5: module 2 (cia301) local node 5 -> surface 37 TPDO1 collides "
+                  "with module 1 (qd) local node 5 -> surface 5 TPDO2"))
+      << dump(ps);
+}
+
+TEST(Config, ProfileProblemsAreReportedWithLineAndField) {
+  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_bad.yaml"); });
+  EXPECT_TRUE(has(ps, 8, "modules[0]", "module 0 node 2 (pdop): surface node id 40 must be 1..31"))
+      << dump(ps);
+  EXPECT_TRUE(has(ps, 11, "modules[1].profile", "a qd module needs surface node ids 1..31"))
+      << dump(ps);
+  EXPECT_TRUE(has(ps, 14, "modules[2].profile", "'canopen' is not one of cia301, pdop, qd"))
+      << dump(ps);
+  EXPECT_EQ(ps.size(), 3u) << dump(ps);
+}
+
 TEST(Config, AKeyGivenTwiceIsRefusedNotSilentlyOverwritten) {
   const auto ps = problems_of([] {
     parse_surface("role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000}\nbus: vcan1\n",
