@@ -38,6 +38,9 @@ class CobIdTranslator {
   bool to_modules(const can::Frame& frame, Emit&& emit);
 
   const DropCounters& drops() const { return drops_; }
+  std::uint64_t dropped(DropReason reason) const {
+    return drops_[static_cast<std::size_t>(reason)];
+  }
 
  private:
   void count(DropReason r) { ++drops_[static_cast<std::size_t>(r)]; }

@@ -111,11 +111,12 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
       return;
     }
   }
+  const auto now = LoopGuard::Clock::now();
   for (const can::Frame& frame : decoded_) {
     translator_.to_modules(frame, [&](std::size_t m, const can::Frame& local) {
       if (only && *only != m) return;
       if (modules_[m].bus->send(local)) {
-        loop_guards_[m].wrote(local, LoopGuard::Clock::now());
+        loop_guards_[m].wrote(local, now);
         ++counters_.to_buses;
       } else {
         ++counters_.bus_refused;

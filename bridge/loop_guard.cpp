@@ -42,6 +42,9 @@ void LoopGuard::wrote(const can::Frame& frame, Clock::time_point now) {
 }
 
 bool LoopGuard::is_echo(const can::Frame& frame, Clock::time_point now) {
+  // Called for every frame read; most buses see far more frames than the bridge writes to
+  // them, so the usual case (nothing written lately) costs no hash and no lookup.
+  if (live_.empty()) return false;
   forget_old(now);
   const std::uint64_t key = key_of(frame);
   auto it = live_.find(key);

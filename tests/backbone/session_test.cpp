@@ -167,7 +167,7 @@ TEST_F(SessionTest, APeerThatRestartsStartsAFreshStreamAndIsCounted) {
   for (auto& l : restarted.links) l->close();
 }
 
-TEST_F(SessionTest, KeepalivesHoldAnIdleLinkUpAndSilenceKillsIt) {
+TEST_F(SessionTest, KeepalivesHoldAnIdleLinkUp) {
   connect_tcp();
   ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
   // Idle for three dead-after periods: keepalives keep it up.
@@ -235,7 +235,7 @@ TEST_F(SessionTest, IncompatibleMajorIsRefusedWithTheReasonOnBothSides) {
   EXPECT_FALSE(surface.stream().up());
 }
 
-TEST_F(SessionTest, TheRefusedSideLogsAndCountsTheRefusal) {
+TEST_F(SessionTest, TwoGatewaysRefuseEachOthersRoleAndNeitherComesUp) {
   // Two gateways talking to each other: each refuses the other's role.
   SessionEnd other{"gw2", v1::Hello::ROLE_GATEWAY, fast_options(), {3}};
   auto [client, server] = connected_sockets(io);

@@ -4,6 +4,8 @@
 
 #include <vector>
 
+#include "tests/bridge/translator_probe.hpp"
+
 namespace canbridge::bridge {
 namespace {
 
@@ -17,13 +19,9 @@ class TranslatorTest : public ::testing::Test {
     ASSERT_TRUE(map.add_module(2, NodeMap::default_pairs(2)).empty());
   }
   std::vector<std::pair<std::size_t, Frame>> route(const Frame& f) {
-    std::vector<std::pair<std::size_t, Frame>> out;
-    translator.to_modules(f, [&](std::size_t m, const Frame& g) { out.emplace_back(m, g); });
-    return out;
+    return testing::routes(translator, f);
   }
-  std::uint64_t drops(DropReason r) const {
-    return translator.drops()[static_cast<std::size_t>(r)];
-  }
+  std::uint64_t drops(DropReason r) const { return translator.dropped(r); }
   NodeMap map;
   CobIdTranslator translator{map};
 };

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "bridge/cob_id_translator.hpp"
+#include "tests/bridge/translator_probe.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -22,13 +23,9 @@ bool contains(const std::string& s, const std::string& part) {
 class ProfileTest : public ::testing::Test {
  protected:
   std::vector<std::pair<std::size_t, Frame>> route(const Frame& f) {
-    std::vector<std::pair<std::size_t, Frame>> out;
-    translator.to_modules(f, [&](std::size_t m, const Frame& g) { out.emplace_back(m, g); });
-    return out;
+    return testing::routes(translator, f);
   }
-  std::uint64_t drops(DropReason r) const {
-    return translator.drops()[static_cast<std::size_t>(r)];
-  }
+  std::uint64_t drops(DropReason r) const { return translator.dropped(r); }
   // local on module `m` -> surface (expected), and the surface frame routes back to exactly it.
   void expect_both_ways(std::size_t m, std::uint16_t local, std::uint16_t surface) {
     const Frame on_module = Frame::standard(local, {0x11, 0x22});
