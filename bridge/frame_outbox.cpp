@@ -22,10 +22,11 @@ FrameOutbox::FrameOutbox(Options options)
 bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate) {
   using Push = backbone::PriorityScheduler<Entry>::Push;
   const std::uint32_t priority = arbitration_priority(frame);
-  const Push result = is_process_data(frame)
-                          ? queue_.push_process(priority, conflation_key(module_id, frame),
-                                                conflate, Entry{module_id, frame})
-                          : queue_.push_reliable(priority, Entry{module_id, frame});
+  const Push result =
+      is_process_data(frame)
+          ? queue_.push_process(priority, conflation_key(module_id, frame),
+                                conflate || is_heartbeat_state(frame), Entry{module_id, frame})
+          : queue_.push_reliable(priority, Entry{module_id, frame});
   return result != Push::refused;
 }
 

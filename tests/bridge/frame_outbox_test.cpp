@@ -137,21 +137,21 @@ TEST(FrameOutbox, FramesOfOneCobIdStayInArrivalOrder) {
   FrameOutbox outbox({});
   for (std::uint8_t i = 0; i < 20; ++i) {
     ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), true));  // reliable
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {i}), true));        // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {i}), true));        // reliable
     ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), false));       // process
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
-  std::vector<std::uint8_t> sdo, heartbeat, pdo;
+  std::vector<std::uint8_t> sdo, emcy, pdo;
   for (const auto& f : all_frames(decode(sink))) {
     if (f.id == 0x585) sdo.push_back(f.data[1]);
-    if (f.id == 0x705) heartbeat.push_back(f.data[0]);
+    if (f.id == 0x085) emcy.push_back(f.data[0]);
     if (f.id == 0x185) pdo.push_back(f.data[0]);
   }
   std::vector<std::uint8_t> expected(20);
   for (std::uint8_t i = 0; i < 20; ++i) expected[i] = i;
   EXPECT_EQ(sdo, expected);
-  EXPECT_EQ(heartbeat, expected);
+  EXPECT_EQ(emcy, expected);
   EXPECT_EQ(pdo, expected);
 }
 
@@ -190,8 +190,8 @@ TEST(FrameOutbox, ReliableFramesAreNeverConflated) {
                                           can::Frame::standard(0x585, {0x60, 2}),
                                           can::Frame::standard(0x085, {0x00, 0x10}),
                                           can::Frame::standard(0x085, {0x00, 0x20}),
-                                          can::Frame::standard(0x705, {0x05}),
-                                          can::Frame::standard(0x705, {0x05}),
+                                          can::Frame::standard(0x705, {0x00}),  // boot-ups
+                                          can::Frame::standard(0x705, {0x00}),
                                           extended(0x1234567, {1}),
                                           extended(0x1234567, {2})};
   for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, true));
@@ -202,6 +202,30 @@ TEST(FrameOutbox, ReliableFramesAreNeverConflated) {
   const auto batches = decode(sink);
   EXPECT_EQ(all_frames(batches).size(), frames.size());
   for (const auto& b : batches) EXPECT_TRUE(b.reliable);
+}
+
+TEST(FrameOutbox, HeartbeatStatesAreConflatedAndUnreliableWhileBootUpsAreNot) {
+  // A cut queues heartbeats; only the newest per node may reach the surface afterwards, and never
+  // as a replay (reliable payloads are resent). Boot-ups are events: every one is delivered.
+  FrameOutbox outbox({});
+  for (std::uint8_t state : {0x7F, 0x05, 0x05, 0x04}) {
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {state}), /*conflate=*/false));
+  }
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x706, {0x05}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), false));
+  EXPECT_EQ(outbox.counters().conflated, 3u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  const auto batches = decode(sink);
+  std::vector<can::Frame> states, boot_ups;
+  for (const auto& b : batches) {
+    for (const auto& f : b.frames) (b.reliable ? boot_ups : states).push_back(f);
+  }
+  EXPECT_EQ(states, (std::vector{can::Frame::standard(0x705, {0x04}),
+                                 can::Frame::standard(0x706, {0x05})}));
+  EXPECT_EQ(boot_ups, (std::vector{can::Frame::standard(0x707, {0x00}),
+                                   can::Frame::standard(0x707, {0x00})}));
 }
 
 TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
@@ -294,10 +318,10 @@ TEST(FrameOutbox, BatchesSplitByModuleAndClass) {
   ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), false));
   ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), false));
   ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), false));
-  // SDO and heartbeat are reliable whatever the conflate flag says.
+  // SDO and boot-up are reliable whatever the conflate flag says.
   ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), false));
   ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), false));
-  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {7}), false));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {0x00}), false));
   FakeSink sink;
   sink.next_write();
   outbox.produce(sink);  // everything fits one write

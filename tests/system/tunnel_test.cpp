@@ -118,8 +118,10 @@ class Tunnel : public ::testing::Test {
   bool fence() {
     const std::uint8_t seq = ++fence_seq_;
     const Frame down = Frame::standard(0x000, {0x80, 0x00, seq});  // NMT broadcast: every module
-    const Frame up1 = Frame::standard(0x701, {seq});               // heartbeat, module 1 node 1
-    const Frame up2 = Frame::standard(0x702, {seq});               // heartbeat, module 2 node 2
+    // Two bytes, so not a heartbeat state: those are conflated and may pass reliable frames,
+    // while a fence must keep FIFO order with everything an earlier test left in flight.
+    const Frame up1 = Frame::standard(0x701, {seq, 0xFE});  // module 1 node 1's error control id
+    const Frame up2 = Frame::standard(0x702, {seq, 0xFE});  // module 2 node 2's
     vcan0_.send(down);
     vcan1_.send(up1);
     vcan2_.send(up2);
@@ -138,8 +140,8 @@ class Tunnel : public ::testing::Test {
         ADD_FAILURE() << "fence heartbeats never reached vcan0\n" << gateway_->output();
         return false;
       }
-      seen1 = seen1 || *f == Frame::standard(0x721, {seq});
-      seen2 = seen2 || *f == Frame::standard(0x742, {seq});
+      seen1 = seen1 || *f == Frame::standard(0x721, {seq, 0xFE});
+      seen2 = seen2 || *f == Frame::standard(0x742, {seq, 0xFE});
     }
     return true;
   }
