@@ -20,7 +20,7 @@
 namespace canbridge::backbone {
 
 inline constexpr std::uint32_t kProtocolMajor = 2;
-inline constexpr std::uint32_t kProtocolMinor = 0;
+inline constexpr std::uint32_t kProtocolMinor = 1;  // 1: a second application payload kind
 
 struct SessionOptions {
   // Nothing sent for this long: send a keepalive (it carries the current ack).

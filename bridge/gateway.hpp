@@ -3,18 +3,25 @@
 // routed to the owning module buses.
 #pragma once
 
+#include <array>
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <chrono>
+#include <deque>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
+#include "bridge/canopen/sdo_transaction_tracker.hpp"
 #include "bridge/cob_id_translator.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/node_map.hpp"
+#include "bridge/node_table.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
@@ -24,6 +31,8 @@ struct GatewayModule {
   ModuleId id = 0;
   std::unique_ptr<can::Bus> bus;
   bool conflate_pdos = true;
+  bool lss = false;  // LSS reaches this module (at most one module of a gateway)
+  std::optional<std::chrono::milliseconds> heartbeat_lost_after{};  // unset: 3 x observed interval
 };
 
 struct GatewayCounters {
@@ -38,6 +47,12 @@ struct GatewayCounters {
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
   std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
+  // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h) rewritten
+  // between bus and surface ids, and those whose id has no counterpart (forwarded unchanged).
+  std::uint64_t sdo_values_rewritten = 0;
+  std::uint64_t sdo_values_unmapped = 0;
+  std::uint64_t node_events = 0;          // node table events queued for the surface
+  std::uint64_t node_events_dropped = 0;  // ... dropped: the link was down too long (bounded)
 };
 
 class Gateway {
@@ -57,13 +72,31 @@ class Gateway {
   const std::vector<GatewayModule>& modules() const { return modules_; }
   bool connected() const { return stream_.up(); }
   const backbone::PeerStream& stream() const { return stream_; }
+  const NodeTable& node_table() const { return node_table_; }
   std::string stats_line() const;
 
  private:
   boost::asio::awaitable<void> read_bus(std::size_t module_index);
   void on_payload(std::span<const std::uint8_t> payload);
+  // Default SDO channel of a node of `module_index`: the node id if `frame` is its request
+  // (0x600 + n) or response (0x580 + n) under the module's profile, else 0.
+  canopen::NodeId sdo_node(std::size_t module_index, const can::Frame& frame,
+                           std::uint16_t base) const;
+  void count(canopen::sdo::ValueRewrite rewrite);
+  // Node table: one timer at its next deadline; events go to the surface as reliable payloads.
+  boost::asio::awaitable<void> watch_nodes();
+  void after_node_input();
+  void queue_node_events();
+  void produce(backbone::PayloadSink& sink);
 
-  enum Warn : std::size_t { kUnknownModule, kMalformed, kRefused, kBusRefused, kWarnKinds };
+  enum Warn : std::size_t {
+    kUnknownModule,
+    kMalformed,
+    kRefused,
+    kBusRefused,
+    kEventsDropped,
+    kWarnKinds
+  };
 
   boost::asio::any_io_executor executor_;
   std::string name_;
@@ -71,6 +104,14 @@ class Gateway {
   CobIdTranslator translator_{map_};
   std::vector<GatewayModule> modules_;
   std::vector<LoopGuard> loop_guards_;  // one per module bus, same order
+  // Per module (same order): the id mappings SDO values are rewritten with, and one tracker per
+  // node's default SDO channel, which knows the object of every frame of a transfer.
+  std::vector<canopen::sdo::IdMapping> to_local_, to_surface_;
+  std::vector<std::array<canopen::sdo::ValueTransferTracker, 128>> sdo_trackers_;
+  NodeTable node_table_;
+  boost::asio::steady_timer node_timer_;
+  std::vector<NodeEvent> node_events_;  // of the input being handled
+  std::deque<std::string> events_out_;  // serialized NodeEvents payloads, oldest first
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;

@@ -1,6 +1,8 @@
 // canbridge: the command-line entry point of every role (gateway, surface, demo).
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <charconv>
 #include <cstring>
 #include <exception>
 #include <iostream>
@@ -17,7 +19,9 @@ constexpr const char* kUsage = R"(usage:
   canbridge demo [--modules N] [--nodes N]
       the gateway and surface roles in one process, on virtual buses and a loopback TCP
       backbone, with simulated CANopen nodes: prints the node table, SDO reads and counters
-  canbridge gateway --config FILE    module buses <-> backbone (see config/gateway.yaml)
+  canbridge gateway --config FILE [--lss-module ID]
+                                     module buses <-> backbone (see config/gateway.yaml);
+                                     LSS goes to module ID only
   canbridge surface --config FILE    backbone <-> one surface CAN interface (config/surface.yaml)
   canbridge --help | --version
 )";
@@ -43,9 +47,25 @@ int main(int argc, char** argv) {
   }
   spdlog::set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
   try {
+    if (command == "gateway" && args.size() == 5 && args[1] == "--config" &&
+        args[3] == "--lss-module") {
+      auto options = canbridge::config::load_gateway(args[2]);
+      // A commissioning session picks the bus LSS reaches without editing the file.
+      std::uint32_t id = 0;
+      const std::string& text = args[4];
+      const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), id);
+      const bool served = std::any_of(options.modules.begin(), options.modules.end(),
+                                      [&](const auto& m) { return m.id == id; });
+      if (ec != std::errc{} || end != text.data() + text.size() || !served) {
+        return usage_error("--lss-module " + text + ": not the id of a module in " + args[2]);
+      }
+      options.lss_module = id;
+      return canbridge::bridge::run_gateway(options);
+    }
     if (command == "gateway" || command == "surface") {
       if (args.size() != 3 || args[1] != "--config") {
-        return usage_error(command + " needs exactly --config FILE");
+        return usage_error(command + " needs exactly --config FILE" +
+                           (command == "gateway" ? " [--lss-module ID]" : ""));
       }
       if (command == "gateway") {
         return canbridge::bridge::run_gateway(canbridge::config::load_gateway(args[2]));

@@ -60,7 +60,8 @@ int run_gateway(const config::GatewayOptions& options) {
   for (const auto& m : options.modules) {
     auto problems = map.add_module(m.id, m.nodes, m.profile);  // validated by the loader already
     if (!problems.empty()) throw std::runtime_error(problems.front());
-    modules.push_back({m.id, open_bus(io.get_executor(), m.bus, options.can), m.conflate_pdos});
+    modules.push_back({m.id, open_bus(io.get_executor(), m.bus, options.can), m.conflate_pdos,
+                       options.lss_module == m.id, m.heartbeat_lost_after});
   }
   Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
                   make_tuning(options.session));

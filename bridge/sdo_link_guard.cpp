@@ -29,6 +29,12 @@ void SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
   if (address->function_base == canopen::cob::sdo_tx) n.pending = false;
 }
 
+void SdoLinkGuard::note_owner(GatewayId gateway, canopen::NodeId node) {
+  if (node == 0 || node > canopen::kMaxNodeId) return;
+  nodes_[node].owned = true;
+  nodes_[node].gateway = gateway;
+}
+
 std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {

@@ -30,6 +30,9 @@ class SdoLinkGuard {
   // PDOs, SDO responses) tell which surface nodes the gateway owns; an SDO response ends the
   // transfer step in flight for that node.
   void on_gateway_frame(GatewayId gateway, const can::Frame& frame);
+  // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
+  // even before the node has sent anything through it.
+  void note_owner(GatewayId gateway, canopen::NodeId node);
 
   // A frame from the surface bus, while `gateway_up(g)` tells which gateways have a live link.
   // An SDO request to a node owned by a gateway that is down gets `reply` (the abort) and must

@@ -13,6 +13,23 @@ namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 
+namespace {
+const char* nmt_state_name(std::uint32_t state) {
+  switch (state) {
+    case 0x00:
+      return "booting";
+    case 0x04:
+      return "stopped";
+    case 0x05:
+      return "operational";
+    case 0x7F:
+      return "pre-operational";
+    default:
+      return "in an unknown state";
+  }
+}
+}  // namespace
+
 // One gateway as the surface knows it, kept across its links so reliable streams resume.
 struct Surface::Gateway {
   Gateway(std::string gateway_name, SdoLinkGuard::GatewayId gateway_id,
@@ -166,12 +183,34 @@ asio::awaitable<void> Surface::read_bus() {
 }
 
 void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
-  if (auto error = decode_frame_payload(payload, inbound_, decoded_)) {
+  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size()))) {
     ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "surface: dropped a backbone payload: {} (counted)", *error);
+    warn_.warn(Warn::kMalformed, "surface: dropped a backbone payload: not a payload (counted)");
     return;
   }
-  const v1::FrameBatch& batch = inbound_.frames();
+  switch (inbound_.body_case()) {
+    case v1::Payload::kFrames:
+      return on_frames(from, inbound_.frames());
+    case v1::Payload::kNodeEvents:
+      return on_node_events(from, inbound_.node_events());
+    case v1::Payload::BODY_NOT_SET:
+      break;
+  }
+  ++counters_.malformed_payloads;
+  warn_.warn(Warn::kMalformed,
+             "surface: dropped a backbone payload of a kind this version does not know (counted)");
+}
+
+void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
+  decoded_.clear();
+  if (const BatchError err = decode_frame_batch(batch, decoded_); err != BatchError::none) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed,
+               "surface: dropped a backbone payload: malformed frame batch ({}) "
+               "(counted)",
+               to_string(err));
+    return;
+  }
   if (std::find(from.modules.begin(), from.modules.end(), batch.module_id()) ==
       from.modules.end()) {
     decoded_.clear();
@@ -185,6 +224,49 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
   for (const can::Frame& frame : decoded_) {
     guard_.on_gateway_frame(from.id, frame);
     send_to_bus(frame);
+  }
+}
+
+// Node table events are rare (boot-ups, losses, renames): one log line each is what an operator
+// watching a tool string wants to see.
+void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
+  for (const v1::NodeEvent& e : events.events()) {
+    ++counters_.node_events;
+    if (e.surface_node() != 0)
+      guard_.note_owner(from.id, static_cast<canopen::NodeId>(e.surface_node()));
+    const std::string node = fmt::format("gateway '{}' module {} node {} (surface {})", from.name,
+                                         e.module_id(), e.local_node(), e.surface_node());
+    switch (e.kind()) {
+      case v1::NodeEvent::BOOTED:
+        spdlog::info("surface: {} booted (boot-up {} seen by the gateway)", node, e.boot_count());
+        break;
+      case v1::NodeEvent::STATE_CHANGED:
+        spdlog::info("surface: {} is {}", node, nmt_state_name(e.nmt_state()));
+        break;
+      case v1::NodeEvent::LOST:
+        spdlog::warn("surface: {} lost: its heartbeat stopped", node);
+        break;
+      case v1::NodeEvent::RECOVERED:
+        spdlog::info("surface: {} is back ({})", node, nmt_state_name(e.nmt_state()));
+        break;
+      case v1::NodeEvent::RENAMED:
+        spdlog::info("surface: {} renamed from node {} (surface {})", node, e.previous_local_node(),
+                     e.previous_surface_node());
+        break;
+      case v1::NodeEvent::RENAME_UNCONFIRMED:
+        spdlog::warn("surface: {}: set-node-id sent, no boot-up on the new id in time", node);
+        break;
+      case v1::NodeEvent::DISCOVERED:
+        spdlog::info("surface: {} found ({})", node, nmt_state_name(e.nmt_state()));
+        break;
+      case v1::NodeEvent::LOADER_BOOTED:
+        spdlog::info("surface: {} is in its loader", node);
+        break;
+      default:
+        spdlog::debug("surface: {}: node event of unknown kind {}", node,
+                      static_cast<int>(e.kind()));
+        break;
+    }
   }
 }
 
@@ -229,15 +311,15 @@ std::string Surface::stats_line() const {
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
       "refusals {}/{}, sdo-aborted-link-down {}, echoes-dropped {}, bus-refused {}, "
-      "malformed {}, unknown-module {}; "
+      "malformed {}, unknown-module {}, node-events {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted, c.echoes_dropped, c.bus_refused,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, bus_->name(), b.rx_frames,
-      b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
+      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, bus_->name(),
+      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
   return s;
 }
 

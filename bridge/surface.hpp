@@ -32,6 +32,7 @@ struct SurfaceCounters {
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
   std::uint64_t sdo_aborted = 0;         // SDO requests answered with 0x05040000: gateway link down
   std::uint64_t echoes_dropped = 0;      // frames the surface wrote, read back from its bus
+  std::uint64_t node_events = 0;         // node table events the gateways reported
 };
 
 class Surface {
@@ -58,6 +59,8 @@ class Surface {
   boost::asio::awaitable<void> read_bus();
   backbone::BindResult bind(const v1::Hello& hello);
   void on_payload(Gateway& from, std::span<const std::uint8_t> payload);
+  void on_frames(Gateway& from, const v1::FrameBatch& batch);
+  void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
   void send_to_bus(const can::Frame& frame);
 

@@ -219,7 +219,7 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       in.problem(m, path, "must be a mapping with id and bus");
       continue;
     }
-    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos", "profile"});
+    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms"});
     ModuleOptions module;
     auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
     auto bus = in.string(m, "bus", path, true);
@@ -236,6 +236,9 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       profile_ok = false;
     }
     if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
+    if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
+      module.heartbeat_lost_after = std::chrono::milliseconds(*lost);
+    }
     if (bus && !buses.insert(*bus).second) {
       in.problem(m["bus"], path + ".bus", "bus '" + *bus + "' is used by two modules");
     }
@@ -299,7 +302,7 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
 GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
-  in.only_keys(root, "", {"role", "name", "backbone", "modules", "can", "log"});
+  in.only_keys(root, "", {"role", "name", "backbone", "modules", "lss_module", "can", "log"});
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   const YAML::Node backbone = root["backbone"];
@@ -356,6 +359,16 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
     in.session_tuning(backbone, out.session);
   }
   read_modules(in, root, out);
+  if (auto lss = in.integer(root, "lss_module", "", 0, 0xFFFFFFFELL, false)) {
+    const auto id = static_cast<std::uint32_t>(*lss);
+    const bool served = std::any_of(out.modules.begin(), out.modules.end(),
+                                    [&](const ModuleOptions& m) { return m.id == id; });
+    if (!served) {
+      in.problem(root["lss_module"], "lss_module",
+                 "module " + std::to_string(id) + " is not one of this gateway's modules");
+    }
+    out.lss_module = id;
+  }
   in.can_options(root, out.can);
   in.log_options(root, out.log);
   in.finish();

@@ -35,6 +35,9 @@ struct ModuleOptions {
   // Under backlog, a queued PDO is replaced by a newer value of the same COB-ID (counted);
   // false keeps every PDO in order and drops (counted) only when the queue is full.
   bool conflate_pdos = true;
+  // A node whose heartbeat is silent this long is reported lost to the surface; unset: three
+  // times the node's own heartbeat interval, as observed (docs/canopen-bridging.md).
+  std::optional<std::chrono::milliseconds> heartbeat_lost_after;
 };
 
 // A serial backbone line: 8N1, no flow control unless the cable carries RTS/CTS.
@@ -75,6 +78,9 @@ struct GatewayOptions {
   std::chrono::milliseconds reconnect_min{100};
   std::chrono::milliseconds reconnect_max{5000};
   std::vector<ModuleOptions> modules;
+  // The one module LSS (0x7E5/0x7E4) is routed to; unset: LSS reaches no module. The command
+  // line's --lss-module overrides it.
+  std::optional<std::uint32_t> lss_module;
   CanOptions can;
   LogOptions log;
 };

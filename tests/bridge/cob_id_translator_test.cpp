@@ -76,7 +76,9 @@ TEST_F(TranslatorTest, UnmappedFramesAreCountedNeverForwarded) {
   EXPECT_EQ(drops(DropReason::malformed_nmt), 1u);
   EXPECT_TRUE(route(Frame::from_span(0x18FF0001, {}, can::FrameFlags::extended)).empty());
   EXPECT_EQ(drops(DropReason::extended_id), 1u);
-  EXPECT_TRUE(route(Frame::standard(0x7E5, {})).empty());  // LSS: routed by a later issue
+  EXPECT_TRUE(route(Frame::standard(0x7E5, {0x04, 0x01})).empty());  // LSS: no module selected
+  EXPECT_EQ(drops(DropReason::lss_unrouted), 1u);
+  EXPECT_TRUE(route(Frame::standard(0x7E0, {})).empty());  // reserved
   EXPECT_EQ(drops(DropReason::not_routable), 1u);
 
   EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x000, {0x01, 0x00})));  // module NMT
@@ -84,6 +86,56 @@ TEST_F(TranslatorTest, UnmappedFramesAreCountedNeverForwarded) {
   EXPECT_EQ(drops(DropReason::not_routable), 3u);
   EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x1A0, {})));  // local node 32: unmapped
   EXPECT_EQ(drops(DropReason::unknown_node), 3u);
+}
+
+TEST_F(TranslatorTest, SetNodeIdCommandsAreTranslatedWithinTheOwningModuleOnly) {
+  // `E0 cc nn` with surface ids: both become module 1's local ids.
+  auto change = route(Frame::standard(0x000, {0xE0, 0x25, 0x29}));
+  ASSERT_EQ(change.size(), 1u);
+  EXPECT_EQ(change[0].first, 0u);
+  EXPECT_EQ(change[0].second, Frame::standard(0x000, {0xE0, 0x05, 0x09}));
+  // Onto a node of module 2, or onto an id nobody maps: refused, counted, sent nowhere.
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 0x25, 0x45})).empty());
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 0x25, 0x01})).empty());
+  EXPECT_EQ(drops(DropReason::rename_refused), 2u);
+  // `E1 nn serial`: the new id is byte 1; the serial passes untouched.
+  auto by_serial = route(Frame::standard(0x000, {0xE1, 0x47, 0x12, 0x34, 0xAB, 0xCD}));
+  ASSERT_EQ(by_serial.size(), 1u);
+  EXPECT_EQ(by_serial[0].first, 1u);
+  EXPECT_EQ(by_serial[0].second, Frame::standard(0x000, {0xE1, 0x07, 0x12, 0x34, 0xAB, 0xCD}));
+  // A malformed E0 (new id 0) is not a rename: it goes like any NMT frame to byte 1's owner, and
+  // the node ignores it (docs/nmt-node-id.md).
+  auto malformed = route(Frame::standard(0x000, {0xE0, 0x25, 0x00}));
+  ASSERT_EQ(malformed.size(), 1u);
+  EXPECT_EQ(malformed[0].second, Frame::standard(0x000, {0xE0, 0x05, 0x00}));
+}
+
+TEST_F(TranslatorTest, LssReachesOnlyTheSelectedModuleWithNodeIdsTranslated) {
+  translator.route_lss_to(1);  // module id 2: surface = local + 64
+  auto switch_global = route(Frame::standard(0x7E5, {0x04, 0x01, 0, 0, 0, 0, 0, 0}));
+  ASSERT_EQ(switch_global.size(), 1u);
+  EXPECT_EQ(switch_global[0].first, 1u);
+  EXPECT_EQ(switch_global[0].second, Frame::standard(0x7E5, {0x04, 0x01, 0, 0, 0, 0, 0, 0}));
+  // Configure node-id: the surface id the master asks for becomes the module's local id.
+  auto configure = route(Frame::standard(0x7E5, {0x11, 0x4A, 0, 0, 0, 0, 0, 0}));
+  ASSERT_EQ(configure.size(), 1u);
+  EXPECT_EQ(configure[0].second, Frame::standard(0x7E5, {0x11, 0x0A, 0, 0, 0, 0, 0, 0}));
+  auto unconfigure = route(Frame::standard(0x7E5, {0x11, 0xFF, 0, 0, 0, 0, 0, 0}));
+  ASSERT_EQ(unconfigure.size(), 1u);
+  EXPECT_EQ(unconfigure[0].second.data[1], 0xFF);
+  // A surface id of module 1 cannot be configured on module 2's bus.
+  EXPECT_TRUE(route(Frame::standard(0x7E5, {0x11, 0x25, 0, 0, 0, 0, 0, 0})).empty());
+  EXPECT_EQ(drops(DropReason::unknown_node), 1u);
+
+  // Responses: only from the selected module; the inquired node id as the surface sees it.
+  auto inquired = translator.to_surface(1, Frame::standard(0x7E4, {0x5E, 0x0A, 0, 0, 0, 0, 0, 0}));
+  ASSERT_TRUE(inquired);
+  EXPECT_EQ(*inquired, Frame::standard(0x7E4, {0x5E, 0x4A, 0, 0, 0, 0, 0, 0}));
+  auto identify = translator.to_surface(1, Frame::standard(0x7E4, {0x50, 0, 0, 0, 0, 0, 0, 0}));
+  ASSERT_TRUE(identify);
+  EXPECT_EQ(identify->data[0], 0x50);
+  EXPECT_FALSE(translator.to_surface(0, Frame::standard(0x7E4, {0x50, 0, 0, 0, 0, 0, 0, 0})));
+  EXPECT_EQ(drops(DropReason::lss_unrouted), 1u);
 }
 
 TEST_F(TranslatorTest, RemoteFramesKeepTheirFlag) {

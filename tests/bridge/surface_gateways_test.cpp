@@ -42,7 +42,8 @@ class GatewayRig {
       media.push_back(
           std::make_unique<can::VirtualBus>(io.get_executor(), name + "-m" + std::to_string(id)));
       EXPECT_TRUE(map.add_module(id, NodeMap::default_pairs(id)).empty());
-      modules.push_back({id, media.back()->connect("gateway"), true});
+      // A short lost time, so the node table's timer is seen working within the test.
+      modules.push_back({id, media.back()->connect("gateway"), true, false, 150ms});
       nodes.push_back(std::make_unique<BusRecorder>(io, media.back()->connect("node")));
     }
     gateway =
@@ -243,6 +244,50 @@ TEST_F(SurfaceGateways, ARestartedGatewayComesBackOnceTheOldLinkIsGone) {
   EXPECT_EQ(again.node().frames, std::vector{sdo_request(kLocal, 3)});
   EXPECT_TRUE(a->node().frames.empty());  // the old process is gone
   EXPECT_TRUE(b->connected());
+}
+
+TEST_F(SurfaceGateways, SdoValuesThatNameIdsAreSeenInSurfaceIdsBothWays) {
+  start_a_and_b();
+  // The master reads 1200h:01 (SDO server rx COB-ID) of surface node 37: the node answers with
+  // its bus COB-ID 0x605, the master must see 0x625.
+  ASSERT_TRUE(master.send(
+      can::Frame::standard(0x600 + kSurfaceNodeA, {0x40, 0x00, 0x12, 0x01, 0, 0, 0, 0})));
+  ASSERT_TRUE(run_until(io, [&] { return !a->node().frames.empty(); }));
+  ASSERT_TRUE(a->node().send(
+      can::Frame::standard(0x580 + kLocal, {0x43, 0x00, 0x12, 0x01, 0x05, 0x06, 0, 0})));
+  const can::Frame seen =
+      can::Frame::standard(0x580 + kSurfaceNodeA, {0x43, 0x00, 0x12, 0x01, 0x25, 0x06, 0, 0});
+  ASSERT_TRUE(run_until(io, [&] { return master.saw(seen); })) << master.frames.size();
+
+  // The master writes 1800h:01 (TPDO1 COB-ID) with its surface id 0x1A5, bit 31 set (disabled):
+  // the node must get its own 0x185 with the flag kept.
+  ASSERT_TRUE(master.send(can::Frame::standard(0x600 + kSurfaceNodeA,
+                                               {0x23, 0x00, 0x18, 0x01, 0xA5, 0x01, 0x00, 0x80})));
+  const can::Frame written =
+      can::Frame::standard(0x600 + kLocal, {0x23, 0x00, 0x18, 0x01, 0x85, 0x01, 0x00, 0x80});
+  ASSERT_TRUE(run_until(io, [&] { return a->node().saw(written); }));
+  // Heartbeat consumer 1016h:01 naming node 69 (gateway B's): no counterpart on module 1's bus,
+  // so forwarded unchanged and counted.
+  ASSERT_TRUE(master.send(
+      can::Frame::standard(0x600 + kSurfaceNodeA, {0x23, 0x16, 0x10, 0x01, 0xE8, 0x03, 69, 0x00})));
+  ASSERT_TRUE(run_until(io, [&] { return a->gateway->counters().sdo_values_unmapped == 1; }));
+  EXPECT_EQ(a->gateway->counters().sdo_values_rewritten, 2u);
+}
+
+TEST_F(SurfaceGateways, NodeTableEventsBootedAndLostReachTheSurface) {
+  start_a_and_b();
+  // A boot-up, then silence: the gateway reports booted, then (after 150 ms) lost.
+  const auto booted_at = std::chrono::steady_clock::now();
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x00})));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().node_events >= 1; }));
+  const NodeRecord* record = a->gateway->node_table().node(0, kLocal);
+  ASSERT_NE(record, nullptr);
+  EXPECT_EQ(record->boot_count, 1u);
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().node_events >= 2; }));
+  EXPECT_GE(std::chrono::steady_clock::now() - booted_at, 150ms);
+  EXPECT_TRUE(a->gateway->node_table().node(0, kLocal)->lost);
+  EXPECT_EQ(a->gateway->counters().node_events, 2u);
+  EXPECT_EQ(surface.counters().node_events, 2u);
 }
 
 TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {

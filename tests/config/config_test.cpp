@@ -328,6 +328,17 @@ TEST(Config, ModuleProfilesLoadWithCia301ByDefault) {
   EXPECT_EQ(g.modules[1].profile, bridge::IdProfile::pdop);
   EXPECT_EQ(g.modules[2].profile, bridge::IdProfile::cia301);
   EXPECT_EQ(g.modules[3].profile, bridge::IdProfile::cia301);
+  EXPECT_EQ(g.modules[1].heartbeat_lost_after, std::chrono::milliseconds(1500));
+  EXPECT_FALSE(g.modules[0].heartbeat_lost_after);
+  EXPECT_EQ(g.lss_module, 2u);
+}
+
+TEST(Config, LssModuleMustBeServedAndLostTimeInRange) {
+  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_lss_bad.yaml"); });
+  ASSERT_EQ(ps.size(), 2u) << dump(ps);
+  EXPECT_TRUE(has(ps, 7, "modules[0].heartbeat_lost_ms", "10")) << dump(ps);
+  EXPECT_TRUE(has(ps, 10, "lss_module", "module 3 is not one of this gateway's modules"))
+      << dump(ps);
 }
 
 // A qd module's slot 1 (bits 6-5 = 01) is where a CiA 301 module's surface node 37 lives.
