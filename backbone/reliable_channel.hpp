@@ -131,6 +131,18 @@ class ReliableSender {
   // Whatever was in flight is gone: after on_link_up() every unacked message goes again.
   void on_link_down();
 
+  // Lets the application edit every unacknowledged payload in place (e.g. withdraw what it has
+  // since told its user failed). Sequence numbers stay; a payload may become shorter or empty.
+  template <typename Edit>
+  void edit_unacked(Edit&& edit) {
+    for (std::uint64_t seq = send_base_; seq < next_seq_; ++seq) {
+      std::string& payload = entry(seq).payload;
+      unacked_bytes_ -= payload.size();
+      edit(payload);
+      unacked_bytes_ += payload.size();
+    }
+  }
+
   std::uint64_t send_base() const { return send_base_; }  // oldest unacked, or next_seq() if none
   std::uint64_t next_seq() const { return next_seq_; }    // seq the next push() gets
   std::size_t unacked_count() const { return static_cast<std::size_t>(next_seq_ - send_base_); }

@@ -91,6 +91,11 @@ class PeerStream {
   bool up() const { return link_ != nullptr; }
   const v1::Hello& peer_hello() const { return peer_hello_; }
   const ReliableSender& sender() const { return sender_; }
+  // ReliableSender::edit_unacked, for the application.
+  template <typename Edit>
+  void edit_unacked(Edit&& edit) {
+    sender_.edit_unacked(std::forward<Edit>(edit));
+  }
   const ReliableReceiver& receiver() const { return receiver_; }
   // Closes the current link, if any.
   void close_link();

@@ -20,7 +20,13 @@ struct OutboxCounters {
   std::uint64_t reliable_refused = 0;  // reliable frames refused: queue full (a failure)
   std::uint64_t frames_sent = 0;
   std::uint64_t batches_sent = 0;
+  std::uint64_t sdo_requests_withdrawn = 0;  // dropped by withdraw_queued_sdo_requests()
 };
+
+// SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
+// unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
+// were removed (0 leaves `payload` untouched; an unparsable payload is left alone).
+std::size_t withdraw_sdo_requests(std::string& payload);
 
 class FrameOutbox {
  public:
@@ -42,6 +48,11 @@ class FrameOutbox {
   // FrameBatch payloads: a run of frames of one module and one class per payload.
   void produce(backbone::PayloadSink& sink);
 
+  // SDO requests (0x601-0x67F) queued now are never sent: the surface has answered them with an
+  // abort because the peer's link went down, and a node must not execute later a request its
+  // master was told failed. Frames queued afterwards are not affected.
+  void withdraw_queued_sdo_requests() { withdraw_before_ = next_ordinal_; }
+
   bool empty() const { return queue_.empty(); }
   std::size_t size() const { return queue_.size(); }
   OutboxCounters counters() const;
@@ -50,7 +61,9 @@ class FrameOutbox {
   struct Entry {
     std::uint32_t module_id;
     can::Frame frame;
+    std::uint64_t ordinal;  // push order, for withdraw_queued_sdo_requests()
   };
+  bool withdrawn(const Entry& entry) const;
 
   Options options_;
   backbone::PriorityScheduler<Entry> queue_;
@@ -58,6 +71,8 @@ class FrameOutbox {
   v1::Payload payload_;
   std::string serialized_;
   OutboxCounters counters_;
+  std::uint64_t next_ordinal_ = 0;
+  std::uint64_t withdraw_before_ = 0;
 };
 
 }  // namespace canbridge::bridge

@@ -19,14 +19,20 @@ can::Frame SdoLinkGuard::abort_for(canopen::NodeId node, const Node& n) {
        static_cast<std::uint8_t>(kLinkDownAbort >> 24)});
 }
 
-void SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) {
-  if (frame.is_extended()) return;
+bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) {
+  if (frame.is_extended()) return true;
   const auto address = canopen::split_predefined(frame.id);
-  if (!address || address->node == 0) return;
+  if (!address || address->node == 0) return true;
   Node& n = nodes_[address->node];
   n.owned = true;
   n.gateway = gateway;
-  if (address->function_base == canopen::cob::sdo_tx) n.pending = false;
+  if (address->function_base != canopen::cob::sdo_tx) return true;
+  if (n.aborted && !n.pending) {
+    ++counters_.late_responses_dropped;
+    return false;
+  }
+  n.pending = false;
+  return true;
 }
 
 void SdoLinkGuard::note_owner(GatewayId gateway, canopen::NodeId node) {
@@ -41,6 +47,7 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
     Node& n = nodes_[node];
     if (!n.owned || n.gateway != gateway || !n.pending) continue;
     n.pending = false;
+    n.aborted = true;
     ++counters_.aborted_in_flight;
     aborts.push_back(abort_for(node, n));
   }

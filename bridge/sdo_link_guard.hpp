@@ -22,14 +22,17 @@ class SdoLinkGuard {
   using GatewayId = std::uint32_t;
 
   struct Counters {
-    std::uint64_t aborted_at_once = 0;    // requests to a node whose gateway was down
-    std::uint64_t aborted_in_flight = 0;  // requests pending when their gateway went down
+    std::uint64_t aborted_at_once = 0;         // requests to a node whose gateway was down
+    std::uint64_t aborted_in_flight = 0;       // requests pending when their gateway went down
+    std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
   // PDOs, SDO responses) tell which surface nodes the gateway owns; an SDO response ends the
-  // transfer step in flight for that node.
-  void on_gateway_frame(GatewayId gateway, const can::Frame& frame);
+  // transfer step in flight for that node. False for an SDO response that must not reach the
+  // master: it answers a request the master was told had failed (aborted when the link dropped,
+  // delivered once the link came back), and could be taken for the answer to a newer request.
+  [[nodiscard]] bool on_gateway_frame(GatewayId gateway, const can::Frame& frame);
   // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
   // even before the node has sent anything through it.
   void note_owner(GatewayId gateway, canopen::NodeId node);
@@ -55,6 +58,7 @@ class SdoLinkGuard {
     bool owned = false;
     GatewayId gateway = 0;
     bool pending = false;             // a request went out and no response came back yet
+    bool aborted = false;             // the guard aborted a request; no newer one went out
     std::uint8_t mux[3] = {0, 0, 0};  // index (LE) and sub-index of the transfer in progress
   };
   static can::Frame abort_for(canopen::NodeId node, const Node& n);
@@ -86,9 +90,11 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (!gateway_up(n.gateway)) {
     ++counters_.aborted_at_once;
     n.pending = false;
+    n.aborted = true;
     return {false, abort_for(node, n)};
   }
   n.pending = true;
+  n.aborted = false;
   return {};
 }
 

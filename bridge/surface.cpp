@@ -222,8 +222,7 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
   }
   counters_.frames_received += decoded_.size();
   for (const can::Frame& frame : decoded_) {
-    guard_.on_gateway_frame(from.id, frame);
-    send_to_bus(frame);
+    if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame);
   }
 }
 
@@ -284,12 +283,19 @@ void Surface::send_to_bus(const can::Frame& frame) {
 // A master waiting on one of the gateway's nodes must not wait for a timeout of its own.
 void Surface::on_gateway_down(Gateway& gateway) {
   if (stopped_) return;
+  // The master is told below that these requests failed: the node must never execute them
+  // later, when the link returns.
+  gateway.outbox.withdraw_queued_sdo_requests();
+  gateway.stream.edit_unacked([&](std::string& payload) {
+    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload);
+  });
   for (const can::Frame& abort : guard_.on_gateway_down(gateway.id)) send_to_bus(abort);
 }
 
 SurfaceCounters Surface::counters() const {
   SurfaceCounters c = counters_;
   c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight;
+  c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
@@ -300,6 +306,7 @@ SurfaceCounters Surface::counters() const {
     c.outbox.reliable_refused += o.reliable_refused;
     c.outbox.frames_sent += o.frames_sent;
     c.outbox.batches_sent += o.batches_sent;
+    c.outbox.sdo_requests_withdrawn += o.sdo_requests_withdrawn;
   }
   return c;
 }
@@ -310,14 +317,18 @@ std::string Surface::stats_line() const {
   std::string s = fmt::format(
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, sdo-aborted-link-down {}, echoes-dropped {}, bus-refused {}, "
+      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}), "
+      "echoes-dropped {}, "
+      "bus-refused {}, "
       "malformed {}, unknown-module {}, node-events {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.sdo_aborted, c.echoes_dropped, c.bus_refused,
+      c.session.refusals_received, c.sdo_aborted,
+      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
+      c.sdo_late_responses_dropped, c.echoes_dropped, c.bus_refused,
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, bus_->name(),
       b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
   return s;

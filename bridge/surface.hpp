@@ -33,6 +33,10 @@ struct SurfaceCounters {
   std::uint64_t sdo_aborted = 0;         // SDO requests answered with 0x05040000: gateway link down
   std::uint64_t echoes_dropped = 0;      // frames the surface wrote, read back from its bus
   std::uint64_t node_events = 0;         // node table events the gateways reported
+  // SDO requests never sent because the master got an abort when their link went down: queued
+  // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
+  std::uint64_t sdo_requests_withdrawn_unacked = 0;
+  std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
 };
 
 class Surface {

@@ -124,6 +124,30 @@ TEST(ReliableSender, CumulativeAckReleasesEverythingUpToIt) {
   EXPECT_FALSE(sender.next_to_send(kT0));
 }
 
+TEST(ReliableSender, EditedUnackedPayloadsAreWhatGoesAgainWithTheirSeqs) {
+  ReliableSender sender = connected_sender();
+  for (const char* payload : {"a", "bb", "ccc"}) ASSERT_TRUE(sender.push(payload));
+  send_all(sender, kT0);
+  sender.on_ack(1, kT0);  // "a" is acknowledged: never edited again
+  std::vector<std::string> seen;
+  sender.edit_unacked([&](std::string& p) {
+    seen.push_back(p);
+    p.resize(p.size() - 1);
+  });
+  EXPECT_EQ(seen, (std::vector<std::string>{"bb", "ccc"}));
+  EXPECT_EQ(sender.unacked_bytes(), 3u);
+  sender.on_link_down();
+  sender.on_link_up();
+  auto first = sender.next_to_send(kT0);
+  ASSERT_TRUE(first);
+  EXPECT_EQ(first->seq, 2u);
+  EXPECT_EQ(first->payload, "b");
+  auto second = sender.next_to_send(kT0);
+  ASSERT_TRUE(second);
+  EXPECT_EQ(second->seq, 3u);
+  EXPECT_EQ(second->payload, "cc");
+}
+
 TEST(ReliableSender, StaleDuplicatedAndReorderedAcksAreIgnored) {
   ReliableSender sender = connected_sender();
   for (int i = 0; i < 5; ++i) ASSERT_TRUE(sender.push("x"));

@@ -228,6 +228,50 @@ TEST(FrameOutbox, HeartbeatStatesAreConflatedAndUnreliableWhileBootUpsAreNot) {
                                    can::Frame::standard(0x707, {0x00})}));
 }
 
+TEST(FrameOutbox, WithdrawnSdoRequestsAreNeverSentAndLaterOnesAre) {
+  // The surface aborted these requests when the link dropped: they must not reach a node later.
+  FrameOutbox outbox({});
+  const can::Frame old_request = can::Frame::standard(0x625, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  const can::Frame response = can::Frame::standard(0x5A5, {0x43, 0x00, 0x10, 0x00, 1, 0, 0, 0});
+  const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x25});
+  ASSERT_TRUE(outbox.push(1, old_request, true));
+  ASSERT_TRUE(outbox.push(1, nmt, true));
+  ASSERT_TRUE(outbox.push(1, response, true));
+  outbox.withdraw_queued_sdo_requests();
+  const can::Frame new_request = can::Frame::standard(0x625, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0});
+  ASSERT_TRUE(outbox.push(1, new_request, true));
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)), (std::vector{nmt, response, new_request}));
+  EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 1u);
+}
+
+TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
+  FrameOutbox outbox({});
+  const can::Frame request = can::Frame::standard(0x625, {0x23, 0x00, 0x18, 0x01, 1, 2, 3, 4});
+  const can::Frame nmt = can::Frame::standard(0x000, {0x82, 0x25});
+  const can::Frame emcy = can::Frame::standard(0x0A5, {1, 2});
+  for (const auto& f : {nmt, emcy, request}) ASSERT_TRUE(outbox.push(kAnyModule, f, true));
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  ASSERT_EQ(sink.sent.size(), 1u);
+  std::string payload = sink.sent[0].bytes;
+  EXPECT_EQ(withdraw_sdo_requests(payload), 1u);
+  FakeSink edited;
+  edited.sent.push_back({payload, true, 0});
+  const auto batches = decode(edited);
+  ASSERT_EQ(batches.size(), 1u);
+  EXPECT_EQ(batches[0].module_id, kAnyModule);
+  EXPECT_EQ(batches[0].frames, (std::vector{nmt, emcy}));
+  // Nothing to withdraw: untouched; garbage: left alone.
+  std::string unchanged = payload;
+  EXPECT_EQ(withdraw_sdo_requests(unchanged), 0u);
+  EXPECT_EQ(unchanged, payload);
+  std::string garbage = "\xff\x01";
+  EXPECT_EQ(withdraw_sdo_requests(garbage), 0u);
+  EXPECT_EQ(garbage, "\xff\x01");
+}
+
 TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
   FrameOutbox::Options options;
   options.max_reliable_frames = 4;

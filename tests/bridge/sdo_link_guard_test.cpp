@@ -18,7 +18,7 @@ can::Frame abort_of(std::uint32_t cob, std::uint16_t index, std::uint8_t sub) {
 
 TEST(SdoLinkGuard, ANodeWhoseGatewayIsDownIsAnsweredWithAnAbortAtOnce) {
   SdoLinkGuard guard;
-  guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
   bool up = false;
   const auto verdict = guard.on_surface_frame(kRead1018, [&](auto g) { return g == 1 && up; });
   EXPECT_FALSE(verdict.forward);
@@ -33,8 +33,8 @@ TEST(SdoLinkGuard, ANodeWhoseGatewayIsDownIsAnsweredWithAnAbortAtOnce) {
 
 TEST(SdoLinkGuard, RequestsInFlightWhenTheLinkDropsAreAbortedOnlyForThatGateway) {
   SdoLinkGuard guard;
-  guard.on_gateway_frame(1, kHeartbeat34);
-  guard.on_gateway_frame(2, kHeartbeat70);
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(2, kHeartbeat70);
   auto all_up = [](auto) { return true; };
   EXPECT_TRUE(guard.on_surface_frame(kRead1018, all_up).forward);
   const can::Frame write_1017 =
@@ -52,10 +52,11 @@ TEST(SdoLinkGuard, RequestsInFlightWhenTheLinkDropsAreAbortedOnlyForThatGateway)
 
 TEST(SdoLinkGuard, AnsweredTransfersAndMasterAbortsAreNotInFlight) {
   SdoLinkGuard guard;
-  guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
   auto up = [](auto) { return true; };
   guard.on_surface_frame(kRead1018, up);
-  guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4}));
+  (void)guard.on_gateway_frame(1,
+                               can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4}));
   EXPECT_TRUE(guard.on_gateway_down(1).empty());
   guard.on_surface_frame(kRead1018, up);
   guard.on_surface_frame(can::Frame::standard(0x622, {0x80, 0x18, 0x10, 0x01, 0, 0, 4, 5}), up);
@@ -64,21 +65,44 @@ TEST(SdoLinkGuard, AnsweredTransfersAndMasterAbortsAreNotInFlight) {
 
 TEST(SdoLinkGuard, SegmentsAbortWithTheObjectOfTheirTransfer) {
   SdoLinkGuard guard;
-  guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
   auto up = [](auto) { return true; };
   guard.on_surface_frame(can::Frame::standard(0x622, {0x40, 0x08, 0x10, 0x00, 0, 0, 0, 0}), up);
-  guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x41, 0x08, 0x10, 0x00, 33, 0, 0, 0}));
+  (void)guard.on_gateway_frame(1,
+                               can::Frame::standard(0x5A2, {0x41, 0x08, 0x10, 0x00, 33, 0, 0, 0}));
   guard.on_surface_frame(can::Frame::standard(0x622, {0x60, 0, 0, 0, 0, 0, 0, 0}), up);  // segment
   const auto aborts = guard.on_gateway_down(1);
   ASSERT_EQ(aborts.size(), 1u);
   EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1008, 0x00));
 }
 
+TEST(SdoLinkGuard, ALateAnswerToAnAbortedRequestNeverReachesTheMaster) {
+  SdoLinkGuard guard;
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  auto up = [](auto) { return true; };
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);  // the master sees 0x05040000
+  // The request had reached the node; its answer crosses once the link is back: dropped.
+  const can::Frame late = can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4});
+  EXPECT_FALSE(guard.on_gateway_frame(1, late));
+  EXPECT_EQ(guard.counters().late_responses_dropped, 1u);
+  EXPECT_TRUE(guard.on_gateway_frame(1, kHeartbeat34));  // other frames of the node pass
+  // A new request: its answer is the master's again.
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  EXPECT_TRUE(guard.on_gateway_frame(1, late));
+  // Aborted at once (link known down), then the link returns: same rule.
+  bool link = false;
+  EXPECT_FALSE(guard.on_surface_frame(kRead1018, [&](auto) { return link; }).forward);
+  link = true;
+  EXPECT_FALSE(guard.on_gateway_frame(1, late));
+  EXPECT_EQ(guard.counters().late_responses_dropped, 2u);
+}
+
 TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
   SdoLinkGuard guard;
   auto down = [](auto) { return false; };
   EXPECT_TRUE(guard.on_surface_frame(kRead1018, down).forward);  // nobody owns node 34 yet
-  guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
   EXPECT_TRUE(guard.on_surface_frame(can::Frame::standard(0x000, {0x01, 0x22}), down).forward);
   EXPECT_TRUE(guard.on_surface_frame(can::Frame::standard(0x222, {1, 2}), down).forward);
   EXPECT_TRUE(
