@@ -39,21 +39,6 @@ struct SeenNode {
   std::string first_error;
 };
 
-const char* state_name(std::uint8_t s) {
-  switch (s) {
-    case 0x00:
-      return "boot-up";
-    case 0x04:
-      return "stopped";
-    case 0x05:
-      return "operational";
-    case 0x7F:
-      return "pre-operational";
-    default:
-      return "unknown";
-  }
-}
-
 std::uint32_t le32(const std::vector<std::uint8_t>& b) {
   std::uint32_t v = 0;
   for (std::size_t i = 0; i < b.size() && i < 4; ++i) v |= std::uint32_t{b[i]} << (8 * i);
@@ -203,9 +188,9 @@ int run_demo(const DemoOptions& options) {
     for (const auto& [surface_id, n] : table) {
       const char* kind = kind_of(surface_id / 32, surface_id % 32);
       std::printf("%7u %6u %5u  %-12s  %-16s %8u  0x%08X  0x%08X 0x%08X 0x%08X %6u%s\n", surface_id,
-                  surface_id / 32, surface_id % 32, kind, state_name(n.last_state), n.boot_ups,
-                  n.device_type, n.identity[0], n.identity[1], n.identity[2], n.identity[3],
-                  n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
+                  surface_id / 32, surface_id % 32, kind, canopen::nmt_state_name(n.last_state),
+                  n.boot_ups, n.device_type, n.identity[0], n.identity[1], n.identity[2],
+                  n.identity[3], n.sdo_failed ? ("  SDO failed: " + n.first_error).c_str() : "");
     }
     std::sort(round_trips_ms.begin(), round_trips_ms.end());
     const double median = round_trips_ms.empty() ? 0 : round_trips_ms[round_trips_ms.size() / 2];

@@ -15,20 +15,6 @@ constexpr NodeId kLoaderSlot = 1;          // qd: 0x720 + n is the loader's boot
 constexpr std::uint8_t kSlotShift = 5;     // pdop / qd: slot bits 6-5, node bits 4-0
 constexpr std::uint8_t kSlotNodeMask = 0x1F;
 
-const char* state_name(NmtState state) {
-  switch (state) {
-    case NmtState::boot_up:
-      return "boot-up";
-    case NmtState::stopped:
-      return "stopped";
-    case NmtState::operational:
-      return "operational";
-    case NmtState::pre_operational:
-      return "pre-operational";
-  }
-  return "?";
-}
-
 std::string hex32(std::uint32_t value) {
   char text[16];
   std::snprintf(text, sizeof text, "0x%08X", static_cast<unsigned>(value));
@@ -76,15 +62,18 @@ std::string to_string(const NodeEvent& e) {
   const std::string boot = "boot " + std::to_string(e.boot_count);
   switch (e.kind) {
     case NodeEvent::Kind::discovered:
-      return s + " discovered (" + state_name(e.state) + ")";
+      return s + " discovered (" + canopen::nmt_state_name(static_cast<std::uint32_t>(e.state)) +
+             ")";
     case NodeEvent::Kind::booted:
       return s + " booted (" + boot + ")";
     case NodeEvent::Kind::state_changed:
-      return s + " " + state_name(e.previous_state) + " -> " + state_name(e.state);
+      return s + " " + canopen::nmt_state_name(static_cast<std::uint32_t>(e.previous_state)) +
+             " -> " + canopen::nmt_state_name(static_cast<std::uint32_t>(e.state));
     case NodeEvent::Kind::lost:
-      return s + " lost (was " + state_name(e.state) + ")";
+      return s + " lost (was " + canopen::nmt_state_name(static_cast<std::uint32_t>(e.state)) + ")";
     case NodeEvent::Kind::recovered:
-      return s + " recovered (" + state_name(e.state) + ")";
+      return s + " recovered (" + canopen::nmt_state_name(static_cast<std::uint32_t>(e.state)) +
+             ")";
     case NodeEvent::Kind::renamed:
       s += e.previous_local != 0 ? " renamed from " + std::to_string(e.previous_local)
                                  : std::string(" renamed from an unknown id");

@@ -13,23 +13,6 @@ namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 
-namespace {
-const char* nmt_state_name(std::uint32_t state) {
-  switch (state) {
-    case 0x00:
-      return "booting";
-    case 0x04:
-      return "stopped";
-    case 0x05:
-      return "operational";
-    case 0x7F:
-      return "pre-operational";
-    default:
-      return "in an unknown state";
-  }
-}
-}  // namespace
-
 // One gateway as the surface knows it, kept across its links so reliable streams resume.
 struct Surface::Gateway {
   Gateway(std::string gateway_name, SdoLinkGuard::GatewayId gateway_id,
@@ -240,13 +223,13 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
         spdlog::info("surface: {} booted (boot-up {} seen by the gateway)", node, e.boot_count());
         break;
       case v1::NodeEvent::STATE_CHANGED:
-        spdlog::info("surface: {} is {}", node, nmt_state_name(e.nmt_state()));
+        spdlog::info("surface: {} is {}", node, canopen::nmt_state_name(e.nmt_state()));
         break;
       case v1::NodeEvent::LOST:
         spdlog::warn("surface: {} lost: its heartbeat stopped", node);
         break;
       case v1::NodeEvent::RECOVERED:
-        spdlog::info("surface: {} is back ({})", node, nmt_state_name(e.nmt_state()));
+        spdlog::info("surface: {} is back ({})", node, canopen::nmt_state_name(e.nmt_state()));
         break;
       case v1::NodeEvent::RENAMED:
         spdlog::info("surface: {} renamed from node {} (surface {})", node, e.previous_local_node(),
@@ -256,7 +239,7 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
         spdlog::warn("surface: {}: set-node-id sent, no boot-up on the new id in time", node);
         break;
       case v1::NodeEvent::DISCOVERED:
-        spdlog::info("surface: {} found ({})", node, nmt_state_name(e.nmt_state()));
+        spdlog::info("surface: {} found ({})", node, canopen::nmt_state_name(e.nmt_state()));
         break;
       case v1::NodeEvent::LOADER_BOOTED:
         spdlog::info("surface: {} is in its loader", node);

@@ -48,6 +48,22 @@ enum class NmtState : std::uint8_t {
   pre_operational = 0x7F,
 };
 
+// "operational", ...: the state byte of a heartbeat (toggle bit stripped) for logs.
+constexpr const char* nmt_state_name(std::uint32_t state) {
+  switch (state) {
+    case 0x00:
+      return "boot-up";
+    case 0x04:
+      return "stopped";
+    case 0x05:
+      return "operational";
+    case 0x7F:
+      return "pre-operational";
+    default:
+      return "unknown";
+  }
+}
+
 // A node-addressed COB-ID split into its function base (e.g. 0x580) and node id, or nullopt for
 // COB-IDs that carry no node id (NMT, SYNC, TIME, LSS, unused ranges).
 struct NodeAddress {
