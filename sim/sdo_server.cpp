@@ -14,19 +14,15 @@ using sdo::Multiplexer;
 
 namespace {
 
-// Segments carry 7 data bytes after byte 0 (CiA 301 7.2.4.3.3 ff.).
-constexpr std::size_t kSegmentBytes = 7;
+// Byte 0 bits and segment size: canopen/sdo_codec.hpp.
+using sdo::kBlockLastSegment;
+using sdo::kBlockSizeIndicated;
+using sdo::kCrcSupported;
+using sdo::kLastSegment;
+using sdo::kSegmentBytes;
+using sdo::kSeqnoMask;
+using sdo::kToggle;
 constexpr std::uint8_t kMaxBlockSize = 127;
-
-// Byte 0 bits outside the command specifier. Segments: t toggle, n (bits 3..1) unused bytes, c
-// last segment. Block commands: cc/sc CRC support, s size indicated, cs/ss sub-command (client
-// block upload: 2 bits, block download: 1 bit).
-constexpr std::uint8_t kToggle = 0x10;
-constexpr std::uint8_t kLastSegment = 0x01;
-constexpr std::uint8_t kCrcSupported = 0x04;
-constexpr std::uint8_t kBlockSizeIndicated = 0x02;
-constexpr std::uint8_t kBlockLastSegment = 0x80;  // block segments: c, then a 7-bit seqno
-constexpr std::uint8_t kSeqnoMask = 0x7F;
 constexpr std::uint8_t kClientAbort = 0x80;
 
 namespace upload_cs {  // client sub-commands of ccs 5

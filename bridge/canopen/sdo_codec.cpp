@@ -9,11 +9,6 @@ namespace canbridge::canopen::sdo {
 
 namespace {
 
-// Byte 0 bits of initiate commands: n (bits 3..2) counts the unused data bytes, e marks an
-// expedited transfer, s says whether the size (n, or bytes 4..7) is meaningful.
-constexpr std::uint8_t kExpedited = 0x02;
-constexpr std::uint8_t kSizeIndicated = 0x01;
-
 constexpr std::uint8_t command_byte(std::uint8_t specifier) {
   return static_cast<std::uint8_t>(specifier << 5);
 }

@@ -18,6 +18,20 @@ namespace canbridge::canopen::sdo {
 // Every SDO frame is 8 bytes (CiA 301); shorter frames are not SDO and decode to nullopt.
 inline constexpr std::uint8_t kFrameLength = 8;
 inline constexpr std::size_t kMaxExpedited = 4;
+inline constexpr std::size_t kSegmentBytes = 7;  // data bytes of a segment, after byte 0
+
+// Byte 0 bits outside the command specifier (CiA 301 7.2.4.3), shared by every SDO state machine.
+// Initiate (download request, upload response): n bits 3..2, e bit 1, s bit 0.
+inline constexpr std::uint8_t kExpedited = 0x02;
+inline constexpr std::uint8_t kSizeIndicated = 0x01;
+// Segments: t bit 4, n bits 3..1, c bit 0.
+inline constexpr std::uint8_t kToggle = 0x10;
+inline constexpr std::uint8_t kLastSegment = 0x01;
+// Block commands: cc/sc bit 2, s bit 1. Block segments: c bit 7, seqno bits 6..0.
+inline constexpr std::uint8_t kCrcSupported = 0x04;
+inline constexpr std::uint8_t kBlockSizeIndicated = 0x02;
+inline constexpr std::uint8_t kBlockLastSegment = 0x80;
+inline constexpr std::uint8_t kSeqnoMask = 0x7F;
 
 // Command specifiers: bits 7..5 of byte 0. Client and server numbering differ (CiA 301 7.2.4.3).
 namespace ccs {

@@ -9,19 +9,8 @@ namespace canbridge::canopen::sdo {
 
 namespace {
 
-// Byte 0 layouts (CiA 301 7.2.4.3; the same as sim/sdo_server.cpp).
-// Initiate (download request, upload response): n bits 3..2, e bit 1, s bit 0.
-constexpr std::uint8_t kExpedited = 0x02;
-constexpr std::uint8_t kSizeIndicated = 0x01;
-// Segments: t bit 4, n bits 3..1, c bit 0.
-constexpr std::uint8_t kLastSegment = 0x01;
-constexpr std::size_t kSegmentBytes = 7;
-// Block commands: cc/sc bit 2, s bit 1, sub-command bits 1..0 (ccs 5, scs 5) or bit 0 (ccs 6,
-// scs 6). Block segments: c bit 7, seqno bits 6..0.
-constexpr std::uint8_t kCrcSupported = 0x04;
-constexpr std::uint8_t kBlockSizeIndicated = 0x02;
-constexpr std::uint8_t kBlockLastSegment = 0x80;
-constexpr std::uint8_t kSeqnoMask = 0x7F;
+// Byte 0 bits: sdo_codec.hpp. Block sub-commands: bits 1..0 (ccs 5, scs 5) or bit 0 (ccs 6,
+// scs 6).
 // Inside a sub-block only exactly this byte 0 is a command (abort): seqno 0 does not exist.
 constexpr std::uint8_t kAbortInSubBlock = 0x80;
 

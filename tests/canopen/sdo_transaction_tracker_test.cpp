@@ -19,7 +19,6 @@ namespace {
 
 constexpr NodeId kLocalNode = 5;     // the node on its module bus
 constexpr NodeId kSurfaceNode = 37;  // as the master addresses it
-constexpr std::size_t kSegmentBytes = 7;
 
 // A node-id map as the bridge builds it: `table` maps local node ids to surface ones, COB-IDs of
 // the predefined connection set follow their node.
