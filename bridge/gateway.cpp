@@ -159,29 +159,28 @@ void Gateway::queue_node_events() {
     const NodeRecord* record = node_table_.node(m, e.local);
     o.set_in_loader(record && record->loader == LoaderState::in_loader);
   }
-  counters_.node_events += node_events_.size();
+  const std::size_t events = node_events_.size();
+  counters_.node_events += events;
   node_events_.clear();
   // Bounded: a link down for hours must not grow the queue without end. The oldest go first;
   // the surface learns the current state from the next events and from the heartbeats.
   constexpr std::size_t kMaxQueuedEventPayloads = 1024;
   if (events_out_.size() == kMaxQueuedEventPayloads) {
-    v1::Payload dropped;
-    dropped.ParseFromString(events_out_.front());
-    counters_.node_events_dropped +=
-        static_cast<std::uint64_t>(dropped.node_events().events_size());
+    counters_.node_events_dropped += events_out_.front().events;
     events_out_.pop_front();
     warn_.warn(Warn::kEventsDropped,
                "gateway: node events dropped: the backbone link is down too long (counted)");
   }
-  events_out_.push_back(payload.SerializeAsString());
+  events_out_.push_back({payload.SerializeAsString(), events});
   stream_.wake();
 }
 
 void Gateway::produce(backbone::PayloadSink& sink) {
   // Events first: they are few, and a master's view of a node should not lag its frames.
-  while (!events_out_.empty() && sink.room() >= events_out_.front().size() + 16 &&
-         sink.reliable_room(events_out_.front().size())) {
-    sink.send_reliable(std::move(events_out_.front()));
+  while (!events_out_.empty()) {
+    std::string& payload = events_out_.front().payload;
+    if (sink.room() < payload.size() + 16 || !sink.reliable_room(payload.size())) break;
+    sink.send_reliable(std::move(payload));
     events_out_.pop_front();
   }
   outbox_.produce(sink);

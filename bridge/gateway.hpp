@@ -111,7 +111,11 @@ class Gateway {
   NodeTable node_table_;
   boost::asio::steady_timer node_timer_;
   std::vector<NodeEvent> node_events_;  // of the input being handled
-  std::deque<std::string> events_out_;  // serialized NodeEvents payloads, oldest first
+  struct QueuedEvents {
+    std::string payload;  // a serialized NodeEvents payload
+    std::size_t events;
+  };
+  std::deque<QueuedEvents> events_out_;  // oldest first
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;

@@ -205,28 +205,22 @@ void NodeTable::on_boot_up(std::size_t module_index, NodeId local, TimePoint now
       close_rename(m, local);
     }
   }
-  Slot& s = m.slots[local];
-  NodeRecord& r = s.record;
-  const NmtState previous = r.known ? r.state : NmtState::boot_up;
-  if (!r.known) {
-    r = NodeRecord{};
-    r.known = true;
-  }
-  ++r.boot_count;
-  r.lost = false;
-  r.state = NmtState::pre_operational;  // CiA 301: boot-up announces pre-operational
-  r.loader = m.profile == IdProfile::qd ? LoaderState::in_application : LoaderState::none;
-  r.last_seen = now;
-  r.interval = Duration{0};
-  s.timing = false;  // the first heartbeat may follow the boot-up at once, off its period
-  set_deadline(s, due(m, s));
-  NodeEvent e = event(NodeEvent::Kind::booted, module_index, local, r, now);
-  e.previous_state = previous;
-  out.push_back(e);
+  // CiA 301: a boot-up announces pre-operational.
+  record_boot(module_index, local, NodeEvent::Kind::booted, NmtState::pre_operational,
+              m.profile == IdProfile::qd ? LoaderState::in_application : LoaderState::none, now,
+              out);
 }
 
 void NodeTable::on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                                   std::vector<NodeEvent>& out) {
+  // The loader sends no heartbeat: in_loader is not watched.
+  record_boot(module_index, local, NodeEvent::Kind::loader_booted, NmtState::boot_up,
+              LoaderState::in_loader, now, out);
+}
+
+void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::Kind kind,
+                            NmtState state, LoaderState loader, TimePoint now,
+                            std::vector<NodeEvent>& out) {
   Module& m = modules_[module_index];
   Slot& s = m.slots[local];
   NodeRecord& r = s.record;
@@ -235,15 +229,15 @@ void NodeTable::on_loader_boot_up(std::size_t module_index, NodeId local, TimePo
     r = NodeRecord{};
     r.known = true;
   }
-  ++r.loader_boot_count;
+  ++(kind == NodeEvent::Kind::loader_booted ? r.loader_boot_count : r.boot_count);
   r.lost = false;
-  r.state = NmtState::boot_up;
-  r.loader = LoaderState::in_loader;  // the loader sends no heartbeat: not watched
+  r.state = state;
+  r.loader = loader;
   r.last_seen = now;
   r.interval = Duration{0};
-  s.timing = false;
+  s.timing = false;  // the first heartbeat may follow the boot-up at once, off its period
   set_deadline(s, due(m, s));
-  NodeEvent e = event(NodeEvent::Kind::loader_booted, module_index, local, r, now);
+  NodeEvent e = event(kind, module_index, local, r, now);
   e.previous_state = previous;
   out.push_back(e);
 }

@@ -187,6 +187,10 @@ class NodeTable {
                   std::vector<NodeEvent>& out);
   void on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                          std::vector<NodeEvent>& out);
+  // What an application or loader boot-up does to the node's record: a count, the state, fresh
+  // timing, and one event.
+  void record_boot(std::size_t module_index, NodeId local, NodeEvent::Kind kind, NmtState state,
+                   LoaderState loader, TimePoint now, std::vector<NodeEvent>& out);
   bool confirm_rename(std::size_t module_index, NodeId local, const PendingRename& p, TimePoint now,
                       std::vector<NodeEvent>& out);
   void open_rename(std::size_t module_index, NodeId next, const PendingRename& p, TimePoint now,
