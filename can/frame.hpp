@@ -21,6 +21,10 @@ struct FrameFlags {
   static constexpr std::uint8_t extended = 0x01;  // 29-bit identifier
   static constexpr std::uint8_t remote = 0x02;    // remote transmission request
   static constexpr std::uint8_t error = 0x04;     // error frame (id holds CAN_ERR_* class bits)
+  // Received only: frames of this bus were lost just before this one (the kernel's receive
+  // queue overflowed, SO_RXQ_OVFL, or this process's own queue). Receivers that count on frame
+  // sequences (PDO Packets) resynchronise at this frame. Never sent, never carried.
+  static constexpr std::uint8_t follows_loss = 0x08;
 };
 
 struct Frame {
@@ -35,6 +39,7 @@ struct Frame {
   bool is_extended() const { return (flags & FrameFlags::extended) != 0; }
   bool is_remote() const { return (flags & FrameFlags::remote) != 0; }
   bool is_error() const { return (flags & FrameFlags::error) != 0; }
+  bool follows_loss() const { return (flags & FrameFlags::follows_loss) != 0; }
   std::span<const std::uint8_t> payload() const { return {data.data(), is_remote() ? 0u : len}; }
 
   // A frame of any kind from its parts; the id is masked to 11 or 29 bits by `flags`, bytes

@@ -312,8 +312,11 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
           std::uint32_t drops = 0;
           std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
           // The kernel's count is cumulative per socket and wraps at 2^32: add the difference.
-          counters.rx_dropped_kernel += static_cast<std::uint32_t>(drops - last_overflow);
+          const auto lost = static_cast<std::uint32_t>(drops - last_overflow);
+          counters.rx_dropped_kernel += lost;
           last_overflow = drops;
+          // The count travels with the first frame queued after the drops: it follows the gap.
+          if (lost != 0) loss_pending = true;
         }
       }
       // CAN FD frames never reach a socket without CAN_RAW_FD_FRAMES; anything not a classic
@@ -327,6 +330,8 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       Frame& f = out.emplace_back();
       from_kernel(cf, f);
       f.timestamp = stamp;
+      if (loss_pending) f.flags |= FrameFlags::follows_loss;
+      loss_pending = false;
       ++delivered;
     }
     counters.rx_frames += delivered;
@@ -430,6 +435,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   BusCounters counters;
   std::function<void(BusState)> state_handler;
   std::uint32_t last_overflow = 0;
+  bool loss_pending = false;  // frames were lost: flag the next frame delivered
   bool closed = false;
   bool reopening = false;
   bool writer_idle = false;

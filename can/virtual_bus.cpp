@@ -84,9 +84,12 @@ class VirtualEndpoint final : public Bus {
   void deliver(const Frame& frame) {
     if (queue_.size() >= medium_->rx_capacity) {
       ++counters_.rx_dropped_queue;
+      loss_pending_ = true;
       return;
     }
     queue_.push_back(frame);
+    if (loss_pending_) queue_.back().flags |= FrameFlags::follows_loss;
+    loss_pending_ = false;
     if (queue_.size() == 1) wakeup_.cancel();
   }
 
@@ -99,6 +102,7 @@ class VirtualEndpoint final : public Bus {
   std::string name_;
   asio::steady_timer wakeup_;
   std::deque<Frame> queue_;
+  bool loss_pending_ = false;  // a frame was dropped: flag the next one queued
   BusCounters counters_;
   bool closed_ = false;
 };

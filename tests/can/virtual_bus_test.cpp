@@ -66,7 +66,17 @@ TEST(VirtualBus, BoundedQueueCountsOverflowAndCloseEndsWait) {
   auto b = medium.connect("b");
   for (int i = 0; i < 5; ++i) a->send(Frame::standard(0x100, {}));
   EXPECT_EQ(b->counters().rx_dropped_queue, 3u);
-  EXPECT_EQ(receive_all(io, *b).size(), 2u);
+  const auto before = receive_all(io, *b);
+  ASSERT_EQ(before.size(), 2u);
+  EXPECT_FALSE(before[0].follows_loss());
+  EXPECT_FALSE(before[1].follows_loss());
+  // The first frame queued after the drops carries the loss mark, the next one does not.
+  a->send(Frame::standard(0x101, {}));
+  a->send(Frame::standard(0x102, {}));
+  const auto after = receive_all(io, *b);
+  ASSERT_EQ(after.size(), 2u);
+  EXPECT_TRUE(after[0].follows_loss());
+  EXPECT_FALSE(after[1].follows_loss());
 
   std::error_code ec;
   std::vector<Frame> out;

@@ -205,12 +205,16 @@ TEST(SocketCanSystem, CangenBurstOf100000FramesIsReceivedInOrderOrDropsAreCounte
   auto bus = SocketCanBus::open(io.get_executor(), options_for("vcan0"));
   Collector rx;
   std::uint64_t received = 0, out_of_order = 0, malformed = 0, next = 0, skipped = 0;
+  std::uint64_t loss_marks = 0, misplaced_loss_marks = 0;
   std::chrono::nanoseconds first{0}, last{0};
   // cangen -D i (2020.11): the payload is a 64-bit little-endian counter starting at 0.
   rx.on_frame = [&](const Frame& f) {
-    if (f.id != 0x123 || f.flags != 0 || f.len != 8) ++malformed;
+    if (f.id != 0x123 || (f.flags & ~FrameFlags::follows_loss) != 0 || f.len != 8) ++malformed;
     std::uint64_t counter = 0;
     for (int i = 7; i >= 0; --i) counter = (counter << 8) | f.data[static_cast<std::size_t>(i)];
+    // The loss mark sits exactly on the first frame after each gap (SO_RXQ_OVFL moved).
+    loss_marks += f.follows_loss() ? 1 : 0;
+    if (f.follows_loss() != (counter > next)) ++misplaced_loss_marks;
     if (counter < next) {
       ++out_of_order;
     } else {
@@ -252,6 +256,7 @@ TEST(SocketCanSystem, CangenBurstOf100000FramesIsReceivedInOrderOrDropsAreCounte
   EXPECT_EQ(c.rx_frames, received);
   // The kernel's drop count names exactly the frames missing from the sequence.
   EXPECT_EQ(skipped + (kFrames - next), c.rx_dropped_kernel);
+  EXPECT_EQ(misplaced_loss_marks, 0u) << loss_marks << " frames marked follows_loss";
 }
 
 TEST(SocketCanSystem, SendsLeaveInStrictFifoOrder) {
