@@ -252,6 +252,18 @@ void PdopReassembler::on_node_restart(NodeId node, TimePoint now, Sink& sink) {
   }
 }
 
+void PdopReassembler::on_frames_lost(TimePoint now, Sink& sink) {
+  for (std::size_t index = 0; index < kStreamCount; ++index) {
+    Stream& s = streams_[index];
+    if (s.state == State::assembling) {
+      fail(index, now >= s.deadline ? Reason::timeout : Reason::frames_lost, now, sink, false,
+           false);
+    }
+    s.state = State::resynchronising;
+    s.has_previous = false;
+  }
+}
+
 PdopReassembler::State PdopReassembler::state(NodeId node, unsigned tpdo) const {
   if (node < 1 || node > kMaxNode || tpdo < 1 || tpdo > kTpdoCount) return State::idle;
   return streams_[stream_index(node, tpdo)].state;
@@ -291,6 +303,8 @@ const char* to_string(PdopReassembler::Reason reason) {
       return "empty_frame";
     case PdopReassembler::Reason::node_restart:
       return "node_restart";
+    case PdopReassembler::Reason::frames_lost:
+      return "frames_lost";
   }
   return "?";
 }

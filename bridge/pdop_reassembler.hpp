@@ -117,8 +117,9 @@ class PdopReassembler {
     short_fragment,    // c = 1 with fewer than 8 bytes
     empty_frame,       // zero-length data frame with c = 0: a protocol error in TPDOP (section 2)
     node_restart,      // on_node_restart(): the node booted with a packet open
+    frames_lost,       // on_frames_lost(): the bus lost frames (receive queue overflow)
   };
-  static constexpr std::size_t kReasonCount = 7;
+  static constexpr std::size_t kReasonCount = 8;
   // A frame that breaks several rules is reported by the first of: timeout, empty_frame, the
   // toggle (missing_fragment or duplicate), short_fragment, oversize. docs/pdop.md gives no order.
 
@@ -191,6 +192,13 @@ class PdopReassembler {
   // packets of the node are discarded (node_restart; timeout when already past the deadline);
   // resynchronisation ends.
   void on_node_restart(NodeId node, TimePoint now, Sink& sink);
+
+  // Frames of the bus were lost (can::Frame::follows_loss: a receive queue overflowed), so any
+  // stream may have lost fragments, an even number of them undetectably (docs/pdop.md section 7).
+  // Every open packet is discarded (frames_lost; timeout when already late) and every stream
+  // resynchronises to its next c = 0 frame, idle ones too: a packet whose first two fragments
+  // were lost would otherwise be delivered as a suffix. The cost: each stream's next packet.
+  void on_frames_lost(TimePoint now, Sink& sink);
 
   const PdopReassemblerOptions& options() const { return options_; }
   const Counters& counters() const { return counters_; }

@@ -605,6 +605,41 @@ TEST(PdopReassembler, ANodeRestartDiscardsItsOpenPacketsAndEndsResynchronisation
   EXPECT_TRUE(rig.sink.got.empty());
 }
 
+TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
+  Rig rig;
+  // Node 6 TPDO1 has two fragments (t = 0, 1) open; node 7 TPDO2 is idle.
+  rig.feed({fragment_frame(1, 6, false, true, counting(8)),
+            fragment_frame(1, 6, true, true, counting(8))});
+  ASSERT_EQ(rig.r.state(6, 1), State::assembling);
+  rig.r.on_frames_lost(t0 + 5ms, rig.sink);
+  auto got = rig.sink.take();
+  ASSERT_EQ(got.size(), 1u);  // only the open packet is reported
+  expect_discard(got[0], 6, 1, Reason::frames_lost, 2);
+  EXPECT_EQ(rig.r.state(6, 1), State::resynchronising);
+  EXPECT_EQ(rig.r.state(7, 2), State::resynchronising);
+  // Two fragments of node 6 were lost with the frames: what follows has t = 0 and would have
+  // continued the open packet. It is dropped up to its c = 0 end.
+  got = rig.feed({fragment_frame(1, 6, false, true, counting(8)),
+                  fragment_frame(1, 6, true, false, counting(3))},
+                 t0 + 6ms);
+  EXPECT_TRUE(got.empty());
+  // On node 7, an idle stream, the tail of a packet whose first two fragments were lost looks
+  // like a packet of its own: it is not delivered.
+  got = rig.feed({fragment_frame(2, 7, false, true, counting(8)),
+                  fragment_frame(2, 7, true, false, counting(4))},
+                 t0 + 8ms);
+  EXPECT_TRUE(got.empty());
+  // After their ends, both streams deliver again.
+  got = rig.feed(fragments(1, 6, counting(12)), t0 + 10ms);
+  ASSERT_EQ(got.size(), 1u);
+  expect_packet(got[0], 6, 1, counting(12));
+  got = rig.feed(fragments(2, 7, counting(20)), t0 + 20ms);
+  ASSERT_EQ(got.size(), 1u);
+  expect_packet(got[0], 7, 2, counting(20));
+  EXPECT_EQ(rig.r.counters().discarded(Reason::frames_lost), 1u);
+  rig.expect_accounted();
+}
+
 TEST(PdopReassembler, DiscardsReadWellInTheLog) {
   PdopReassembler::Discard d;
   d.node = 5;
@@ -621,6 +656,7 @@ TEST(PdopReassembler, DiscardsReadWellInTheLog) {
   EXPECT_EQ(to_string(d), "node 5 TPDO2: frame refused (duplicate) with no packet open");
   EXPECT_STREQ(to_string(Reason::empty_frame), "empty_frame");
   EXPECT_STREQ(to_string(Reason::node_restart), "node_restart");
+  EXPECT_STREQ(to_string(Reason::frames_lost), "frames_lost");
 }
 
 // --- what one toggle bit cannot see (documented in the header) -----------------------------
