@@ -186,6 +186,18 @@ void PdopSegmenter::on_ack(NodeId node, const pdop::Ack& ack, TimePoint now, Out
     try_start(node, rpdo, now, out);
     return;
   }
+  if (ack.received == s.fragments && s.sent_high == s.fragments && s.awaiting_answer) {
+    // Every fragment taken, not complete yet: a store-and-forward receiver (the surface's relay)
+    // waiting for the node's own outcome answers a request so, with credit 0 (docs/pdop.md 4.3).
+    // An answer, not progress: nothing to send, and the next request after ack_timeout.
+    ++counters_.acks;
+    s.acked = ack.received;
+    s.awaiting_answer = false;
+    s.unanswered = 0;
+    s.limit = s.fragments;
+    set_deadline(s, now + ack_timeout_);
+    return;
+  }
   if (ack.received >= s.fragments) {  // the node would have completed it
     ++counters_.ignored_acks;
     return;
