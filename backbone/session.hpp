@@ -20,7 +20,8 @@
 namespace canbridge::backbone {
 
 inline constexpr std::uint32_t kProtocolMajor = 2;
-inline constexpr std::uint32_t kProtocolMinor = 1;  // 1: a second application payload kind
+// 1: a second application payload kind; 2: PDO Packets (three more kinds)
+inline constexpr std::uint32_t kProtocolMinor = 2;
 
 struct SessionOptions {
   // Nothing sent for this long: send a keepalive (it carries the current ack).

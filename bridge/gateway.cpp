@@ -15,6 +15,66 @@ namespace canbridge::bridge {
 namespace asio = boost::asio;
 
 namespace {
+v1::PdopDiscard::Reason to_proto(PdopReassembler::Reason reason) {
+  using R = PdopReassembler::Reason;
+  switch (reason) {
+    case R::missing_fragment:
+      return v1::PdopDiscard::MISSING_FRAGMENT;
+    case R::duplicate:
+      return v1::PdopDiscard::DUPLICATE;
+    case R::timeout:
+      return v1::PdopDiscard::TIMEOUT;
+    case R::oversize:
+      return v1::PdopDiscard::OVERSIZE;
+    case R::short_fragment:
+      return v1::PdopDiscard::SHORT_FRAGMENT;
+    case R::empty_frame:
+      return v1::PdopDiscard::EMPTY_FRAME;
+    case R::node_restart:
+      return v1::PdopDiscard::NODE_RESTART;
+    case R::frames_lost:
+      return v1::PdopDiscard::FRAMES_LOST;
+  }
+  return v1::PdopDiscard::REASON_UNSPECIFIED;
+}
+
+v1::RpdopOutcome::Result to_proto(PdopResult result) {
+  switch (result) {
+    case PdopResult::complete:
+      return v1::RpdopOutcome::COMPLETE;
+    case PdopResult::receiver_abort:
+      return v1::RpdopOutcome::RECEIVER_ABORT;
+    case PdopResult::timeout:
+      return v1::RpdopOutcome::TIMEOUT;
+    case PdopResult::cancelled:
+      return v1::RpdopOutcome::CANCELLED;
+    case PdopResult::refused_busy:
+      return v1::RpdopOutcome::REFUSED_BUSY;
+    case PdopResult::refused_size:
+      return v1::RpdopOutcome::REFUSED_SIZE;
+    case PdopResult::refused_address:
+      return v1::RpdopOutcome::REFUSED_ADDRESS;
+  }
+  return v1::RpdopOutcome::RESULT_UNSPECIFIED;
+}
+
+// Unix time minus steady time, now: converts kernel receive times (Unix) to the steady clock.
+std::chrono::nanoseconds steady_to_unix_offset() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+      std::chrono::system_clock::now().time_since_epoch() -
+      std::chrono::steady_clock::now().time_since_epoch());
+}
+
+std::int64_t unix_us(std::chrono::nanoseconds since_epoch) {
+  return std::chrono::duration_cast<std::chrono::microseconds>(since_epoch).count();
+}
+
+// Bytes of TPDOP packets and reports waiting for the link, per gateway: a link down for long
+// refuses new ones (counted) rather than grow without bound; queued ones are never dropped.
+constexpr std::size_t kMaxQueuedPdopBytes = std::size_t{8} << 20;
+// Packets are batched into one payload up to this size while the link is behind.
+constexpr std::size_t kPdopBatchBytes = 2048;
+
 v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
   switch (kind) {
     case NodeEvent::Kind::discovered:
@@ -38,6 +98,68 @@ v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
 }
 }  // namespace
 
+// Reassembled packets and discards of one module, into the backbone queue.
+class Gateway::PdopSink final : public PdopReassembler::Sink {
+ public:
+  PdopSink(Gateway& gateway, std::size_t module_index, std::chrono::nanoseconds clock_offset)
+      : gateway_(gateway), module_index_(module_index), clock_offset_(clock_offset) {}
+
+  void on_packet(const PdopReassembler::Packet& packet) override {
+    Gateway& g = gateway_;
+    const std::size_t bytes = packet.data.size() + 24;
+    v1::Payload* payload = g.pdop_payload_for(v1::Payload::kPdopPackets, bytes);
+    if (!payload) return;
+    v1::PdopPacket& p = *payload->mutable_pdop_packets()->add_packets();
+    p.set_module_id(g.modules_[module_index_].id);
+    p.set_local_node(packet.node);
+    p.set_surface_node(g.map_.surface_of(module_index_, packet.node));
+    p.set_pdo(packet.tpdo);
+    p.set_data(packet.data.data(), packet.data.size());
+    p.set_first_fragment_us(unix_us(clock_offset_ + packet.first.time_since_epoch()));
+    p.set_last_fragment_us(unix_us(clock_offset_ + packet.last.time_since_epoch()));
+    ++g.counters_.pdop_packets;
+    g.counters_.pdop_packet_bytes += packet.data.size();
+    g.counters_.pdop_fragments += packet.fragments;
+  }
+
+  void on_discard(const PdopReassembler::Discard& discard) override {
+    Gateway& g = gateway_;
+    ++g.counters_.pdop_discards;
+    g.warn_.warn(Warn::kPdopDiscard,
+                 "gateway: module {} {}: reported to the surface (counted; later ones only in "
+                 "the counters)",
+                 g.modules_[module_index_].id, to_string(discard));
+    v1::Payload* payload = g.pdop_payload_for(v1::Payload::kPdopReports, 24);
+    if (!payload) return;
+    v1::PdopDiscard& d = *payload->mutable_pdop_reports()->add_discards();
+    d.set_module_id(g.modules_[module_index_].id);
+    d.set_local_node(discard.node);
+    d.set_surface_node(g.map_.surface_of(module_index_, discard.node));
+    d.set_tpdo(discard.tpdo);
+    d.set_reason(to_proto(discard.reason));
+    d.set_fragments(discard.fragments);
+    d.set_bytes(static_cast<std::uint32_t>(discard.bytes));
+  }
+
+ private:
+  Gateway& gateway_;
+  std::size_t module_index_;
+  // Steady clock -> Unix time, for the packet's timestamps.
+  std::chrono::nanoseconds clock_offset_;
+};
+
+// Kernel receive time of `frame` on the steady clock (the batch's time when it has none, or when
+// the wall clock moved): fragment gaps are measured as they were on the bus, not as the reader
+// loop happened to see them.
+static PdopReassembler::TimePoint steady_time_of(const can::Frame& frame,
+                                                 PdopReassembler::TimePoint now,
+                                                 std::chrono::nanoseconds clock_offset) {
+  if (frame.timestamp.count() == 0) return now;
+  const auto at = PdopReassembler::TimePoint(
+      std::chrono::duration_cast<PdopReassembler::Clock::duration>(frame.timestamp - clock_offset));
+  return at <= now && now - at < std::chrono::seconds(1) ? at : now;
+}
+
 Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                  std::vector<GatewayModule> modules, BackboneTuning tuning)
     : executor_(std::move(executor)),
@@ -46,26 +168,45 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       modules_(std::move(modules)),
       loop_guards_(modules_.size()),
       node_timer_(executor_),
+      pdop_timer_(executor_),
       tuning_(tuning),
       outbox_(tuning_.outbox),
-      stream_(
-          tuning_.session,
-          backbone::PeerStream::Handlers{
-              [this](backbone::PayloadSink& sink) { produce(sink); },
-              [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); }, nullptr,
-              [this] {
-                // The master has seen its transfers aborted (surface link guard): whatever
-                // the nodes still send belongs to no transfer the trackers should follow.
-                for (auto& module : sdo_trackers_) {
-                  for (auto& tracker : module) tracker.reset();
-                }
-              }}) {
+      stream_(tuning_.session,
+              backbone::PeerStream::Handlers{
+                  [this](backbone::PayloadSink& sink) { produce(sink); },
+                  [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
+                  [this](const v1::Hello&) {
+                    // The surface may be a new process: it learns the pdop nodes on every link.
+                    announce_pdop_nodes_ = !pdop_.empty();
+                  },
+                  [this] {
+                    // The master has seen its transfers aborted (surface link guard): whatever
+                    // the nodes still send belongs to no transfer the trackers should follow.
+                    for (auto& module : sdo_trackers_) {
+                      for (auto& tracker : module) tracker.reset();
+                    }
+                  }}) {
   identity_.role = v1::Hello::ROLE_GATEWAY;
   identity_.expected_peer = v1::Hello::ROLE_SURFACE;
   identity_.name = name_;
   identity_.session_id = backbone::random_session_id();
   sdo_trackers_.resize(modules_.size());
+  bool any_pdop = false;
   for (std::size_t m = 0; m < modules_.size(); ++m) {
+    if (map_.modules()[m].profile == IdProfile::pdop && modules_[m].reassemble_pdop)
+      any_pdop = true;
+  }
+  if (any_pdop) pdop_.resize(modules_.size());
+  for (std::size_t m = 0; m < modules_.size(); ++m) {
+    // Fragments forwarded one by one share COB-IDs (fragment k and k + 2): conflating them
+    // would splice packets.
+    if (map_.modules()[m].profile == IdProfile::pdop && !modules_[m].reassemble_pdop) {
+      modules_[m].conflate_pdos = false;
+    }
+    if (any_pdop && map_.modules()[m].profile == IdProfile::pdop && modules_[m].reassemble_pdop) {
+      pdop_[m].reassembler = std::make_unique<PdopReassembler>(modules_[m].pdop_reassembly);
+      pdop_[m].segmenter = std::make_unique<PdopSegmenter>(modules_[m].pdop_segmentation);
+    }
     node_table_.add_module(map_.modules()[m].profile, modules_[m].heartbeat_lost_after);
     identity_.module_ids.push_back(modules_[m].id);
     if (modules_[m].lss) translator_.route_lss_to(m);
@@ -115,6 +256,169 @@ void Gateway::start() {
     asio::co_spawn(executor_, read_bus(m), asio::detached);
   }
   asio::co_spawn(executor_, watch_nodes(), asio::detached);
+  if (!pdop_.empty()) asio::co_spawn(executor_, watch_pdop(), asio::detached);
+}
+
+asio::awaitable<void> Gateway::watch_pdop() {
+  while (!stopped_) {
+    auto deadline = PdopReassembler::TimePoint::max();
+    for (const PdopModule& p : pdop_) {
+      if (!p.reassembler) continue;
+      deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
+      deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
+    }
+    pdop_timer_.expires_at(deadline);
+    auto [ec] = co_await pdop_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
+    if (stopped_) co_return;
+    if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
+    const auto now = PdopReassembler::Clock::now();
+    for (std::size_t m = 0; m < pdop_.size(); ++m) {
+      if (!pdop_[m].reassembler) continue;
+      PdopSink sink(*this, m, steady_to_unix_offset());
+      pdop_[m].reassembler->tick(now, sink);
+      pdop_[m].segmenter->tick(now, segmenter_out_);
+      flush_segmenter(m);
+    }
+    stream_.wake();
+  }
+}
+
+void Gateway::after_pdop_input() {
+  if (pdop_.empty()) return;
+  auto deadline = PdopReassembler::TimePoint::max();
+  for (const PdopModule& p : pdop_) {
+    if (!p.reassembler) continue;
+    deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
+    deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
+  }
+  if (deadline < pdop_timer_.expiry()) pdop_timer_.cancel();
+}
+
+v1::Payload* Gateway::pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes) {
+  if (pdop_out_bytes_ + adding_bytes > kMaxQueuedPdopBytes) {
+    ++counters_.pdop_refused;
+    warn_.warn(Warn::kPdopRefused,
+               "gateway: PDO Packet queue full ({} bytes): packets and reports refused (counted "
+               "as pdop-refused; the link is too slow or down too long)",
+               pdop_out_bytes_);
+    return nullptr;
+  }
+  pdop_out_bytes_ += adding_bytes;
+  if (!pdop_out_.empty() && pdop_out_.back().payload.body_case() == kind &&
+      pdop_out_.back().bytes + adding_bytes <= kPdopBatchBytes) {
+    pdop_out_.back().bytes += adding_bytes;
+    return &pdop_out_.back().payload;
+  }
+  pdop_out_.push_back({v1::Payload(), adding_bytes});
+  return &pdop_out_.back().payload;
+}
+
+void Gateway::queue_pdop_nodes() {
+  v1::Payload payload;
+  v1::PdopNodes& nodes = *payload.mutable_pdop_nodes();
+  for (std::size_t m = 0; m < pdop_.size(); ++m) {
+    if (!pdop_[m].reassembler) continue;
+    for (NodeId local = 1; local <= canopen::pdop::kMaxNode; ++local) {
+      const NodeId surface = map_.surface_of(m, local);
+      if (surface == 0) continue;
+      v1::PdopNodes::Node& n = *nodes.add_nodes();
+      n.set_module_id(modules_[m].id);
+      n.set_local_node(local);
+      n.set_surface_node(surface);
+    }
+  }
+  pdop_out_.push_front({std::move(payload), 0});
+}
+
+void Gateway::flush_segmenter(std::size_t m) {
+  const auto now = LoopGuard::Clock::now();
+  for (const can::Frame& frame : segmenter_out_.frames) {
+    if (modules_[m].bus->send(frame)) {
+      loop_guards_[m].wrote(frame, now);
+      ++counters_.to_buses;
+    } else {
+      ++counters_.bus_refused;
+      warn_.warn(Warn::kBusRefused,
+                 "gateway: bus {} refused a frame (transmit queue full; counted)",
+                 modules_[m].bus->name());
+    }
+  }
+  segmenter_out_.frames.clear();
+  for (const PdopOutcome& o : segmenter_out_.outcomes) {
+    if (o.result == PdopResult::complete) {
+      ++counters_.rpdop_complete;
+    } else {
+      ++counters_.rpdop_failed;
+      spdlog::info("gateway {}: module {} RPDOP {}", name_, modules_[m].id, to_string(o));
+    }
+    v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
+    if (!payload) continue;
+    v1::RpdopOutcome& r = *payload->mutable_pdop_reports()->add_outcomes();
+    r.set_request_id(o.request_id);
+    r.set_module_id(modules_[m].id);
+    r.set_surface_node(map_.surface_of(m, o.node));
+    r.set_rpdo(o.rpdo);
+    r.set_result(to_proto(o.result));
+    r.set_status(static_cast<std::uint32_t>(o.status));
+    r.set_fragments(o.fragments);
+    r.set_fragments_sent(o.fragments_sent);
+    r.set_ack_requests(o.ack_requests);
+    r.set_elapsed_us(static_cast<std::uint64_t>(
+        std::chrono::duration_cast<std::chrono::microseconds>(o.elapsed).count()));
+  }
+  segmenter_out_.outcomes.clear();
+}
+
+// A node that booted (or took another id) has no packet open in either direction.
+void Gateway::on_node_restart(const NodeEvent& e, PdopReassembler::TimePoint now) {
+  if (pdop_.empty() || !pdop_[e.module_index].reassembler) return;
+  if (e.kind != NodeEvent::Kind::booted && e.kind != NodeEvent::Kind::renamed &&
+      e.kind != NodeEvent::Kind::loader_booted) {
+    return;
+  }
+  PdopModule& p = pdop_[e.module_index];
+  PdopSink sink(*this, e.module_index, steady_to_unix_offset());
+  for (NodeId node : {e.local, e.previous_local}) {
+    if (node == 0 || node > canopen::pdop::kMaxNode) continue;
+    p.reassembler->on_node_restart(node, now, sink);
+    p.segmenter->cancel_node(node, now, segmenter_out_);
+  }
+  flush_segmenter(e.module_index);
+}
+
+void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
+  const auto now = PdopSegmenter::Clock::now();
+  for (const v1::PdopPacket& p : packets.packets()) {
+    ++counters_.rpdop_packets;
+    std::optional<NodeOwner> owner;
+    if (p.surface_node() >= 1 && p.surface_node() <= canopen::pdop::kMaxNode) {
+      owner = map_.owner_of_surface(static_cast<NodeId>(p.surface_node()));
+    }
+    if (!owner || pdop_.empty() || !pdop_[owner->module_index].reassembler ||
+        (p.module_id() != kAnyModule && p.module_id() != modules_[owner->module_index].id)) {
+      warn_.warn(Warn::kRpdopUnknown,
+                 "gateway: RPDOP packet for surface node {} of module {}, which is no pdop node "
+                 "of this gateway: refused (counted)",
+                 p.surface_node(), p.module_id());
+      ++counters_.rpdop_failed;
+      v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
+      if (!payload) continue;
+      v1::RpdopOutcome& r = *payload->mutable_pdop_reports()->add_outcomes();
+      r.set_request_id(p.request_id());
+      r.set_module_id(p.module_id());
+      r.set_surface_node(p.surface_node());
+      r.set_rpdo(p.pdo());
+      r.set_result(v1::RpdopOutcome::REFUSED_ADDRESS);
+      continue;
+    }
+    const std::size_t m = owner->module_index;
+    const std::string& data = p.data();
+    pdop_[m].segmenter->submit(owner->local, p.pdo(),
+                               std::vector<std::uint8_t>(data.begin(), data.end()), p.request_id(),
+                               now, segmenter_out_);
+    flush_segmenter(m);
+  }
+  stream_.wake();
 }
 
 asio::awaitable<void> Gateway::watch_nodes() {
@@ -176,6 +480,20 @@ void Gateway::queue_node_events() {
 }
 
 void Gateway::produce(backbone::PayloadSink& sink) {
+  if (announce_pdop_nodes_) {
+    queue_pdop_nodes();
+    announce_pdop_nodes_ = false;
+  }
+  // PDO Packets and their reports: reliable, in order, ahead of frames (a packet is data that
+  // already waited for all its fragments).
+  while (!pdop_out_.empty()) {
+    // A packet larger than one write still goes: the session writes any message it takes.
+    std::string payload = pdop_out_.front().payload.SerializeAsString();
+    if (sink.room() == 0 || !sink.reliable_room(payload.size())) break;
+    sink.send_reliable(std::move(payload));
+    pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
+    pdop_out_.pop_front();
+  }
   // Events first: they are few, and a master's view of a node should not lag its frames.
   while (!events_out_.empty()) {
     std::string& payload = events_out_.front().payload;
@@ -191,6 +509,7 @@ void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (link_) {
     link_->close();
     old_links_framing_ += link_->message_link()->counters().deframer;
+    old_links_tx_bytes_ += link_->message_link()->counters().tx_bytes;
   }
   link_ = backbone::SessionLink::create(std::move(link), identity_, tuning_.session, &stream_,
                                         nullptr, counters_.session);
@@ -200,6 +519,7 @@ void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
 void Gateway::stop() {
   stopped_ = true;
   node_timer_.cancel();
+  pdop_timer_.cancel();
   if (link_) link_->close();
   stream_.close_link();
   for (auto& m : modules_) m.bus->close();
@@ -210,6 +530,8 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
   can::Bus& bus = *module.bus;
   std::vector<can::Frame> batch;
   batch.reserve(512);
+  PdopReassembler* reassembler = pdop_.empty() ? nullptr : pdop_[module_index].reassembler.get();
+  PdopSegmenter* segmenter = pdop_.empty() ? nullptr : pdop_[module_index].segmenter.get();
   for (;;) {
     batch.clear();
     if (std::error_code ec = co_await bus.receive_batch(batch)) {
@@ -218,6 +540,9 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
     }
     counters_.from_buses += batch.size();
     const auto now = LoopGuard::Clock::now();
+    const auto clock_offset = steady_to_unix_offset();
+    std::optional<PdopSink> pdop_sink;
+    if (reassembler) pdop_sink.emplace(*this, module_index, clock_offset);
     for (const can::Frame& frame : batch) {
       if (frame.is_error()) continue;  // bus state, counted by the bus itself
       // A frame this gateway wrote, coming back (another bridge, a gateway daemon, a loop in
@@ -226,9 +551,25 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         ++counters_.echoes_dropped;
         continue;
       }
+      const std::size_t events_before = node_events_.size();
       node_table_.on_bus_frame(module_index, frame, now, node_events_);
       if (frame.id == canopen::cob::nmt && !frame.is_extended()) {  // a master on the module bus
         node_table_.on_nmt_to_bus(module_index, frame, now, node_events_);
+      }
+      if (reassembler) {
+        // In bus order: a boot-up ends the node's packets before its next fragment arrives.
+        for (std::size_t e = events_before; e < node_events_.size(); ++e) {
+          on_node_restart(node_events_[e], now);
+        }
+        const auto at = steady_time_of(frame, now, clock_offset);
+        if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
+        if (reassembler->on_frame(frame, at, *pdop_sink)) continue;
+        // The nodes' RPDOP acknowledgements are the segmenter's; the surface acknowledges its
+        // master itself.
+        if (segmenter->on_frame(frame, now, segmenter_out_)) {
+          flush_segmenter(module_index);
+          continue;
+        }
       }
       auto surface = translator_.to_surface(module_index, frame);
       if (!surface) continue;
@@ -243,11 +584,18 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       }
     }
     after_node_input();
+    after_pdop_input();
     stream_.wake();
   }
 }
 
 void Gateway::on_payload(std::span<const std::uint8_t> payload) {
+  if (inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) &&
+      inbound_.has_pdop_packets()) {
+    on_rpdop_packets(inbound_.pdop_packets());
+    after_pdop_input();
+    return;
+  }
   if (auto error = decode_frame_payload(payload, inbound_, decoded_)) {
     ++counters_.malformed_payloads;
     warn_.warn(Warn::kMalformed, "gateway: dropped a backbone payload: {} (counted)", *error);
@@ -294,7 +642,11 @@ GatewayCounters Gateway::counters() const {
   c.translation = translator_.drops();
   c.outbox = outbox_.counters();
   c.framing = old_links_framing_;
-  if (link_) c.framing += link_->message_link()->counters().deframer;
+  c.backbone_tx_bytes = old_links_tx_bytes_;
+  if (link_) {
+    c.framing += link_->message_link()->counters().deframer;
+    c.backbone_tx_bytes += link_->message_link()->counters().tx_bytes;
+  }
   return c;
 }
 
@@ -314,8 +666,20 @@ std::string Gateway::stats_line() const {
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
       c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped);
-  s += fmt::format("; {}, node-events {} dropped {}", to_string(node_table_.counts()),
-                   c.node_events, c.node_events_dropped);
+  s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}",
+                   to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
+                   c.backbone_tx_bytes);
+  if (!pdop_.empty()) {
+    std::uint64_t dropped_frames = 0;
+    for (const PdopModule& p : pdop_) {
+      if (p.reassembler) dropped_frames += p.reassembler->counters().dropped_frames;
+    }
+    s += fmt::format(
+        "; pdop packets {} ({} bytes, {} fragments) discarded {} dropped-frames {} refused {}, "
+        "rpdop packets {} complete {} failed {}",
+        c.pdop_packets, c.pdop_packet_bytes, c.pdop_fragments, c.pdop_discards, dropped_frames,
+        c.pdop_refused, c.rpdop_packets, c.rpdop_complete, c.rpdop_failed);
+  }
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
     s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", c.framing.frames,
                      c.framing.crc_errors, c.framing.discarded_bytes);

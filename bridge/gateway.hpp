@@ -22,6 +22,8 @@
 #include "bridge/loop_guard.hpp"
 #include "bridge/node_map.hpp"
 #include "bridge/node_table.hpp"
+#include "bridge/pdop_reassembler.hpp"
+#include "bridge/pdop_segmenter.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 
@@ -33,6 +35,12 @@ struct GatewayModule {
   bool conflate_pdos = true;
   bool lss = false;  // LSS reaches this module (at most one module of a gateway)
   std::optional<std::chrono::milliseconds> heartbeat_lost_after{};  // unset: 3 x observed interval
+  // pdop modules (docs/pdop.md): TPDOP fragments are reassembled and cross as one packet each
+  // (false: forwarded frame by frame, as on any other module), RPDOP packets from the surface
+  // are segmented toward the node with its flow control. Ignored on other profiles.
+  bool reassemble_pdop = true;
+  PdopReassemblerOptions pdop_reassembly{};
+  PdopSegmenterOptions pdop_segmentation{};
 };
 
 struct GatewayCounters {
@@ -53,6 +61,16 @@ struct GatewayCounters {
   std::uint64_t sdo_values_unmapped = 0;
   std::uint64_t node_events = 0;          // node table events queued for the surface
   std::uint64_t node_events_dropped = 0;  // ... dropped: the link was down too long (bounded)
+  // PDO Packets (pdop modules with reassembly; docs/pdop.md).
+  std::uint64_t pdop_packets = 0;       // TPDOP packets queued for the surface
+  std::uint64_t pdop_packet_bytes = 0;  // ... their data bytes
+  std::uint64_t pdop_fragments = 0;     // ... their fragments (frames not sent one by one)
+  std::uint64_t pdop_discards = 0;      // broken TPDOP packets, reported to the surface
+  std::uint64_t pdop_refused = 0;       // packets or reports refused: the queue was full
+  std::uint64_t rpdop_packets = 0;      // RPDOP packets from the surface
+  std::uint64_t rpdop_complete = 0;     // ... the node acknowledged them complete
+  std::uint64_t rpdop_failed = 0;       // ... any other outcome
+  std::uint64_t backbone_tx_bytes = 0;  // bytes written on backbone links, all links so far
 };
 
 class Gateway {
@@ -89,12 +107,31 @@ class Gateway {
   void queue_node_events();
   void produce(backbone::PayloadSink& sink);
 
+  // PDO Packets. One reassembler and one segmenter per pdop module with reassembly on.
+  struct PdopModule {
+    std::unique_ptr<PdopReassembler> reassembler;
+    std::unique_ptr<PdopSegmenter> segmenter;
+  };
+  class PdopSink;
+  boost::asio::awaitable<void> watch_pdop();
+  void after_pdop_input();
+  void on_rpdop_packets(const v1::PdopPackets& packets);
+  void flush_segmenter(std::size_t module_index);
+  // Appends to the newest queued payload of `kind` while it is small (batches small packets
+  // when the link is slower than the bus), else queues a new one. False when the queue is full.
+  v1::Payload* pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes);
+  void queue_pdop_nodes();
+  void on_node_restart(const NodeEvent& event, PdopReassembler::TimePoint now);
+
   enum Warn : std::size_t {
     kUnknownModule,
     kMalformed,
     kRefused,
     kBusRefused,
     kEventsDropped,
+    kPdopRefused,
+    kPdopDiscard,
+    kRpdopUnknown,
     kWarnKinds
   };
 
@@ -116,12 +153,23 @@ class Gateway {
     std::size_t events;
   };
   std::deque<QueuedEvents> events_out_;  // oldest first
+  std::vector<PdopModule> pdop_;         // per module, same order; empty for other modules
+  boost::asio::steady_timer pdop_timer_;
+  struct QueuedPdop {
+    v1::Payload payload;  // PdopPackets, PdopReports or PdopNodes
+    std::size_t bytes;    // estimate of the serialized size, for the bound and batching
+  };
+  std::deque<QueuedPdop> pdop_out_;  // oldest first
+  std::size_t pdop_out_bytes_ = 0;
+  bool announce_pdop_nodes_ = false;  // a link came up: PdopNodes goes first
+  PdopSegmenter::Output segmenter_out_;
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;
   backbone::PeerStream stream_;
   std::shared_ptr<backbone::SessionLink> link_;     // the newest link, ready or not
   backbone::DeframerCounters old_links_framing_{};  // of the links before link_
+  std::uint64_t old_links_tx_bytes_ = 0;
   GatewayCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;

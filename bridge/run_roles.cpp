@@ -60,8 +60,16 @@ int run_gateway(const config::GatewayOptions& options) {
   for (const auto& m : options.modules) {
     auto problems = map.add_module(m.id, m.nodes, m.profile);  // validated by the loader already
     if (!problems.empty()) throw std::runtime_error(problems.front());
-    modules.push_back({m.id, open_bus(io.get_executor(), m.bus, options.can), m.conflate_pdos,
-                       options.lss_module == m.id, m.heartbeat_lost_after});
+    GatewayModule module;
+    module.id = m.id;
+    module.bus = open_bus(io.get_executor(), m.bus, options.can);
+    module.conflate_pdos = m.conflate_pdos;
+    module.lss = options.lss_module == m.id;
+    module.heartbeat_lost_after = m.heartbeat_lost_after;
+    module.reassemble_pdop = m.reassemble_pdop;
+    module.pdop_reassembly = m.pdop_reassembly;
+    module.pdop_segmentation = m.pdop_segmentation;
+    modules.push_back(std::move(module));
   }
   Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
                   make_tuning(options.session));
@@ -108,7 +116,7 @@ int run_surface(const config::SurfaceOptions& options) {
   asio::io_context io(1);
   Surface surface(io.get_executor(), options.name,
                   open_bus(io.get_executor(), options.bus, options.can),
-                  make_tuning(options.session), options.conflate_pdos);
+                  make_tuning(options.session), options.conflate_pdos, options.rpdop_relay);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     surface.attach(std::move(link));
   };

@@ -3,8 +3,11 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <deque>
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
@@ -21,27 +24,40 @@ struct Surface::Gateway {
         id(gateway_id),
         outbox(tuning.outbox),
         stream(tuning.session, backbone::PeerStream::Handlers{
-                                   [this](backbone::PayloadSink& sink) { outbox.produce(sink); },
+                                   [this](backbone::PayloadSink& sink) { produce(sink); },
                                    [this, &surface](std::span<const std::uint8_t> payload, bool) {
                                      surface.on_payload(*this, payload);
                                    },
                                    nullptr, [this, &surface] { surface.on_gateway_down(*this); }}) {
   }
 
+  // RPDOP packets first (the master waits on each), then frames.
+  void produce(backbone::PayloadSink& sink) {
+    while (!rpdop_out.empty()) {
+      if (sink.room() == 0 || !sink.reliable_room(rpdop_out.front().size())) break;
+      sink.send_reliable(std::move(rpdop_out.front()));
+      rpdop_out.pop_front();
+    }
+    outbox.produce(sink);
+  }
+
   std::string name;
   SdoLinkGuard::GatewayId id;
   std::vector<std::uint32_t> modules;  // as announced in its latest accepted hello
   FrameOutbox outbox;
+  std::deque<std::string> rpdop_out;  // serialized PdopPackets payloads
   backbone::PeerStream stream;
 };
 
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-                 BackboneTuning tuning, bool conflate_pdos)
+                 BackboneTuning tuning, bool conflate_pdos, RpdopRelayOptions rpdop_relay)
     : executor_(std::move(executor)),
       name_(std::move(name)),
       bus_(std::move(bus)),
       tuning_(tuning),
-      conflate_pdos_(conflate_pdos) {
+      conflate_pdos_(conflate_pdos),
+      relay_(rpdop_relay),
+      relay_timer_(executor_) {
   identity_.role = v1::Hello::ROLE_SURFACE;
   identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
   identity_.name = name_;
@@ -52,6 +68,55 @@ Surface::~Surface() = default;
 
 void Surface::start() {
   asio::co_spawn(executor_, read_bus(), asio::detached);
+  asio::co_spawn(executor_, watch_relay(), asio::detached);
+}
+
+asio::awaitable<void> Surface::watch_relay() {
+  while (!stopped_) {
+    relay_timer_.expires_at(relay_.next_deadline().value_or(RpdopRelay::TimePoint::max()));
+    auto [ec] = co_await relay_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
+    if (stopped_) co_return;
+    if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
+    relay_.tick(RpdopRelay::Clock::now(), relay_out_);
+    flush_relay();
+  }
+}
+
+void Surface::after_relay_input() {
+  const auto deadline = relay_.next_deadline();
+  if (deadline && *deadline < relay_timer_.expiry()) relay_timer_.cancel();
+}
+
+void Surface::flush_relay() {
+  for (const can::Frame& ack : relay_out_.frames) send_to_bus(ack);
+  relay_out_.frames.clear();
+  // Taken out first: answering a packet at once (link down) appends to relay_out_.
+  std::vector<RpdopRelay::Packet> packets = std::move(relay_out_.packets);
+  relay_out_.packets.clear();
+  for (RpdopRelay::Packet& packet : packets) {
+    const PdopOwner owner = pdop_owner_[packet.node];
+    Gateway* gateway =
+        owner.gateway >= 0 ? by_id_[static_cast<std::size_t>(owner.gateway)] : nullptr;
+    if (!gateway || !gateway->stream.up()) {
+      // The master learns at once: its packet cannot reach the node now (0x82, no room).
+      ++counters_.rpdop_failed;
+      relay_.on_outcome(packet.request_id, canopen::pdop::AckStatus::out_of_memory, relay_out_);
+      continue;
+    }
+    v1::Payload payload;
+    v1::PdopPacket& p = *payload.mutable_pdop_packets()->add_packets();
+    p.set_module_id(owner.module_id);
+    p.set_surface_node(packet.node);
+    p.set_pdo(packet.rpdo);
+    p.set_data(packet.bytes.data(), packet.bytes.size());
+    p.set_request_id(packet.request_id);
+    gateway->rpdop_out.push_back(payload.SerializeAsString());
+    gateway->stream.wake();
+    ++counters_.rpdop_forwarded;
+  }
+  for (const can::Frame& ack : relay_out_.frames) send_to_bus(ack);
+  relay_out_.frames.clear();
+  after_relay_input();
 }
 
 void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
@@ -110,6 +175,7 @@ void Surface::stop() {
   stopped_ = true;
   for (auto& l : std::vector(links_)) l->close();
   for (auto& [name, g] : gateways_) g->stream.close_link();
+  relay_timer_.cancel();
   bus_->close();
 }
 
@@ -144,6 +210,9 @@ asio::awaitable<void> Surface::read_bus() {
         ++counters_.echoes_dropped;
         continue;
       }
+      // RPDOP to a pdop node behind a gateway: the relay acknowledges the master and forwards
+      // whole packets.
+      if (relay_.on_frame(frame, now, relay_out_)) continue;
       const auto verdict = guard_.on_surface_frame(
           frame, [this](SdoLinkGuard::GatewayId g) { return by_id_[g]->stream.up(); });
       if (verdict.reply) send_to_bus(*verdict.reply);
@@ -162,6 +231,7 @@ asio::awaitable<void> Surface::read_bus() {
       }
       gateway->stream.wake();
     }
+    flush_relay();
   }
 }
 
@@ -176,6 +246,12 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
       return on_frames(from, inbound_.frames());
     case v1::Payload::kNodeEvents:
       return on_node_events(from, inbound_.node_events());
+    case v1::Payload::kPdopPackets:
+      return on_pdop_packets(from, inbound_.pdop_packets());
+    case v1::Payload::kPdopReports:
+      return on_pdop_reports(from, inbound_.pdop_reports());
+    case v1::Payload::kPdopNodes:
+      return on_pdop_nodes(from, inbound_.pdop_nodes());
     case v1::Payload::BODY_NOT_SET:
       break;
   }
@@ -252,6 +328,101 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
   }
 }
 
+void Surface::on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes) {
+  for (const v1::PdopNodes::Node& n : nodes.nodes()) {
+    if (n.surface_node() < 1 || n.surface_node() > canopen::pdop::kMaxNode ||
+        std::find(from.modules.begin(), from.modules.end(), n.module_id()) == from.modules.end()) {
+      ++counters_.pdop_malformed;
+      continue;
+    }
+    const auto node = static_cast<canopen::NodeId>(n.surface_node());
+    pdop_owner_[node] = {static_cast<int>(from.id), n.module_id()};
+    relay_.set_relayed(node, true);
+  }
+  spdlog::info("surface: gateway '{}' carries PDO Packets of {} node(s) whole", from.name,
+               nodes.nodes_size());
+}
+
+// A packet goes on the bus as the node sent it, under its surface id (docs/pdop.md section 2),
+// so a master on the surface bus sees PDOP unchanged.
+void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
+  for (const v1::PdopPacket& p : packets.packets()) {
+    const std::string& data = p.data();
+    const std::span<const std::uint8_t> bytes(reinterpret_cast<const std::uint8_t*>(data.data()),
+                                              data.size());
+    const std::uint16_t base = canopen::pdop::tpdo_base(p.pdo());
+    const bool announced =
+        std::find(from.modules.begin(), from.modules.end(), p.module_id()) != from.modules.end();
+    std::vector<can::Frame> fragments;
+    if (announced && base != 0 && p.surface_node() >= 1 &&
+        p.surface_node() <= canopen::pdop::kMaxNode) {
+      fragments =
+          canopen::pdop::fragment(base, static_cast<canopen::NodeId>(p.surface_node()), bytes);
+    }
+    if (fragments.empty()) {
+      ++counters_.pdop_malformed;
+      warn_.warn(Warn::kPdopMalformed,
+                 "surface: gateway '{}' sent a PDO Packet with module {} node {} TPDO {} and {} "
+                 "bytes, which cannot be put on the bus: dropped (counted)",
+                 from.name, p.module_id(), p.surface_node(), p.pdo(), data.size());
+      continue;
+    }
+    ++counters_.pdop_packets;
+    counters_.pdop_packet_bytes += data.size();
+    for (const can::Frame& f : fragments) send_to_bus(f);
+    if (pdop_observer_) {
+      pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
+                      static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
+                      p.first_fragment_us(), p.last_fragment_us()});
+    }
+  }
+}
+
+void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
+  for (const v1::PdopDiscard& d : reports.discards()) {
+    ++counters_.pdop_discards;
+    warn_.warn(Warn::kPdopDiscard,
+               "surface: gateway '{}' module {} node {} (surface {}) TPDO{}: broken PDO Packet "
+               "discarded ({}, after {} fragments) (counted; later ones only in the counters)",
+               from.name, d.module_id(), d.local_node(), d.surface_node(), d.tpdo(),
+               v1::PdopDiscard::Reason_Name(d.reason()), d.fragments());
+  }
+  for (const v1::RpdopOutcome& o : reports.outcomes()) {
+    using canopen::pdop::AckStatus;
+    AckStatus status = AckStatus::out_of_memory;
+    switch (o.result()) {
+      case v1::RpdopOutcome::COMPLETE:
+        status = AckStatus::complete;
+        break;
+      case v1::RpdopOutcome::RECEIVER_ABORT:
+        status = o.status() >= 0x80 && o.status() <= 0xFF ? static_cast<AckStatus>(o.status())
+                                                          : AckStatus::out_of_memory;
+        break;
+      case v1::RpdopOutcome::TIMEOUT:
+        status = AckStatus::timeout;
+        break;
+      case v1::RpdopOutcome::REFUSED_SIZE:
+        status = AckStatus::oversize;
+        break;
+      default:  // busy, cancelled, no such node: the node could not take it
+        break;
+    }
+    if (status == AckStatus::complete) {
+      ++counters_.rpdop_complete;
+    } else {
+      ++counters_.rpdop_failed;
+      warn_.warn(
+          Warn::kRpdopFailed,
+          "surface: gateway '{}' node {} RPDO{}: packet not delivered ({}, status 0x{:02X}); "
+          "the master sees the status (counted; later ones only in the counters)",
+          from.name, o.surface_node(), o.rpdo(), v1::RpdopOutcome::Result_Name(o.result()),
+          o.status());
+    }
+    relay_.on_outcome(o.request_id(), status, relay_out_);
+  }
+  flush_relay();
+}
+
 void Surface::send_to_bus(const can::Frame& frame) {
   if (bus_->send(frame)) {
     loop_guard_.wrote(frame, LoopGuard::Clock::now());
@@ -304,6 +475,8 @@ std::string Surface::stats_line() const {
       "echoes-dropped {}, "
       "bus-refused {}, "
       "malformed {}, unknown-module {}, node-events {}; "
+      "pdop packets {} ({} bytes) discarded {} malformed {}, rpdop forwarded {} complete {} "
+      "failed {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
@@ -312,8 +485,10 @@ std::string Surface::stats_line() const {
       c.session.refusals_received, c.sdo_aborted,
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
       c.sdo_late_responses_dropped, c.echoes_dropped, c.bus_refused,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, bus_->name(),
-      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
+      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
+      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.rpdop_forwarded, c.rpdop_complete,
+      c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
+      can::to_string(b.state));
   return s;
 }
 

@@ -2,8 +2,11 @@
 // gateways connected over the backbone (several at once, each serving its own modules).
 #pragma once
 
+#include <array>
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -13,6 +16,7 @@
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
+#include "bridge/rpdop_relay.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -37,12 +41,33 @@ struct SurfaceCounters {
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
   std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
+  // PDO Packets (docs/pdop.md).
+  std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
+  std::uint64_t pdop_packet_bytes = 0;
+  std::uint64_t pdop_malformed = 0;   // packets with a bad node, TPDO or size (dropped)
+  std::uint64_t pdop_discards = 0;    // broken packets the gateways reported
+  std::uint64_t rpdop_forwarded = 0;  // RPDOP packets from the master sent to gateways
+  std::uint64_t rpdop_complete = 0;   // ... acknowledged complete by the node
+  std::uint64_t rpdop_failed = 0;     // ... any other outcome (the master saw the status)
+};
+
+// A whole TPDOP packet as the surface received it, for backbone clients and tests.
+struct SurfacePdopPacket {
+  std::string gateway;
+  std::uint32_t module_id = 0;
+  canopen::NodeId local_node = 0;
+  canopen::NodeId surface_node = 0;
+  unsigned tpdo = 0;
+  std::span<const std::uint8_t> data;  // valid during the call
+  std::int64_t first_fragment_us = 0;  // Unix time, 0 when unknown
+  std::int64_t last_fragment_us = 0;
 };
 
 class Surface {
  public:
   Surface(boost::asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-          BackboneTuning tuning = {}, bool conflate_pdos = true);
+          BackboneTuning tuning = {}, bool conflate_pdos = true,
+          RpdopRelayOptions rpdop_relay = {});
   ~Surface();
 
   void start();
@@ -56,6 +81,11 @@ class Surface {
   std::size_t gateways_ready() const;
   can::Bus& bus() { return *bus_; }
   std::string stats_line() const;
+  // Every TPDOP packet, whole, as it arrives (also put on the bus as fragments). One observer.
+  void on_pdop_packet(std::function<void(const SurfacePdopPacket&)> observer) {
+    pdop_observer_ = std::move(observer);
+  }
+  const RpdopRelay& rpdop_relay() const { return relay_; }
 
  private:
   struct Gateway;
@@ -67,6 +97,13 @@ class Surface {
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
   void send_to_bus(const can::Frame& frame);
+  void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
+  void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);
+  void on_pdop_reports(Gateway& from, const v1::PdopReports& reports);
+  // Sends the relay's acknowledgements to the bus and its packets to their gateways.
+  void flush_relay();
+  boost::asio::awaitable<void> watch_relay();
+  void after_relay_input();
 
   enum Warn : std::size_t {
     kUnknownModule,
@@ -74,6 +111,9 @@ class Surface {
     kMalformed,
     kRefused,
     kBusRefused,
+    kPdopMalformed,
+    kPdopDiscard,
+    kRpdopFailed,
     kWarnKinds
   };
 
@@ -86,6 +126,16 @@ class Surface {
   std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
   std::vector<Gateway*> by_id_;                               // the same, by SdoLinkGuard id
   SdoLinkGuard guard_;
+  RpdopRelay relay_;
+  RpdopRelay::Output relay_out_;
+  boost::asio::steady_timer relay_timer_;
+  // Surface node id -> the gateway (SdoLinkGuard id) and module of its pdop node; -1: none.
+  struct PdopOwner {
+    int gateway = -1;
+    std::uint32_t module_id = 0;
+  };
+  std::array<PdopOwner, canopen::pdop::kMaxNode + 1> pdop_owner_{};
+  std::function<void(const SurfacePdopPacket&)> pdop_observer_;
   LoopGuard loop_guard_;
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed

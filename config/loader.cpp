@@ -8,7 +8,11 @@
 #include <map>
 #include <optional>
 #include <set>
+#include <string>
+#include <string_view>
+#include <vector>
 
+#include "bridge/canopen/pdop.hpp"
 #include "bridge/node_map.hpp"
 #include "config/yaml_reader.hpp"
 
@@ -204,6 +208,95 @@ YAML::Node key_of(const YAML::Node& map, std::string_view key) {
   return YAML::Node(YAML::NodeType::Undefined);
 }
 
+// A validator of a bridge unit says "field: message" in the unit's names; the file names
+// durations with their unit (fragment_timeout -> fragment_timeout_ms).
+std::string yaml_key(const std::string& unit_field) {
+  constexpr std::string_view kTimeout = "_timeout";
+  const bool duration =
+      unit_field.size() >= kTimeout.size() &&
+      unit_field.compare(unit_field.size() - kTimeout.size(), kTimeout.size(), kTimeout) == 0;
+  return duration ? unit_field + "_ms" : unit_field;
+}
+
+// Reports the problems a unit's own validator finds in options read from `block` (`path`), each
+// once (the reassembler and the segmenter both check max_packet_bytes), at the key it names, or at
+// the block's key when the value is a default. The loader's range checks come first; what is left
+// for the validators is what ties fields together (max_held_bytes against max_packet_bytes), and
+// running them keeps the loader from accepting what the unit would throw on at startup.
+void report_unit_problems(Reader& in, const std::vector<std::string>& problems,
+                          const YAML::Node& block, const YAML::Node& block_key,
+                          const std::string& path, std::set<std::string>& reported) {
+  for (const std::string& p : problems) {
+    const auto colon = p.find(": ");
+    const std::string key =
+        colon == std::string::npos ? std::string() : yaml_key(p.substr(0, colon));
+    const std::string message = colon == std::string::npos ? p : p.substr(colon + 2);
+    const std::string field = key.empty() ? path : path + "." + key;
+    if (!reported.insert(field).second) continue;
+    const YAML::Node value = key.empty() ? YAML::Node(YAML::NodeType::Undefined) : block[key];
+    in.problem(value ? line_of(value) : line_of(block_key), field, message);
+  }
+}
+
+// A module's `pdop:` block (docs/pdop.md section 5): whether TPDOP packets cross whole, and the
+// gateway's reassembler and segmenter limits. Only a pdop module has PDO Packets; on another
+// profile the block is refused but still checked, so that one pass shows every problem.
+void read_module_pdop(Reader& in, const YAML::Node& m, const std::string& path, bool profile_ok,
+                      ModuleOptions& module) {
+  const YAML::Node key = key_of(m, "pdop");
+  if (!key) return;
+  const std::string field = path + ".pdop";
+  if (profile_ok && module.profile != bridge::IdProfile::pdop) {
+    in.problem(key, field,
+               std::string("applies to pdop modules only (this module's profile is ") +
+                   bridge::to_string(module.profile) + "): only they send PDO Packets");
+  }
+  const YAML::Node block = m["pdop"];
+  if (!block.IsMap()) {
+    // At the key: an empty value ("pdop:") has no line of its own.
+    return in.problem(key, field,
+                      "must be a mapping, e.g. {max_packet_bytes: 4096, window: 4} ({} for the "
+                      "defaults)");
+  }
+  in.only_keys(block, field,
+               {"reassemble", "max_packet_bytes", "fragment_timeout_ms", "window", "ack_timeout_ms",
+                "retries", "queue_per_rpdo", "max_held_bytes"});
+  const std::size_t before = in.problems().size();
+  using std::chrono::milliseconds;
+  auto& reassembly = module.pdop_reassembly;
+  auto& segmentation = module.pdop_segmentation;
+  if (auto v = in.boolean(block, "reassemble", field)) module.reassemble_pdop = *v;
+  if (auto v = in.integer(block, "max_packet_bytes", field, 1,
+                          static_cast<std::int64_t>(canopen::pdop::kMaxPacketBytes))) {
+    reassembly.max_packet_bytes = static_cast<std::size_t>(*v);
+    segmentation.max_packet_bytes = static_cast<std::size_t>(*v);
+  }
+  if (auto v = in.integer(block, "fragment_timeout_ms", field, 1, 10000)) {
+    reassembly.fragment_timeout = milliseconds(*v);
+  }
+  if (auto v = in.integer(block, "window", field, 1, 255)) {
+    segmentation.window = static_cast<std::uint8_t>(*v);
+  }
+  if (auto v = in.integer(block, "ack_timeout_ms", field, 1, 10000)) {
+    segmentation.ack_timeout = milliseconds(*v);
+  }
+  if (auto v = in.integer(block, "retries", field, 0, 10)) {
+    segmentation.retries = static_cast<unsigned>(*v);
+  }
+  if (auto v = in.integer(block, "queue_per_rpdo", field, 0, 1024)) {
+    segmentation.queue_per_rpdo = static_cast<std::size_t>(*v);
+  }
+  if (auto v = in.integer(block, "max_held_bytes", field, 1, std::int64_t{1} << 30)) {
+    segmentation.max_held_bytes = static_cast<std::size_t>(*v);
+  }
+  // With a value already refused (and left at its default), a cross check would judge the
+  // default, not what the operator wrote.
+  if (in.problems().size() != before) return;
+  std::set<std::string> reported;
+  if (auto p = reassembly.validate()) report_unit_problems(in, {*p}, block, key, field, reported);
+  report_unit_problems(in, bridge::validate(segmentation), block, key, field, reported);
+}
+
 void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
   const YAML::Node modules = root["modules"];
   if (!modules) return in.problem(root, "modules", "missing (required): at least one module");
@@ -219,7 +312,8 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       in.problem(m, path, "must be a mapping with id and bus");
       continue;
     }
-    in.only_keys(m, path, {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms"});
+    in.only_keys(m, path,
+                 {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "pdop"});
     ModuleOptions module;
     auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
     auto bus = in.string(m, "bus", path, true);
@@ -239,6 +333,7 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
     if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
       module.heartbeat_lost_after = std::chrono::milliseconds(*lost);
     }
+    read_module_pdop(in, m, path, profile_ok, module);
     if (bus && !buses.insert(*bus).second) {
       in.problem(m["bus"], path + ".bus", "bus '" + *bus + "' is used by two modules");
     }
@@ -295,6 +390,39 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
     }
     out.modules.push_back(std::move(module));
   }
+}
+
+// The surface's `pdop:` block: the limits of the relay that takes RPDOP packets from the surface
+// master for pdop nodes behind gateways (bridge/rpdop_relay.hpp).
+void read_surface_pdop(Reader& in, const YAML::Node& root, bridge::RpdopRelayOptions& out) {
+  const YAML::Node key = key_of(root, "pdop");
+  if (!key) return;
+  const YAML::Node block = root["pdop"];
+  if (!block.IsMap()) {
+    return in.problem(key, "pdop",
+                      "must be a mapping, e.g. {max_packet_bytes: 4096, window: 4} ({} for the "
+                      "defaults)");
+  }
+  in.only_keys(block, "pdop",
+               {"max_packet_bytes", "fragment_timeout_ms", "window", "outcome_timeout_ms"});
+  const std::size_t before = in.problems().size();
+  using std::chrono::milliseconds;
+  if (auto v = in.integer(block, "max_packet_bytes", "pdop", 1,
+                          static_cast<std::int64_t>(canopen::pdop::kMaxPacketBytes))) {
+    out.max_packet_bytes = static_cast<std::size_t>(*v);
+  }
+  if (auto v = in.integer(block, "fragment_timeout_ms", "pdop", 1, 10000)) {
+    out.fragment_timeout = milliseconds(*v);
+  }
+  if (auto v = in.integer(block, "window", "pdop", 1, 255)) {
+    out.window = static_cast<std::uint8_t>(*v);
+  }
+  if (auto v = in.integer(block, "outcome_timeout_ms", "pdop", 1, 600000)) {
+    out.outcome_timeout = milliseconds(*v);
+  }
+  if (in.problems().size() != before) return;
+  std::set<std::string> reported;
+  report_unit_problems(in, bridge::validate(out), block, key, "pdop", reported);
 }
 
 }  // namespace
@@ -378,7 +506,7 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
 SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "surface");
   Reader in(file);
-  in.only_keys(root, "", {"role", "name", "backbone", "bus", "can", "log"});
+  in.only_keys(root, "", {"role", "name", "backbone", "bus", "pdop", "can", "log"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
@@ -431,6 +559,7 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
     }
     in.session_tuning(backbone, out.session);
   }
+  read_surface_pdop(in, root, out.rpdop_relay);
   in.can_options(root, out.can);
   in.log_options(root, out.log);
   in.finish();

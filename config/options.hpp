@@ -9,6 +9,9 @@
 #include <vector>
 
 #include "bridge/id_profile.hpp"
+#include "bridge/pdop_reassembler.hpp"
+#include "bridge/pdop_segmenter.hpp"
+#include "bridge/rpdop_relay.hpp"
 
 namespace canbridge::config {
 
@@ -38,6 +41,11 @@ struct ModuleOptions {
   // A node whose heartbeat is silent this long is reported lost to the surface; unset: three
   // times the node's own heartbeat interval, as observed (docs/canopen-bridging.md).
   std::optional<std::chrono::milliseconds> heartbeat_lost_after;
+  // profile pdop only (`pdop:` block; docs/pdop.md section 5): packets cross the backbone whole
+  // (reassemble false: fragment by fragment), with these limits in both directions.
+  bool reassemble_pdop = true;
+  bridge::PdopReassemblerOptions pdop_reassembly;
+  bridge::PdopSegmenterOptions pdop_segmentation;
 };
 
 // A serial backbone line: 8N1, no flow control unless the cable carries RTS/CTS.
@@ -93,6 +101,8 @@ struct SurfaceOptions {
   std::vector<SerialLineOptions> serial;
   SessionTuning session;
   bool conflate_pdos = true;  // for surface -> gateway process data, as ModuleOptions
+  // RPDOP from the surface master to pdop nodes, taken by the surface (`pdop:` block).
+  bridge::RpdopRelayOptions rpdop_relay;
   std::string bus;            // the one SocketCAN interface the surface master sees
   CanOptions can;
   LogOptions log;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <fstream>
+#include <iterator>
 #include <string>
 
 #include "config/loader.hpp"
@@ -31,6 +32,28 @@ void expect_default_session(const SessionTuning& s) {
   EXPECT_EQ(s.queue_process_frames, d.queue_process_frames);
 }
 
+// The samples show every pdop key at its default, like the session keys.
+void expect_default_pdop(const ModuleOptions& m) {
+  const ModuleOptions d;
+  EXPECT_EQ(m.reassemble_pdop, d.reassemble_pdop);
+  EXPECT_EQ(m.pdop_reassembly.max_packet_bytes, d.pdop_reassembly.max_packet_bytes);
+  EXPECT_EQ(m.pdop_reassembly.fragment_timeout, d.pdop_reassembly.fragment_timeout);
+  EXPECT_EQ(m.pdop_segmentation.max_packet_bytes, d.pdop_segmentation.max_packet_bytes);
+  EXPECT_EQ(m.pdop_segmentation.window, d.pdop_segmentation.window);
+  EXPECT_EQ(m.pdop_segmentation.ack_timeout, d.pdop_segmentation.ack_timeout);
+  EXPECT_EQ(m.pdop_segmentation.retries, d.pdop_segmentation.retries);
+  EXPECT_EQ(m.pdop_segmentation.queue_per_rpdo, d.pdop_segmentation.queue_per_rpdo);
+  EXPECT_EQ(m.pdop_segmentation.max_held_bytes, d.pdop_segmentation.max_held_bytes);
+}
+
+void expect_default_relay(const bridge::RpdopRelayOptions& r) {
+  const bridge::RpdopRelayOptions d;
+  EXPECT_EQ(r.max_packet_bytes, d.max_packet_bytes);
+  EXPECT_EQ(r.fragment_timeout, d.fragment_timeout);
+  EXPECT_EQ(r.window, d.window);
+  EXPECT_EQ(r.outcome_timeout, d.outcome_timeout);
+}
+
 // A sample with its commented-out serial example switched on ("  # serial:" and the "  #   "
 // lines after it lose their "# "), without the lines starting with `drop` (if not empty): an
 // operator following the comments gets a file that loads.
@@ -56,6 +79,7 @@ TEST(Config, SampleGatewayLoads) {
   EXPECT_FALSE(g.serial.has_value());
   EXPECT_TRUE(g.modules[0].conflate_pdos);
   expect_default_session(g.session);
+  for (const ModuleOptions& m : g.modules) expect_default_pdop(m);
 }
 
 TEST(Config, SampleSurfaceLoads) {
@@ -65,6 +89,73 @@ TEST(Config, SampleSurfaceLoads) {
   EXPECT_TRUE(s.serial.empty());
   EXPECT_TRUE(s.conflate_pdos);
   expect_default_session(s.session);
+  expect_default_relay(s.rpdop_relay);
+  // The block is given (with every key at its default), not merely absent.
+  std::ifstream in(kConfigDir + "surface.yaml");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("\npdop:\n  # "), std::string::npos);
+}
+
+// The sample's commented-out pdop module, uncommented under a minimal header (it does not fit
+// beside the sample's other modules, as its comment says): an operator copying it gets a module
+// that loads, with every pdop key at the default the comments state.
+TEST(Config, SamplePdopModuleExampleLoadsWhenUncommented) {
+  std::ifstream in(kConfigDir + "gateway.yaml");
+  std::string modules;
+  bool block = false;
+  for (std::string line; std::getline(in, line);) {
+    block = line.rfind("  # - id: 3", 0) == 0 || (block && line.rfind("  #   ", 0) == 0);
+    if (block) modules += line.erase(2, 2) + "\n";
+  }
+  ASSERT_NE(modules.find("\n    pdop:\n"), std::string::npos) << modules;
+  ASSERT_NE(modules.find("      max_held_bytes: "), std::string::npos) << modules;
+  const GatewayOptions g =
+      parse_gateway("role: gateway\nbackbone:\n  connect: 127.0.0.1:7000\nmodules:\n" + modules,
+                    "gateway.yaml (pdop example)");
+  ASSERT_EQ(g.modules.size(), 1u);
+  EXPECT_EQ(g.modules[0].profile, bridge::IdProfile::pdop);
+  expect_default_pdop(g.modules[0]);
+}
+
+TEST(Config, PdopBlockSetsEveryLimitOfAPdopModule) {
+  const GatewayOptions g = load_gateway(kFixtures + "gateway_pdop.yaml");
+  ASSERT_EQ(g.modules.size(), 2u);
+  const ModuleOptions& m = g.modules[0];
+  EXPECT_FALSE(m.reassemble_pdop);
+  EXPECT_EQ(m.pdop_reassembly.max_packet_bytes, 65536u);
+  EXPECT_EQ(m.pdop_segmentation.max_packet_bytes, 65536u);
+  EXPECT_EQ(m.pdop_reassembly.fragment_timeout, std::chrono::milliseconds(250));
+  EXPECT_EQ(m.pdop_segmentation.window, 16u);
+  EXPECT_EQ(m.pdop_segmentation.ack_timeout, std::chrono::milliseconds(40));
+  EXPECT_EQ(m.pdop_segmentation.retries, 0u);
+  EXPECT_EQ(m.pdop_segmentation.queue_per_rpdo, 0u);
+  EXPECT_EQ(m.pdop_segmentation.max_held_bytes, 131072u);
+  // Without a block: the defaults of docs/pdop.md section 5.
+  EXPECT_EQ(g.modules[1].profile, bridge::IdProfile::pdop);
+  expect_default_pdop(g.modules[1]);
+  EXPECT_TRUE(g.modules[1].reassemble_pdop);
+  EXPECT_EQ(g.modules[1].pdop_reassembly.max_packet_bytes, 4096u);
+  EXPECT_EQ(g.modules[1].pdop_reassembly.fragment_timeout, std::chrono::milliseconds(100));
+  EXPECT_EQ(g.modules[1].pdop_segmentation.window, 4u);
+  EXPECT_EQ(g.modules[1].pdop_segmentation.ack_timeout, std::chrono::milliseconds(100));
+  EXPECT_EQ(g.modules[1].pdop_segmentation.retries, 3u);
+  EXPECT_EQ(g.modules[1].pdop_segmentation.queue_per_rpdo, 8u);
+  EXPECT_EQ(g.modules[1].pdop_segmentation.max_held_bytes, 1u << 20);
+}
+
+TEST(Config, SurfacePdopBlockSetsTheRelayLimits) {
+  const SurfaceOptions s = load_surface(kFixtures + "surface_pdop.yaml");
+  EXPECT_EQ(s.rpdop_relay.max_packet_bytes, 8192u);
+  EXPECT_EQ(s.rpdop_relay.fragment_timeout, std::chrono::milliseconds(500));
+  EXPECT_EQ(s.rpdop_relay.window, 8u);
+  EXPECT_EQ(s.rpdop_relay.outcome_timeout, std::chrono::milliseconds(30000));
+  // Without a block: the relay's defaults.
+  const SurfaceOptions d =
+      parse_surface("role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000}\n", "d.yaml");
+  EXPECT_EQ(d.rpdop_relay.max_packet_bytes, 4096u);
+  EXPECT_EQ(d.rpdop_relay.fragment_timeout, std::chrono::milliseconds(200));
+  EXPECT_EQ(d.rpdop_relay.window, 4u);
+  EXPECT_EQ(d.rpdop_relay.outcome_timeout, std::chrono::milliseconds(10000));
 }
 
 TEST(Config, SampleSerialExamplesLoadWhenUncommented) {
@@ -140,10 +231,7 @@ struct BadCase {
   const char* text;
 };
 
-class BadBackboneFile : public ::testing::TestWithParam<BadCase> {};
-
-TEST_P(BadBackboneFile, ReportsTheOneProblemWithFileLineAndField) {
-  const BadCase& c = GetParam();
+void expect_the_one_problem(const BadCase& c) {
   const std::string path = kFixtures + c.file;
   const bool surface = std::string(c.file).rfind("surface", 0) == 0;
   const auto ps =
@@ -153,6 +241,17 @@ TEST_P(BadBackboneFile, ReportsTheOneProblemWithFileLineAndField) {
   EXPECT_EQ(ps[0].line, c.line) << dump(ps);
   EXPECT_EQ(ps[0].field, c.field) << dump(ps);
   EXPECT_NE(ps[0].message.find(c.text), std::string::npos) << dump(ps);
+}
+
+std::string bad_case_name(const ::testing::TestParamInfo<BadCase>& param) {
+  std::string name = param.param.file;
+  return name.substr(0, name.find('.'));
+}
+
+class BadBackboneFile : public ::testing::TestWithParam<BadCase> {};
+
+TEST_P(BadBackboneFile, ReportsTheOneProblemWithFileLineAndField) {
+  expect_the_one_problem(GetParam());
 }
 
 INSTANTIATE_TEST_SUITE_P(
@@ -177,11 +276,79 @@ INSTANTIATE_TEST_SUITE_P(
                 "must be true or false"},
         BadCase{"surface_conflate_not_bool.yaml", 5, "backbone.conflate_pdos",
                 "must be true or false"}),
-    [](const ::testing::TestParamInfo<BadCase>& param) {
-      std::string name = param.param.file;
-      name = name.substr(0, name.find('.'));
-      return name;
-    });
+    bad_case_name);
+
+class BadPdopFile : public ::testing::TestWithParam<BadCase> {};
+
+TEST_P(BadPdopFile, ReportsTheOneProblemWithFileLineAndField) {
+  expect_the_one_problem(GetParam());
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Config, BadPdopFile,
+    ::testing::Values(
+        BadCase{"gateway_pdop_on_cia301.yaml", 7, "modules[0].pdop",
+                "applies to pdop modules only (this module's profile is cia301)"},
+        BadCase{"gateway_pdop_window_zero.yaml", 10, "modules[0].pdop.window",
+                "0 is out of range 1..255"},
+        BadCase{"gateway_pdop_packet_zero.yaml", 9, "modules[0].pdop.max_packet_bytes",
+                "0 is out of range 1..524280"},
+        BadCase{"gateway_pdop_packet_too_big.yaml", 9, "modules[0].pdop.max_packet_bytes",
+                "600000 is out of range 1..524280"},
+        BadCase{"gateway_pdop_unknown_key.yaml", 10, "modules[0].pdop.credit", "unknown key"},
+        // Found by the segmenter's own validator, named as in the file.
+        BadCase{"gateway_pdop_held_below_packet.yaml", 10, "modules[0].pdop.max_held_bytes",
+                "4096 is outside max_packet_bytes (8192)..1073741824"},
+        BadCase{"gateway_pdop_fragment_timeout_zero.yaml", 9, "modules[0].pdop.fragment_timeout_ms",
+                "0 is out of range 1..10000"},
+        // Issue 6: a pdop node cannot be presented above surface id 31, and the message says why.
+        BadCase{"gateway_pdop_node_above_31.yaml", 8, "modules[0]",
+                "surface node id 40 must be 1..31: a pdop bus keeps the node id in bits 4-0 "
+                "(bits 6-5 are the PDO Packet toggle and continued bits)"},
+        BadCase{"surface_pdop_window_zero.yaml", 6, "pdop.window", "0 is out of range 1..255"},
+        BadCase{"surface_pdop_unknown_key.yaml", 7, "pdop.ack_timeout_ms", "unknown key"}),
+    bad_case_name);
+
+TEST(Config, EveryPdopProblemOfAGatewayIsReportedAtOnce) {
+  const std::string yaml =
+      "role: gateway\n"                                     // 1
+      "backbone:\n"                                         // 2
+      "  connect: 127.0.0.1:7000\n"                         // 3
+      "modules:\n"                                          // 4
+      "  - id: 0\n"                                         // 5
+      "    bus: vcan1\n"                                    // 6
+      "    profile: pdop\n"                                 // 7
+      "    nodes: {1: 1}\n"                                 // 8
+      "    pdop:\n"                                         // 9
+      "      window: 256\n"                                 // 10
+      "      retries: 11\n"                                 // 11
+      "      max_packet_bytes: 600000\n"                    // 12
+      "      max_held_bytes: 2048\n"                        // 13
+      "  - id: 1\n"                                         // 14
+      "    bus: vcan2\n"                                    // 15
+      "    profile: qd\n"                                   // 16
+      "    nodes: {1: 20}\n"                                // 17
+      "    pdop: {ack_timeout_ms: 0, reassemble: maybe}\n"  // 18
+      "  - id: 2\n"                                         // 19
+      "    bus: vcan3\n"                                    // 20
+      "    profile: pdop\n"                                 // 21
+      "    nodes: {1: 21}\n"                                // 22
+      "    pdop:\n";                                        // 23
+  const auto ps = problems_of([&] { parse_gateway(yaml, "p.yaml"); });
+  const std::string all = dump(ps);
+  EXPECT_TRUE(has(ps, 10, "modules[0].pdop.window", "256 is out of range 1..255")) << all;
+  EXPECT_TRUE(has(ps, 11, "modules[0].pdop.retries", "11 is out of range 0..10")) << all;
+  EXPECT_TRUE(has(ps, 12, "modules[0].pdop.max_packet_bytes", "out of range 1..524280")) << all;
+  EXPECT_TRUE(has(ps, 18, "modules[1].pdop",
+                  "applies to pdop modules only (this module's "
+                  "profile is qd)"))
+      << all;
+  EXPECT_TRUE(has(ps, 18, "modules[1].pdop.ack_timeout_ms", "0 is out of range 1..10000")) << all;
+  EXPECT_TRUE(has(ps, 18, "modules[1].pdop.reassemble", "must be true or false")) << all;
+  EXPECT_TRUE(has(ps, 23, "modules[2].pdop", "must be a mapping")) << all;
+  // Nothing else: max_held_bytes is not compared with a max_packet_bytes already refused.
+  EXPECT_EQ(ps.size(), 7u) << all;
+}
 
 TEST(Config, EveryProblemOfABadSurfaceBackboneIsReportedAtOnce) {
   const std::string path = kFixtures + "surface_bad.yaml";
