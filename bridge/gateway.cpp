@@ -117,6 +117,7 @@ class Gateway::PdopSink final : public PdopReassembler::Sink {
     p.set_data(packet.data.data(), packet.data.size());
     p.set_first_fragment_us(unix_us(clock_offset_ + packet.first.time_since_epoch()));
     p.set_last_fragment_us(unix_us(clock_offset_ + packet.last.time_since_epoch()));
+    p.set_probable_repeat(packet.probable_repeat);
     ++g.counters_.pdop_packets;
     g.counters_.pdop_packet_bytes += packet.data.size();
     g.counters_.pdop_fragments += packet.fragments;

@@ -98,6 +98,10 @@ void PdopReassembler::on_fragment(std::size_t index, bool toggle, bool continued
 void PdopReassembler::accept(std::size_t index, bool toggle, bool continued,
                              std::span<const std::uint8_t> data, TimePoint now, Sink& sink) {
   Stream& s = streams_[index];
+  // Checked before the previous fragment is forgotten below.
+  const bool probable_repeat =
+      s.state == State::idle && !continued && !toggle && s.previous_packet_fragments > 1 &&
+      repeats_previous(s, toggle, continued, data) && now - s.last <= kRepeatWindow;
   if (s.state == State::idle) {
     s.bytes.clear();
     s.fragments = 0;
@@ -114,7 +118,8 @@ void PdopReassembler::accept(std::size_t index, bool toggle, bool continued,
     // A one-frame packet (a plain TPDO): delivered from the frame, the buffer stays untouched.
     remember(s, toggle, continued, data);
     s.last = now;
-    deliver(index, data, 1, now, now, sink);
+    s.previous_packet_fragments = 1;
+    deliver(index, data, 1, now, now, sink, probable_repeat);
     return;
   }
   const std::size_t size = s.bytes.size() + data.size();
@@ -139,6 +144,7 @@ void PdopReassembler::accept(std::size_t index, bool toggle, bool continued,
   }
   set_assembling(index, false);
   s.state = State::idle;
+  s.previous_packet_fragments = s.fragments;
   deliver(index, s.bytes, s.fragments, s.first, s.last, sink);
   s.bytes.clear();
   s.fragments = 0;
@@ -154,10 +160,11 @@ void PdopReassembler::remember(Stream& s, bool toggle, bool continued,
 }
 
 void PdopReassembler::deliver(std::size_t index, std::span<const std::uint8_t> data,
-                              std::uint32_t fragments, TimePoint first, TimePoint last,
-                              Sink& sink) {
+                              std::uint32_t fragments, TimePoint first, TimePoint last, Sink& sink,
+                              bool probable_repeat) {
   ++counters_.packets;
   if (fragments == 1) ++counters_.single_frame_packets;
+  if (probable_repeat) ++counters_.probable_repeats;
   counters_.packet_bytes += data.size();
   counters_.packet_fragments += fragments;
   Packet packet;
@@ -167,6 +174,7 @@ void PdopReassembler::deliver(std::size_t index, std::span<const std::uint8_t> d
   packet.fragments = fragments;
   packet.first = first;
   packet.last = last;
+  packet.probable_repeat = probable_repeat;
   sink.on_packet(packet);
 }
 

@@ -107,7 +107,15 @@ class PdopReassembler {
     std::uint32_t fragments = 0;         // ceil(data.size() / 8); 1: a plain TPDO
     TimePoint first{};                   // time of the first fragment
     TimePoint last{};                    // time of the last fragment
+    // A one-frame packet equal to the last fragment (t = 0) of the stream's previous,
+    // multi-fragment packet, within kRepeatWindow of it: probably CAN's double reception of that
+    // fragment rather than a packet (docs/pdop.md section 7). Delivered all the same: a
+    // receiver cannot tell, so it is flagged for whoever consumes packets.
+    bool probable_repeat = false;
   };
+  // Double reception repeats a frame right after the error frame that caused it: two frame
+  // times at 125 kbit/s.
+  static constexpr std::chrono::milliseconds kRepeatWindow{2};
 
   enum class Reason : std::uint8_t {
     missing_fragment,  // toggle error (or t = 1 while idle) not explained as a repeat
@@ -150,6 +158,7 @@ class PdopReassembler {
     std::uint64_t frames = 0;  // data frames taken (on_frame returned true)
     std::uint64_t packets = 0;
     std::uint64_t single_frame_packets = 0;  // of which one-frame packets (plain TPDOs)
+    std::uint64_t probable_repeats = 0;      // of which flagged probable_repeat
     std::uint64_t packet_bytes = 0;
     std::uint64_t packet_fragments = 0;
     std::array<std::uint64_t, kReasonCount> discards{};  // by Reason
@@ -224,6 +233,7 @@ class PdopReassembler {
     bool previous_continued = false;
     std::uint8_t previous_length = 0;
     std::array<std::uint8_t, canopen::pdop::kFragmentBytes> previous{};
+    std::uint32_t previous_packet_fragments = 0;  // of the last packet delivered
   };
 
   void on_fragment(std::size_t index, bool toggle, bool continued,
@@ -232,7 +242,7 @@ class PdopReassembler {
               TimePoint now, Sink& sink);
   static void remember(Stream& s, bool toggle, bool continued, std::span<const std::uint8_t> data);
   void deliver(std::size_t index, std::span<const std::uint8_t> data, std::uint32_t fragments,
-               TimePoint first, TimePoint last, Sink& sink);
+               TimePoint first, TimePoint last, Sink& sink, bool probable_repeat = false);
   static bool repeats_previous(const Stream& s, bool toggle, bool continued,
                                std::span<const std::uint8_t> data);
   // Reports and discards the stream's packet (if any). With `offending` a frame is refused: it

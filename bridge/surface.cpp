@@ -369,11 +369,19 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
     }
     ++counters_.pdop_packets;
     counters_.pdop_packet_bytes += data.size();
+    if (p.probable_repeat()) {
+      ++counters_.pdop_probable_repeats;
+      warn_.warn(Warn::kPdopRepeat,
+                 "surface: gateway '{}' node {} TPDO{}: a one-frame packet repeating the last "
+                 "fragment of the packet before it, probably received twice on the module bus; "
+                 "delivered all the same (counted as probable-repeats)",
+                 from.name, p.surface_node(), p.pdo());
+    }
     for (const can::Frame& f : fragments) send_to_bus(f);
     if (pdop_observer_) {
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
                       static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
-                      p.first_fragment_us(), p.last_fragment_us()});
+                      p.first_fragment_us(), p.last_fragment_us(), p.probable_repeat()});
     }
   }
 }
@@ -475,8 +483,8 @@ std::string Surface::stats_line() const {
       "echoes-dropped {}, "
       "bus-refused {}, "
       "malformed {}, unknown-module {}, node-events {}; "
-      "pdop packets {} ({} bytes) discarded {} malformed {}, rpdop forwarded {} complete {} "
-      "failed {}; "
+      "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {}, rpdop "
+      "forwarded {} complete {} failed {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
@@ -486,9 +494,9 @@ std::string Surface::stats_line() const {
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
       c.sdo_late_responses_dropped, c.echoes_dropped, c.bus_refused,
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
-      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.rpdop_forwarded, c.rpdop_complete,
-      c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
-      can::to_string(b.state));
+      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
+      c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames,
+      b.rx_dropped_kernel, can::to_string(b.state));
   return s;
 }
 

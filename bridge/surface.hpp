@@ -44,11 +44,12 @@ struct SurfaceCounters {
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
   std::uint64_t pdop_packet_bytes = 0;
-  std::uint64_t pdop_malformed = 0;   // packets with a bad node, TPDO or size (dropped)
-  std::uint64_t pdop_discards = 0;    // broken packets the gateways reported
-  std::uint64_t rpdop_forwarded = 0;  // RPDOP packets from the master sent to gateways
-  std::uint64_t rpdop_complete = 0;   // ... acknowledged complete by the node
-  std::uint64_t rpdop_failed = 0;     // ... any other outcome (the master saw the status)
+  std::uint64_t pdop_malformed = 0;         // packets with a bad node, TPDO or size (dropped)
+  std::uint64_t pdop_probable_repeats = 0;  // flagged as a probable double reception
+  std::uint64_t pdop_discards = 0;          // broken packets the gateways reported
+  std::uint64_t rpdop_forwarded = 0;        // RPDOP packets from the master sent to gateways
+  std::uint64_t rpdop_complete = 0;         // ... acknowledged complete by the node
+  std::uint64_t rpdop_failed = 0;           // ... any other outcome (the master saw the status)
 };
 
 // A whole TPDOP packet as the surface received it, for backbone clients and tests.
@@ -61,6 +62,7 @@ struct SurfacePdopPacket {
   std::span<const std::uint8_t> data;  // valid during the call
   std::int64_t first_fragment_us = 0;  // Unix time, 0 when unknown
   std::int64_t last_fragment_us = 0;
+  bool probable_repeat = false;  // see PdopPacket.probable_repeat
 };
 
 class Surface {
@@ -114,6 +116,7 @@ class Surface {
     kPdopMalformed,
     kPdopDiscard,
     kRpdopFailed,
+    kPdopRepeat,
     kWarnKinds
   };
 

@@ -194,6 +194,17 @@ TEST_F(PdopBridging, ABrokenPacketIsReportedToTheSurfaceAndNeverDelivered) {
   EXPECT_EQ(tpdo_frames_on_surface(kSurfaceA).size(), 2u);  // only the good packet
 }
 
+TEST_F(PdopBridging, ALastFragmentReceivedTwiceIsDeliveredFlaggedAsAProbableRepeat) {
+  start();
+  const auto frames = pdop::fragment(pdop::tpdo_base(1), kLocalA, pattern(17, 3));  // t = 0 last
+  for (const can::Frame& f : frames) ASSERT_TRUE(node->send(f));
+  ASSERT_TRUE(node->send(frames.back()));  // CAN's double reception of the last fragment
+  ASSERT_TRUE(run_until(io, [&] { return packets.size() == 2; }));
+  EXPECT_EQ(packets[1].data.size(), 1u);
+  EXPECT_EQ(surface.counters().pdop_probable_repeats, 1u);
+  EXPECT_NE(surface.stats_line().find("probable-repeats 1"), std::string::npos);
+}
+
 TEST_F(PdopBridging, LostFramesOnTheModuleBusDiscardWhatTheyMayHaveBroken) {
   // The gateway's receive queue holds 8 frames: a 40-fragment packet sent at once overflows it.
   start(true, 8);

@@ -65,6 +65,7 @@ struct Got {
   std::uint32_t fragments = 0;
   TimePoint first{};
   TimePoint last{};
+  bool probable_repeat = false;
   PdopReassembler::Discard discard{};
 };
 
@@ -86,6 +87,7 @@ class Recorder : public PdopReassembler::Sink {
     g.fragments = p.fragments;
     g.first = p.first;
     g.last = p.last;
+    g.probable_repeat = p.probable_repeat;
     got.push_back(std::move(g));
   }
   void on_discard(const PdopReassembler::Discard& d) override {
@@ -638,6 +640,37 @@ TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
   expect_packet(got[0], 7, 2, counting(20));
   EXPECT_EQ(rig.r.counters().discarded(Reason::frames_lost), 1u);
   rig.expect_accounted();
+}
+
+TEST(PdopReassembler, AOneFramePacketRepeatingTheLastFragmentRightAfterIsFlagged) {
+  Rig rig;
+  // 17 bytes: three fragments, the last one (1 byte) with t = 0: its double reception is a
+  // valid one-frame packet.
+  const auto frames = fragments(1, 4, counting(17));
+  ASSERT_EQ(frames.size(), 3u);
+  auto got = rig.feed(frames, t0, 100us);
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_FALSE(got[0].probable_repeat);
+  got = rig.feed({frames[2]}, t0 + 300us);  // right after: flagged, delivered all the same
+  ASSERT_EQ(got.size(), 1u);
+  ASSERT_TRUE(got[0].packet);
+  EXPECT_EQ(got[0].fragments, 1u);
+  EXPECT_TRUE(got[0].probable_repeat);
+  // The same bytes again: the packet before is one frame now, a plain TPDO repeating its value.
+  got = rig.feed({frames[2]}, t0 + 400us);
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_FALSE(got[0].probable_repeat);
+  // Later than kRepeatWindow after a multi-fragment packet: a packet of its own.
+  rig.feed(frames, t0 + 10ms, 100us);
+  got = rig.feed({frames[2]}, t0 + 10ms + 200us + PdopReassembler::kRepeatWindow + 1us);
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_FALSE(got[0].probable_repeat);
+  // Other bytes right after: not a repeat.
+  rig.feed(frames, t0 + 20ms, 100us);
+  got = rig.feed({fragment_frame(1, 4, false, false, counting(2))}, t0 + 20ms + 300us);
+  ASSERT_EQ(got.size(), 1u);
+  EXPECT_FALSE(got[0].probable_repeat);
+  EXPECT_EQ(rig.r.counters().probable_repeats, 1u);
 }
 
 TEST(PdopReassembler, DiscardsReadWellInTheLog) {
