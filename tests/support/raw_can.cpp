@@ -33,9 +33,22 @@ bool poll_until(int fd, short events, std::chrono::steady_clock::time_point dead
 
 }  // namespace
 
-RawCanSocket::RawCanSocket(const std::string& interface) {
+RawCanSocket::RawCanSocket(const std::string& interface)
+    : RawCanSocket(interface, std::vector<std::uint32_t>{}) {}
+
+RawCanSocket::RawCanSocket(const std::string& interface, const std::vector<std::uint32_t>& ids) {
   fd_ = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (fd_ < 0) throw std::system_error(errno, std::system_category(), "socket(PF_CAN)");
+  std::vector<can_filter> filters;
+  for (std::uint32_t id : ids) filters.push_back({id, CAN_SFF_MASK | CAN_EFF_FLAG});
+  // Set before bind, so that no unfiltered frame is ever queued.
+  if (!filters.empty() &&
+      ::setsockopt(fd_, SOL_CAN_RAW, CAN_RAW_FILTER, filters.data(),
+                   static_cast<socklen_t>(filters.size() * sizeof(can_filter))) != 0) {
+    const int error = errno;
+    ::close(fd_);
+    throw std::system_error(error, std::system_category(), "CAN_RAW_FILTER " + interface);
+  }
   sockaddr_can addr{};
   addr.can_family = AF_CAN;
   addr.can_ifindex = static_cast<int>(::if_nametoindex(interface.c_str()));

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <chrono>
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <vector>
@@ -16,6 +17,9 @@ namespace canbridge::test {
 class RawCanSocket {
  public:
   explicit RawCanSocket(const std::string& interface);
+  // Receives only standard frames (data or remote) with one of `ids`: the kernel filters, so a
+  // busy bus (PDO Packet streams) cannot overflow the queue with frames the reader would skip.
+  RawCanSocket(const std::string& interface, const std::vector<std::uint32_t>& ids);
   ~RawCanSocket();
   RawCanSocket(const RawCanSocket&) = delete;
   RawCanSocket& operator=(const RawCanSocket&) = delete;
