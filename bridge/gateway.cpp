@@ -490,6 +490,17 @@ void Gateway::produce(backbone::PayloadSink& sink) {
   while (!pdop_out_.empty()) {
     // A packet larger than one write still goes: the session writes any message it takes.
     std::string payload = pdop_out_.front().payload.SerializeAsString();
+    if (payload.size() > tuning_.session.resend_buffer_bytes) {
+      // Never accepted by the resend buffer (config validation prevents it): do not block.
+      ++counters_.pdop_refused;
+      warn_.warn(Warn::kPdopRefused,
+                 "gateway: a PDO Packet payload of {} bytes exceeds the resend buffer: refused "
+                 "(counted as pdop-refused)",
+                 payload.size());
+      pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
+      pdop_out_.pop_front();
+      continue;
+    }
     if (sink.room() == 0 || !sink.reliable_room(payload.size())) break;
     sink.send_reliable(std::move(payload));
     pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);

@@ -427,6 +427,9 @@ void read_surface_pdop(Reader& in, const YAML::Node& root, bridge::RpdopRelayOpt
 
 }  // namespace
 
+// Protobuf and envelope bytes around one PDO Packet's data, at most (ids, lengths, times).
+constexpr std::size_t kPdopMessageOverhead = 128;
+
 GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
@@ -487,6 +490,23 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
     in.session_tuning(backbone, out.session);
   }
   read_modules(in, root, out);
+  // A packet crosses as one reliable message, which the resend buffer must be able to hold.
+  for (std::size_t i = 0; i < out.modules.size(); ++i) {
+    const ModuleOptions& m = out.modules[i];
+    if (m.profile != bridge::IdProfile::pdop || !m.reassemble_pdop) continue;
+    if (m.pdop_reassembly.max_packet_bytes + kPdopMessageOverhead >
+        out.session.resend_buffer_bytes) {
+      const YAML::Node module = root["modules"][i];
+      const YAML::Node at = module["pdop"] && module["pdop"]["max_packet_bytes"]
+                                ? module["pdop"]["max_packet_bytes"]
+                                : module;
+      in.problem(at, "modules[" + std::to_string(i) + "].pdop.max_packet_bytes",
+                 std::to_string(m.pdop_reassembly.max_packet_bytes) +
+                     " does not fit in backbone.resend_buffer_bytes (" +
+                     std::to_string(out.session.resend_buffer_bytes) +
+                     ") with its message: such a packet could never cross");
+    }
+  }
   if (auto lss = in.integer(root, "lss_module", "", 0, 0xFFFFFFFELL, false)) {
     const auto id = static_cast<std::uint32_t>(*lss);
     const bool served = std::any_of(out.modules.begin(), out.modules.end(),
@@ -560,6 +580,15 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
     in.session_tuning(backbone, out.session);
   }
   read_surface_pdop(in, root, out.rpdop_relay);
+  if (out.rpdop_relay.max_packet_bytes + kPdopMessageOverhead > out.session.resend_buffer_bytes) {
+    const YAML::Node pdop = root["pdop"];
+    in.problem(pdop && pdop.IsMap() && pdop["max_packet_bytes"] ? pdop["max_packet_bytes"] : root,
+               "pdop.max_packet_bytes",
+               std::to_string(out.rpdop_relay.max_packet_bytes) +
+                   " does not fit in backbone.resend_buffer_bytes (" +
+                   std::to_string(out.session.resend_buffer_bytes) +
+                   ") with its message: such a packet could never cross");
+  }
   in.can_options(root, out.can);
   in.log_options(root, out.log);
   in.finish();

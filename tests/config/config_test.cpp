@@ -305,6 +305,12 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"gateway_pdop_node_above_31.yaml", 8, "modules[0]",
                 "surface node id 40 must be 1..31: a pdop bus keeps the node id in bits 4-0 "
                 "(bits 6-5 are the PDO Packet toggle and continued bits)"},
+        // One reliable message per packet: the resend buffer must hold the largest.
+        BadCase{"gateway_pdop_packet_above_resend_buffer.yaml", 10,
+                "modules[0].pdop.max_packet_bytes",
+                "65536 does not fit in backbone.resend_buffer_bytes (65536) with its message"},
+        BadCase{"surface_pdop_packet_above_resend_buffer.yaml", 7, "pdop.max_packet_bytes",
+                "4096 does not fit in backbone.resend_buffer_bytes (4096) with its message"},
         BadCase{"surface_pdop_window_zero.yaml", 6, "pdop.window", "0 is out of range 1..255"},
         BadCase{"surface_pdop_unknown_key.yaml", 7, "pdop.ack_timeout_ms", "unknown key"}),
     bad_case_name);
