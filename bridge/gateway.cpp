@@ -575,6 +575,10 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         }
         const auto at = steady_time_of(frame, now, clock_offset);
         if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
+      }
+      // Frames of nodes without a surface id go on to the translator, which counts them.
+      if (reassembler && map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0) {
+        const auto at = steady_time_of(frame, now, clock_offset);
         if (reassembler->on_frame(frame, at, *pdop_sink)) continue;
         // The nodes' RPDOP acknowledgements are the segmenter's; the surface acknowledges its
         // master itself.

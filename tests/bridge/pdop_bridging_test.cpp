@@ -221,6 +221,18 @@ TEST_F(PdopBridging, LostFramesOnTheModuleBusDiscardWhatTheyMayHaveBroken) {
   EXPECT_EQ(gateway->counters().pdop_discards, 1u);
 }
 
+TEST_F(PdopBridging, FragmentsOfANodeWithoutASurfaceIdAreCountedNotReassembled) {
+  start();
+  send_packet(9, 1, pattern(20, 1));  // local node 9 has no surface id: 3 fragments
+  send_packet(kLocalA, 1, pattern(20, 2));
+  ASSERT_TRUE(run_until(io, [&] { return packets.size() == 1; }));
+  EXPECT_EQ(packets[0].local_node, kLocalA);
+  std::uint64_t dropped = 0;
+  for (auto d : gateway->counters().translation) dropped += d;
+  EXPECT_EQ(dropped, 3u);
+  EXPECT_EQ(gateway->counters().pdop_packets, 1u);
+}
+
 TEST_F(PdopBridging, WithoutReassemblyFragmentsCrossOneByOne) {
   start(false);
   const auto data = pattern(30, 8);  // 4 fragments
@@ -323,6 +335,33 @@ TEST_F(PdopBridging, RpdopFromTheSurfaceMasterReachesTheNodePacedByItsAcknowledg
   EXPECT_GE(receiver.acks, 128u / kWindow);  // paced by the node, window by window
   EXPECT_EQ(gateway->counters().rpdop_complete, 1u);
   EXPECT_EQ(surface.counters().rpdop_complete, 1u);
+}
+
+TEST_F(PdopBridging, RpdopToANodeWhoseGatewayIsNotConnectedEndsAtOnceWith0x82) {
+  start();
+  ASSERT_TRUE(run_until(io, [&] { return surface.rpdop_relay().relayed(kSurfaceA); }));
+  client->stop();
+  gateway->stop();
+  ASSERT_TRUE(run_until(io, [&] { return surface.gateways_ready() == 0; }));
+  PdopSegmenter sender;
+  PdopSegmenter::Output out;
+  std::size_t seen = 0;
+  master.on_frames = [&] {
+    for (; seen < master.frames.size(); ++seen) {
+      sender.on_frame(master.frames[seen], std::chrono::steady_clock::now(), out);
+    }
+  };
+  const auto started = std::chrono::steady_clock::now();
+  sender.submit(kSurfaceA, 2, pattern(20, 5), 1, started, out);
+  ASSERT_TRUE(run_until(io, [&] {
+    for (const can::Frame& f : out.frames) EXPECT_TRUE(master.send(f));
+    out.frames.clear();
+    return !out.outcomes.empty();
+  }));
+  EXPECT_EQ(out.outcomes[0].result, PdopResult::receiver_abort);
+  EXPECT_EQ(out.outcomes[0].status, pdop::AckStatus::out_of_memory);
+  EXPECT_LT(std::chrono::steady_clock::now() - started, 100ms);  // not the sender's timeout
+  EXPECT_EQ(surface.counters().rpdop_failed, 1u);
 }
 
 }  // namespace
