@@ -15,7 +15,7 @@ std::uint64_t LoopGuard::key_of(const can::Frame& frame) {
     h *= 1099511628211ull;
   };
   for (int shift = 0; shift < 32; shift += 8) mix(static_cast<std::uint8_t>(frame.id >> shift));
-  mix(frame.flags);
+  mix(frame.flags & ~can::FrameFlags::follows_loss);  // the receiver's mark, not the frame's
   mix(frame.len);
   for (std::uint8_t b : frame.payload()) mix(b);
   return h;

@@ -119,7 +119,7 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
   // The one branch every frame other than NMT error control (0x700..0x77F) takes.
   if ((frame.id & ~kNodeBits) != canopen::cob::heartbeat) return;
   // Extended, remote (a master's node-guarding request) and error frames have flags.
-  if (frame.flags != 0 || frame.len != 1 || module_index >= modules_.size()) return;
+  if (!frame.is_standard_data() || frame.len != 1 || module_index >= modules_.size()) return;
   const Module& m = modules_[module_index];
   auto local = static_cast<NodeId>(frame.id & kNodeBits);
   const std::uint8_t byte = frame.data[0];
@@ -281,7 +281,8 @@ bool NodeTable::confirm_rename(std::size_t module_index, NodeId local, const Pen
 
 void NodeTable::on_nmt_to_bus(std::size_t module_index, const can::Frame& frame, TimePoint now,
                               std::vector<NodeEvent>& out) {
-  if (frame.id != canopen::cob::nmt || frame.flags != 0 || module_index >= modules_.size()) {
+  if (frame.id != canopen::cob::nmt || !frame.is_standard_data() ||
+      module_index >= modules_.size()) {
     return;
   }
   Module& m = modules_[module_index];

@@ -55,7 +55,7 @@ PdopReassembler::PdopReassembler(const PdopReassemblerOptions& options)
 
 bool PdopReassembler::on_frame(const can::Frame& frame, TimePoint now, Sink& sink) {
   // Standard data frames only: no extended, remote or error flag.
-  if (frame.flags != 0 || frame.len > can::kMaxPayload) return false;
+  if (!frame.is_standard_data() || frame.len > can::kMaxPayload) return false;
   const std::uint32_t id = frame.id;
   const std::uint32_t function_code = id >> 7;  // 0..15 for an 11-bit id
   // TPDO1..4: function codes 3, 5, 7, 9.

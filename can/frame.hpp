@@ -40,6 +40,8 @@ struct Frame {
   bool is_remote() const { return (flags & FrameFlags::remote) != 0; }
   bool is_error() const { return (flags & FrameFlags::error) != 0; }
   bool follows_loss() const { return (flags & FrameFlags::follows_loss) != 0; }
+  // A standard-id data frame (no extended, remote or error flag; the loss mark does not count).
+  bool is_standard_data() const { return (flags & ~FrameFlags::follows_loss) == 0; }
   std::span<const std::uint8_t> payload() const { return {data.data(), is_remote() ? 0u : len}; }
 
   // A frame of any kind from its parts; the id is masked to 11 or 29 bits by `flags`, bytes

@@ -625,6 +625,11 @@ TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
                   fragment_frame(1, 6, true, false, counting(3))},
                  t0 + 6ms);
   EXPECT_TRUE(got.empty());
+  // The frame that carries the loss mark is a fragment like any other (it ends node 5's resync).
+  Frame marked = fragment_frame(1, 5, true, false, counting(2));
+  marked.flags |= can::FrameFlags::follows_loss;
+  EXPECT_TRUE(rig.r.on_frame(marked, t0 + 7ms, rig.sink));
+  EXPECT_EQ(rig.r.state(5, 1), State::idle);
   // On node 7, an idle stream, the tail of a packet whose first two fragments were lost looks
   // like a packet of its own: it is not delivered.
   got = rig.feed({fragment_frame(2, 7, false, true, counting(8)),

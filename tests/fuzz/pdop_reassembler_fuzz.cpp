@@ -1,6 +1,6 @@
 // libFuzzer target: PdopReassembler (TPDOP reassembly, docs/pdop.md section 3) on an arbitrary
-// sequence of module-bus frames, time steps, timer ticks and node restarts. Also linked into
-// bridge_unit_tests, which feeds it seeded random inputs (PdopReassemblerFuzz.*).
+// sequence of module-bus frames, time steps, timer ticks, node restarts and frame-loss marks. Also
+// linked into bridge_unit_tests, which feeds it seeded random inputs (PdopReassemblerFuzz.*).
 //
 // Input: byte 0 picks max_packet_bytes (1 + 2 * byte: 1..511), byte 1 fragment_timeout
 // (1 + byte mod 200 ms), then operations of 4 bytes [ctrl, arg, pattern, step]:
@@ -12,7 +12,11 @@
 //           bytes (the t and c bits of ctrl are ignored);
 //     3:    arg mod 4: 0: another frame (mostly no TPDOP fragment: RPDO, SDO, heartbeat,
 //           acknowledgement, extended, error, node 0; or any standard id pattern x 8);
-//           1: on_node_restart(node); 2: tick() at now; 3: a remote frame on the TPDO COB-ID;
+//           1: on_node_restart(node); 2: tick() at now; 3: by arg bits 2-3: 1: on_frames_lost()
+//           (the bus lost frames), 2: the last frame fed again (CAN's double reception, e.g. a
+//           whole packet's last fragment: a probable_repeat when it is a one-frame packet), 0
+//           and 3: a remote frame on the TPDO COB-ID (before 3 was always the remote frame:
+//           older inputs mostly keep their meaning);
 //   step (low 4 bits) advances the time first: 0, 0, 0, 0, 1 us, 100 us, 1 ms, 5 ms, 20 ms,
 //   timeout - 1 ms, timeout, timeout + 1 ms, 2 x timeout, 50 ms, 250 ms, 1 s.
 //
@@ -20,10 +24,14 @@
 // - The reassembler (its timer ticked exactly at next_deadline(), as the gateway does) reports
 //   the same packets and discards, in the same order and with the same fields, as a plain
 //   reference model written from docs/pdop.md section 3, and has the same per-stream states
-//   and next deadline after every operation.
+//   and next deadline after every operation. The model flags probable_repeat on its own (a
+//   one-frame packet equal to the last fragment of the stream's previous, multi-fragment packet,
+//   within kRepeatWindow of it, with no discard, restart or frame loss in between), and its
+//   tallies equal the reassembler's counters at the end.
 // - A second reassembler that is never ticked (timeouts found on the next fragment only) ends,
 //   after a final tick, with the same per-stream packets and discards (all but the detection
-//   time) and the same counters: the timer changes when a timeout is reported, nothing else.
+//   time), the same counters and stream states: the timer changes when a timeout is reported,
+//   nothing else.
 // - Every packet has 1..max_packet_bytes bytes in ceil(size / 8) fragments; every discarded
 //   partial packet holds 8 bytes per fragment; the counters account for every frame taken; the
 //   buffers never exceed 124 x max_packet_bytes.
@@ -73,11 +81,12 @@ struct Event {
   std::size_t bytes = 0;
   TimePoint first{};
   TimePoint last{};
-  TimePoint at{};  // discards only
+  TimePoint at{};                // discards only
+  bool probable_repeat = false;  // packets only
   bool same_but_time_seen(const Event& o) const {
     return packet == o.packet && node == o.node && tpdo == o.tpdo && reason == o.reason &&
            data == o.data && fragments == o.fragments && bytes == o.bytes && first == o.first &&
-           last == o.last;
+           last == o.last && probable_repeat == o.probable_repeat;
   }
   bool operator==(const Event& o) const { return same_but_time_seen(o) && at == o.at; }
 };
@@ -90,6 +99,7 @@ class Recorder : public PdopReassembler::Sink {
     require(p.fragments == (p.data.size() + 7) / 8, "packet fragments != ceil(size / 8)");
     require(p.node >= 1 && p.node <= 31 && p.tpdo >= 1 && p.tpdo <= 4, "packet stream range");
     require(p.first <= p.last, "packet first after last");
+    require(!p.probable_repeat || p.fragments == 1, "probable_repeat on a multi-fragment packet");
     Event e;
     e.packet = true;
     e.node = p.node;
@@ -99,6 +109,7 @@ class Recorder : public PdopReassembler::Sink {
     e.bytes = p.data.size();
     e.first = p.first;
     e.last = p.last;
+    e.probable_repeat = p.probable_repeat;
     events.push_back(std::move(e));
   }
   void on_discard(const PdopReassembler::Discard& d) override {
@@ -134,6 +145,7 @@ class Model {
     const pdop::FragmentId id = pdop::decode(f.id);
     const auto tpdo = pdop::tpdo_number(id.function_code);
     if (!tpdo || id.node < 1 || id.node > 31) return false;
+    ++frames;
     take(id, *tpdo, f, now);
     return true;
   }
@@ -147,6 +159,7 @@ class Model {
       s.state = State::resynchronising;
     }
     if (s.state == State::resynchronising) {
+      ++dropped;
       if (!id.continued) s.state = State::idle;
       return;
     }
@@ -179,6 +192,13 @@ class Model {
       return;
     }
     s.state = State::idle;
+    // docs/pdop.md section 7: a one-frame packet that is the previous packet's last fragment
+    // again (double reception), soon after it. Only a last fragment with t = 0 can pass as a
+    // one-frame packet; the comparison with the whole fragment says so too.
+    const bool probable_repeat = s.fragments == 1 && s.delivered && s.delivered->fragments > 1 &&
+                                 s.delivered->fragment == *s.previous &&
+                                 now - s.delivered->last <= PdopReassembler::kRepeatWindow;
+    s.delivered = Delivered{s.fragments, s.last, *s.previous};
     Event e;
     e.packet = true;
     e.node = key.first;
@@ -188,6 +208,7 @@ class Model {
     e.bytes = s.bytes.size();
     e.first = s.first;
     e.last = s.last;
+    e.probable_repeat = probable_repeat;
     events.push_back(std::move(e));
   }
 
@@ -209,6 +230,24 @@ class Model {
       }
       s.state = State::idle;
       s.previous.reset();
+      s.delivered.reset();
+    }
+  }
+
+  // Every stream, in index order (node, then TPDO): an open packet is discarded, and every
+  // stream, idle or not, drops frames up to its next c = 0 frame.
+  void frames_lost(TimePoint now) {
+    for (unsigned node = 1; node <= 31; ++node) {
+      for (unsigned tpdo = 1; tpdo <= 4; ++tpdo) {
+        const Key key{node, tpdo};
+        S& s = streams_[key];
+        if (s.state == State::assembling) {
+          report(key, now - s.last >= t_ ? Reason::timeout : Reason::frames_lost, now);
+        }
+        s.state = State::resynchronising;
+        s.previous.reset();
+        s.delivered.reset();
+      }
     }
   }
 
@@ -227,6 +266,8 @@ class Model {
   }
 
   std::vector<Event> events;
+  std::uint64_t frames = 0;   // TPDOP frames taken
+  std::uint64_t dropped = 0;  // offending frames and frames dropped while resynchronising
 
  private:
   using Key = std::pair<unsigned, unsigned>;
@@ -234,6 +275,12 @@ class Model {
     bool toggle = false;
     bool continued = false;
     std::vector<std::uint8_t> data;
+    bool operator==(const Fragment&) const = default;
+  };
+  struct Delivered {
+    std::uint32_t fragments = 0;
+    TimePoint last{};   // time of its last fragment
+    Fragment fragment;  // its last fragment
   };
   struct S {
     State state = State::idle;
@@ -242,7 +289,8 @@ class Model {
     std::uint32_t fragments = 0;
     TimePoint first{};
     TimePoint last{};
-    std::optional<Fragment> previous;  // the last accepted fragment
+    std::optional<Fragment> previous;    // the last accepted fragment
+    std::optional<Delivered> delivered;  // the last packet, until a discard, restart or loss
   };
 
   // A discard of whatever the stream has open; the caller sets the state after.
@@ -262,9 +310,11 @@ class Model {
     s.bytes.clear();
     s.fragments = 0;
     s.previous.reset();
+    s.delivered.reset();
   }
   // The offending frame ends the broken packet when it has c = 0 (section 3).
   void refuse(const Key& key, Reason reason, bool continued, TimePoint now) {
+    ++dropped;
     report(key, reason, now);
     streams_[key].state = continued ? State::resynchronising : State::idle;
   }
@@ -288,10 +338,32 @@ void check_accounting(const PdopReassembler& r) {
 
 bool same_counters(const PdopReassembler::Counters& a, const PdopReassembler::Counters& b) {
   return a.frames == b.frames && a.packets == b.packets &&
-         a.single_frame_packets == b.single_frame_packets && a.packet_bytes == b.packet_bytes &&
+         a.single_frame_packets == b.single_frame_packets &&
+         a.probable_repeats == b.probable_repeats && a.packet_bytes == b.packet_bytes &&
          a.packet_fragments == b.packet_fragments && a.discards == b.discards &&
          a.discarded_fragments == b.discarded_fragments && a.discarded_bytes == b.discarded_bytes &&
          a.dropped_frames == b.dropped_frames;
+}
+
+// The counters the model's results add up to, once nothing is pending.
+PdopReassembler::Counters tally(const Model& model) {
+  PdopReassembler::Counters c;
+  c.frames = model.frames;
+  c.dropped_frames = model.dropped;
+  for (const Event& e : model.events) {
+    if (e.packet) {
+      ++c.packets;
+      if (e.fragments == 1) ++c.single_frame_packets;
+      if (e.probable_repeat) ++c.probable_repeats;
+      c.packet_bytes += e.bytes;
+      c.packet_fragments += e.fragments;
+    } else {
+      ++c.discards[static_cast<std::size_t>(e.reason)];
+      c.discarded_fragments += e.fragments;
+      c.discarded_bytes += e.bytes;
+    }
+  }
+  return c;
 }
 
 std::vector<Event> of_stream(const std::vector<Event>& events, unsigned node, unsigned tpdo) {
@@ -356,7 +428,17 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     }
     require(!model.next_deadline() || timed.next_deadline(), "model has a deadline, not the code");
   };
+  std::optional<Frame> last_fed;  // for the double reception operation
+  // Every stream's state (all 124: a frame loss touches every one) is the model's.
+  const auto require_same_states = [&](const char* invariant) {
+    for (unsigned n = 1; n <= PdopReassembler::kMaxNode; ++n) {
+      for (unsigned t = 1; t <= PdopReassembler::kTpdoCount; ++t) {
+        require(timed.state(static_cast<std::uint8_t>(n), t) == model.state(n, t), invariant);
+      }
+    }
+  };
   const auto feed = [&](const Frame& f) {
+    last_fed = f;
     run_timer(now);
     const bool taken_timed = timed.on_frame(f, now, timed_out);
     const bool taken_untimed = untimed.on_frame(f, now, untimed_out);
@@ -410,11 +492,40 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
             timed.tick(now, timed_out);
             model.tick(now);
             break;
-          default: {
-            const Frame f = Frame::make(base | 0x20u | node, FrameFlags::remote, {});
-            require(!feed(f), "a remote frame was taken");
+          default:
+            switch ((arg >> 2) & 3u) {
+              case 1:
+                run_timer(now);
+                timed.on_frames_lost(now, timed_out);
+                untimed.on_frames_lost(now, untimed_out);
+                model.frames_lost(now);
+                for (unsigned n = 1; n <= PdopReassembler::kMaxNode; ++n) {
+                  for (unsigned t = 1; t <= PdopReassembler::kTpdoCount; ++t) {
+                    require(
+                        timed.state(static_cast<std::uint8_t>(n), t) == State::resynchronising &&
+                            untimed.state(static_cast<std::uint8_t>(n), t) ==
+                                State::resynchronising,
+                        "a stream not resynchronising after on_frames_lost");
+                  }
+                }
+                require(timed.assembling() == 0 && untimed.assembling() == 0,
+                        "packets left open after on_frames_lost");
+                require_same_states("stream state after on_frames_lost differs from the model");
+                break;
+              case 2:
+                if (last_fed) {
+                  const Frame again = *last_fed;
+                  feed(again);
+                  break;
+                }
+                [[fallthrough]];
+              default: {
+                const Frame f = Frame::make(base | 0x20u | node, FrameFlags::remote, {});
+                require(!feed(f), "a remote frame was taken");
+                break;
+              }
+            }
             break;
-          }
         }
         break;
     }
@@ -441,8 +552,17 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   model.tick(now);
   require(timed_out.events == model.events, "final events differ from the reference model");
   require(timed.assembling() == 0 && untimed.assembling() == 0, "packets left after the end");
+  require(same_counters(timed.counters(), tally(model)), "counters differ from the model's tally");
   require(same_counters(timed.counters(), untimed.counters()),
           "counters depend on when the timer ticked");
+  require_same_states("final stream state differs from the model");
+  for (unsigned n = 1; n <= PdopReassembler::kMaxNode; ++n) {
+    for (unsigned t = 1; t <= PdopReassembler::kTpdoCount; ++t) {
+      require(timed.state(static_cast<std::uint8_t>(n), t) ==
+                  untimed.state(static_cast<std::uint8_t>(n), t),
+              "final stream state depends on when the timer ticked");
+    }
+  }
   for (unsigned n : kNodes) {
     for (unsigned t = 1; t <= 4; ++t) {
       const auto a = of_stream(timed_out.events, n, t);
