@@ -49,9 +49,16 @@ std::size_t withdraw_sdo_requests(std::string& payload) {
 FrameOutbox::FrameOutbox(Options options)
     : options_(options), queue_({options.max_reliable_frames, options.max_process_frames}) {}
 
-bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate) {
+bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
+                       bool packet_fragment) {
   using Push = backbone::PriorityScheduler<Entry>::Push;
-  const std::uint32_t priority = arbitration_priority(frame);
+  packet_fragment = packet_fragment && !frame.is_extended() && !frame.is_remote();
+  can::Frame first_fragment_id;
+  if (packet_fragment) {
+    first_fragment_id.id = frame.id & ~std::uint32_t{0x60};
+    conflate = false;
+  }
+  const std::uint32_t priority = arbitration_priority(packet_fragment ? first_fragment_id : frame);
   const Push result = is_process_data(frame)
                           ? queue_.push_process(priority, conflation_key(module_id, frame),
                                                 conflate || is_heartbeat_state(frame),

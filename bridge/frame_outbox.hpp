@@ -42,7 +42,13 @@ class FrameOutbox {
 
   // Queues one frame of `module_id`; `conflate` allows replacing a queued process frame of the
   // same COB-ID. False when the frame was refused or dropped (counted).
-  bool push(std::uint32_t module_id, const can::Frame& frame, bool conflate);
+  // `packet_fragment`: a PDO Packet fragment crossing as a frame (docs/pdop.md section 8,
+  // `reassemble: false`). Its four t/c variants are different COB-IDs, which arbitration order
+  // would send last fragment first; it is ordered as its packet's first fragment (bits 6-5
+  // clear), so a packet's fragments leave in bus order. Never conflated (fragment k and k + 2
+  // share a COB-ID).
+  bool push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
+            bool packet_fragment = false);
 
   // Moves queued frames into the session's write, lowest arbitration priority first, as
   // FrameBatch payloads: a run of frames of one module and one class per payload.

@@ -6,6 +6,7 @@
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
 #include <boost/asio/use_awaitable.hpp>
+#include <limits>
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
@@ -75,6 +76,11 @@ constexpr std::size_t kMaxQueuedPdopBytes = std::size_t{8} << 20;
 // Packets are batched into one payload up to this size while the link is behind.
 constexpr std::size_t kPdopBatchBytes = 2048;
 
+// 0x180..0x57F: TPDO1..4 and RPDO1..4 of any node, any t/c (docs/pdop.md section 1).
+bool is_pdo_range(std::uint32_t cob_id) {
+  return cob_id >= 0x180 && cob_id <= 0x57F;
+}
+
 v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
   switch (kind) {
     case NodeEvent::Kind::discovered:
@@ -116,7 +122,9 @@ class Gateway::PdopSink final : public PdopReassembler::Sink {
     p.set_pdo(packet.tpdo);
     p.set_data(packet.data.data(), packet.data.size());
     p.set_first_fragment_us(unix_us(clock_offset_ + packet.first.time_since_epoch()));
-    p.set_last_fragment_us(unix_us(clock_offset_ + packet.last.time_since_epoch()));
+    p.set_duration_us(static_cast<std::uint32_t>(std::min<std::int64_t>(
+        std::chrono::duration_cast<std::chrono::microseconds>(packet.last - packet.first).count(),
+        std::numeric_limits<std::uint32_t>::max())));
     p.set_probable_repeat(packet.probable_repeat);
     ++g.counters_.pdop_packets;
     g.counters_.pdop_packet_bytes += packet.data.size();
@@ -194,8 +202,7 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
   sdo_trackers_.resize(modules_.size());
   bool any_pdop = false;
   for (std::size_t m = 0; m < modules_.size(); ++m) {
-    if (map_.modules()[m].profile == IdProfile::pdop && modules_[m].reassemble_pdop)
-      any_pdop = true;
+    if (map_.modules()[m].profile == IdProfile::pdop) any_pdop = true;
   }
   if (any_pdop) pdop_.resize(modules_.size());
   for (std::size_t m = 0; m < modules_.size(); ++m) {
@@ -318,7 +325,7 @@ void Gateway::queue_pdop_nodes() {
   v1::Payload payload;
   v1::PdopNodes& nodes = *payload.mutable_pdop_nodes();
   for (std::size_t m = 0; m < pdop_.size(); ++m) {
-    if (!pdop_[m].reassembler) continue;
+    if (map_.modules()[m].profile != IdProfile::pdop) continue;
     for (NodeId local = 1; local <= canopen::pdop::kMaxNode; ++local) {
       const NodeId surface = map_.surface_of(m, local);
       if (surface == 0) continue;
@@ -326,6 +333,7 @@ void Gateway::queue_pdop_nodes() {
       n.set_module_id(modules_[m].id);
       n.set_local_node(local);
       n.set_surface_node(surface);
+      n.set_whole(pdop_[m].reassembler != nullptr);
     }
   }
   pdop_out_.push_front({std::move(payload), 0});
@@ -544,6 +552,9 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
   batch.reserve(512);
   PdopReassembler* reassembler = pdop_.empty() ? nullptr : pdop_[module_index].reassembler.get();
   PdopSegmenter* segmenter = pdop_.empty() ? nullptr : pdop_[module_index].segmenter.get();
+  // A pdop module without reassembly: its TPDO fragments cross as frames, kept in bus order.
+  const bool fragments_as_frames =
+      map_.modules()[module_index].profile == IdProfile::pdop && !reassembler;
   for (;;) {
     batch.clear();
     if (std::error_code ec = co_await bus.receive_batch(batch)) {
@@ -593,7 +604,9 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         count(sdo_trackers_[module_index][node].on_response(*surface, to_surface_[module_index]));
       }
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
-      if (!outbox_.push(module.id, *surface, module.conflate_pdos) && !is_process_data(*surface)) {
+      const bool fragment = fragments_as_frames && is_pdo_range(surface->id);
+      if (!outbox_.push(module.id, *surface, module.conflate_pdos, fragment) &&
+          !is_process_data(*surface)) {
         warn_.warn(Warn::kRefused,
                    "gateway: backbone queue full: reliable frames refused (counted as "
                    "reliable-refused; the link is too slow or down too long)");

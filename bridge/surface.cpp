@@ -222,7 +222,11 @@ asio::awaitable<void> Surface::read_bus() {
     // frames reach it exactly once); each routes by COB-ID to its own modules.
     for (auto& [name, gateway] : gateways_) {
       for (const can::Frame& frame : forward_) {
-        if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_) && !is_process_data(frame)) {
+        // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
+        const bool fragment = !frame.is_extended() && frame.id >= 0x200 && frame.id <= 0x57F &&
+                              fragments_as_frames_[frame.id & canopen::pdop::kMaxNode];
+        if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_, fragment) &&
+            !is_process_data(frame)) {
           warn_.warn(Warn::kRefused,
                      "surface: backbone queue to gateway '{}' full: reliable frames refused "
                      "(counted as reliable-refused)",
@@ -337,10 +341,13 @@ void Surface::on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes) {
     }
     const auto node = static_cast<canopen::NodeId>(n.surface_node());
     pdop_owner_[node] = {static_cast<int>(from.id), n.module_id()};
-    relay_.set_relayed(node, true);
+    relay_.set_relayed(node, n.whole());
+    fragments_as_frames_[node] = !n.whole();
   }
-  spdlog::info("surface: gateway '{}' carries PDO Packets of {} node(s) whole", from.name,
-               nodes.nodes_size());
+  const auto whole = std::count_if(nodes.nodes().begin(), nodes.nodes().end(),
+                                   [](const v1::PdopNodes::Node& n) { return n.whole(); });
+  spdlog::info("surface: gateway '{}' has {} pdop node(s), {} carrying PDO Packets whole",
+               from.name, nodes.nodes_size(), whole);
 }
 
 // A packet goes on the bus as the node sent it, under its surface id (docs/pdop.md section 2),
@@ -381,7 +388,7 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
     if (pdop_observer_) {
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
                       static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
-                      p.first_fragment_us(), p.last_fragment_us(), p.probable_repeat()});
+                      p.first_fragment_us(), p.duration_us(), p.probable_repeat()});
     }
   }
 }

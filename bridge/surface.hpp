@@ -61,8 +61,8 @@ struct SurfacePdopPacket {
   unsigned tpdo = 0;
   std::span<const std::uint8_t> data;  // valid during the call
   std::int64_t first_fragment_us = 0;  // Unix time, 0 when unknown
-  std::int64_t last_fragment_us = 0;
-  bool probable_repeat = false;  // see PdopPacket.probable_repeat
+  std::uint32_t duration_us = 0;       // last fragment's time after the first's
+  bool probable_repeat = false;        // see PdopPacket.probable_repeat
 };
 
 class Surface {
@@ -138,6 +138,8 @@ class Surface {
     std::uint32_t module_id = 0;
   };
   std::array<PdopOwner, canopen::pdop::kMaxNode + 1> pdop_owner_{};
+  // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
+  std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
   LoopGuard loop_guard_;
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways

@@ -155,6 +155,35 @@ TEST(FrameOutbox, FramesOfOneCobIdStayInArrivalOrder) {
   EXPECT_EQ(pdo, expected);
 }
 
+TEST(FrameOutbox, PacketFragmentsLeaveInBusOrderNotArbitrationOrder) {
+  // A 40-byte PDO Packet of node 1 on TPDO1: 1A1, 1E1, 1A1, 1E1, 181 (docs/pdop.md section 2).
+  std::vector<can::Frame> fragments;
+  for (std::uint32_t k = 0; k < 5; ++k) {
+    const std::uint32_t id = 0x181 | (k % 2 ? 0x40u : 0u) | (k < 4 ? 0x20u : 0u);
+    fragments.push_back(
+        can::Frame::standard(id, {static_cast<std::uint8_t>(k), 1, 2, 3, 4, 5, 6, 7}));
+  }
+  const can::Frame other = can::Frame::standard(0x182, {0x22});  // another node's PDO
+  for (bool in_order : {false, true}) {
+    FrameOutbox outbox({});
+    for (const auto& f : fragments) ASSERT_TRUE(outbox.push(1, f, true, in_order));
+    ASSERT_TRUE(outbox.push(1, other, true));
+    FakeSink sink;
+    ASSERT_TRUE(drain(outbox, sink));
+    const auto frames = all_frames(decode(sink));
+    ASSERT_EQ(frames.size(), in_order ? 6u : 4u);
+    if (in_order) {
+      // In bus order and before 0x182, as the packet's first fragment (0x1A1 -> 0x181) ranks.
+      auto expected = fragments;
+      expected.push_back(other);
+      EXPECT_EQ(frames, expected);
+    } else {
+      // Plain arbitration order: the last fragment (0x181) first, fragments 0 and 2 conflated.
+      EXPECT_EQ(frames.front(), fragments.back());
+    }
+  }
+}
+
 TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
   FrameOutbox conflating({});
   for (std::uint8_t v = 1; v <= 5; ++v) {
