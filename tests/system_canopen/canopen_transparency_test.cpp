@@ -11,14 +11,9 @@
 // 3, 4; module 3 qd local 1, 2 -> 5, 6. Local and surface ids differ everywhere, so an
 // untranslated COB-ID shows.
 #include <gtest/gtest.h>
-#include <stdlib.h>
 
 #include <array>
-#include <cerrno>
 #include <condition_variable>
-#include <cstdlib>
-#include <filesystem>
-#include <fstream>
 #include <functional>
 #include <iostream>
 #include <memory>
@@ -26,21 +21,20 @@
 #include <random>
 #include <regex>
 #include <sstream>
-#include <system_error>
 #include <thread>
+#include <utility>
 
-#include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
+#include "tests/support/rig_processes.hpp"
 #include "tests/support/sdo_master.hpp"
-#include "tools/link_emulator/command_line.hpp"
 
 namespace canbridge {
 namespace {
 
 using namespace std::chrono_literals;
 using can::Frame;
-using test::ChildProcess;
 using test::RawCanSocket;
+using test::RigProcesses;
 using test::SdoMaster;
 using test::SdoOutcome;
 using Clock = std::chrono::steady_clock;
@@ -93,14 +87,6 @@ bool is_heartbeat_of_any_node(const Frame& f) {
     if (is_heartbeat(f, n.surface)) return true;
   }
   return false;
-}
-
-std::string make_temp_dir() {
-  std::string path = ::testing::TempDir() + "system_canopen.XXXXXX";
-  if (::mkdtemp(path.data()) == nullptr) {
-    throw std::system_error(errno, std::system_category(), "mkdtemp " + path);
-  }
-  return path;
 }
 
 // The number after `label` in a counter line ("dead-links 2"), or -1.
@@ -174,96 +160,20 @@ class BusLog {
   std::jthread reader_;  // last: stopped and joined before the members it uses go
 };
 
-// The processes of one test suite: surface, link emulator, gateway, simulated nodes.
-class Processes {
- public:
-  // Starts the surface, then the link emulator between it and the gateway (with
-  // `emulator_extra`, e.g. a cut), then the gateway, and once both ends report the session ready,
-  // the simulated nodes, so that their boot-ups cross too.
-  void start(const std::vector<std::string>& emulator_extra) {
-    dir_ = make_temp_dir();
-    surface = std::make_unique<ChildProcess>(
-        std::vector<std::string>{CANBRIDGE_BIN, "surface", "--config", kDir + "surface.yaml"});
-    ASSERT_TRUE(surface->wait_for_line("listening on 127.0.0.1:", kEvent)) << surface->output();
-    std::smatch port;
-    const std::string out = surface->output();
-    ASSERT_TRUE(std::regex_search(out, port, std::regex("listening on 127\\.0\\.0\\.1:([0-9]+)")))
-        << out;
-
-    std::vector<std::string> argv{CANBRIDGE_LINK_EMULATOR_BIN, "--a", "tcp-listen:127.0.0.1:0",
-                                  "--b", "tcp-connect:127.0.0.1:" + port[1].str()};
-    argv.insert(argv.end(), emulator_extra.begin(), emulator_extra.end());
-    emulator = std::make_unique<ChildProcess>(argv);
-    ASSERT_TRUE(emulator->wait_for_line("link-emulator: ready", kEvent)) << emulator->output();
-    emulator_ready = Clock::now();
-    const auto ready = emulator::find_ready_line(emulator->output());
-    ASSERT_TRUE(ready) << emulator->output();
-    const auto link_port = emulator::endpoint_port(ready->a);
-    ASSERT_TRUE(link_port) << ready->a;
-
-    // gateway.yaml with the emulator's port in place of ${LINK_PORT}.
-    std::ifstream in(kDir + "gateway.yaml");
-    std::string config((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    const std::string placeholder = "127.0.0.1:${LINK_PORT}";
-    const auto at = config.find(placeholder);
-    ASSERT_NE(at, std::string::npos) << "gateway.yaml lost its " << placeholder;
-    config.replace(at, placeholder.size(), "127.0.0.1:" + std::to_string(*link_port));
-    const std::string gateway_config = dir_ + "/gateway.yaml";
-    std::ofstream(gateway_config) << config;
-    gateway = std::make_unique<ChildProcess>(
-        std::vector<std::string>{CANBRIDGE_BIN, "gateway", "--config", gateway_config});
-    ASSERT_TRUE(gateway->wait_for_line("surface 'canopen-surface' ready", kEvent))
-        << gateway->output() << surface->output() << emulator->output();
-    ASSERT_TRUE(surface->wait_for_line("gateway 'canopen-gateway' ready", kEvent))
-        << surface->output();
-
-    sim = std::make_unique<ChildProcess>(
-        std::vector<std::string>{CANBRIDGE_SIM_BIN, kDir + "rig.yaml", "--stats-seconds", "0"});
-    ASSERT_TRUE(sim->wait_for_line("canbridge-sim: ready 6 nodes on 3 buses", kEvent))
-        << sim->output();
-    std::cout << "[  rig     ] all processes ready " << ms(Clock::now() - emulator_ready)
-              << " ms after the emulator\n";
-  }
-
-  void expect_running() const {
-    for (const auto* p : {&surface, &emulator, &gateway, &sim}) {
-      ASSERT_TRUE(*p) << "not started";
-      ASSERT_FALSE((*p)->finished()) << (*p)->output();
-    }
-  }
-
-  // SIGTERM to each (gateway first), each must exit 0; keeps their output and last lines.
-  void stop() {
-    const auto stop_one = [this](std::unique_ptr<ChildProcess>& p, const char* name,
-                                 std::string& last) {
-      if (!p) return;
-      EXPECT_EQ(p->stop(), 0) << name << ":\n" << p->output();
-      last = test::last_line(p->output());
-      logs_ += std::string("--- ") + name + "\n" + p->output();
-      p.reset();
-    };
-    std::string ignored;
-    stop_one(sim, "canbridge-sim", ignored);
-    stop_one(gateway, "gateway", gateway_final);
-    stop_one(surface, "surface", surface_final);
-    stop_one(emulator, "link emulator", ignored);
-    if (!dir_.empty()) std::filesystem::remove_all(dir_);
-    dir_.clear();
-  }
-  // The processes' output, for failures (or always with CANBRIDGE_SHOW_LOGS=1).
-  void print_logs(bool failed) const {
-    const char* show = std::getenv("CANBRIDGE_SHOW_LOGS");
-    if (failed || (show != nullptr && std::string(show) == "1")) std::cout << logs_;
-  }
-
-  std::unique_ptr<ChildProcess> surface, emulator, gateway, sim;
-  Clock::time_point emulator_ready;
-  std::string gateway_final, surface_final;
-
- private:
-  std::string dir_;
-  std::string logs_;
-};
+// The processes of one test suite: surface, link emulator (with `emulator_args`, e.g. a cut),
+// gateway, simulated nodes.
+test::RigOptions rig_options(std::vector<std::string> emulator_args) {
+  return {.canbridge = CANBRIDGE_BIN,
+          .sim = CANBRIDGE_SIM_BIN,
+          .link_emulator = CANBRIDGE_LINK_EMULATOR_BIN,
+          .link_emulator_args = std::move(emulator_args),
+          .config_dir = kDir,
+          .port_placeholder = "${LINK_PORT}",
+          .surface_name = "canopen-surface",
+          .gateway_name = "canopen-gateway",
+          .sim_ready = "ready 6 nodes on 3 buses",
+          .event_timeout = kEvent};
+}
 
 bool any_failure() {
   return ::testing::UnitTest::GetInstance()->failed_test_count() > 0;
@@ -275,8 +185,8 @@ class Transparency : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     log_ = std::make_unique<BusLog>("vcan0");
-    processes_ = std::make_unique<Processes>();
-    processes_->start({});
+    processes_ = std::make_unique<RigProcesses>(rig_options({}));
+    processes_->start();
   }
   static void TearDownTestSuite() {
     if (processes_) {
@@ -299,7 +209,7 @@ class Transparency : public ::testing::Test {
   }
 
   static inline std::unique_ptr<BusLog> log_;
-  static inline std::unique_ptr<Processes> processes_;
+  static inline std::unique_ptr<RigProcesses> processes_;
   RawCanSocket socket_{"vcan0"};  // the master's; opened per test, so it holds no older frames
   SdoMaster master_{socket_};
 };
@@ -563,11 +473,11 @@ class LinkCut : public ::testing::Test {
     processes.print_logs(HasFailure());
   }
   BusLog log{"vcan0"};
-  Processes processes;
+  RigProcesses processes{rig_options({"--cut-at", "3+2"})};
 };
 
 TEST_F(LinkCut, HeartbeatsStopSdoAbortsAndBothRecover) {
-  ASSERT_NO_FATAL_FAILURE(processes.start({"--cut-at", "3+2"}));
+  ASSERT_NO_FATAL_FAILURE(processes.start());
   RawCanSocket socket("vcan0");
   SdoMaster master(socket);
   const auto since_ready = [&] { return ms(Clock::now() - processes.emulator_ready); };
