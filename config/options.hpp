@@ -103,7 +103,7 @@ struct SurfaceOptions {
   bool conflate_pdos = true;  // for surface -> gateway process data, as ModuleOptions
   // RPDOP from the surface master to pdop nodes, taken by the surface (`pdop:` block).
   bridge::RpdopRelayOptions rpdop_relay;
-  std::string bus;            // the one SocketCAN interface the surface master sees
+  std::string bus;  // the one SocketCAN interface the surface master sees
   CanOptions can;
   LogOptions log;
 };
