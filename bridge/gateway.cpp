@@ -341,6 +341,14 @@ void Gateway::queue_pdop_nodes() {
 
 void Gateway::flush_segmenter(std::size_t m) {
   const auto now = LoopGuard::Clock::now();
+  if (modules_[m].bus->send_room() < segmenter_out_.frames.size()) {
+    // All or none: the node sees a refused tail as fragments lost in transit and the segmenter
+    // recovers by asking it (docs/pdop.md 4.3); a gap inside a window it might not see at all.
+    counters_.bus_refused += segmenter_out_.frames.size();
+    warn_.warn(Warn::kBusRefused, "gateway: bus {} refused a frame (transmit queue full; counted)",
+               modules_[m].bus->name());
+    segmenter_out_.frames.clear();
+  }
   for (const can::Frame& frame : segmenter_out_.frames) {
     if (modules_[m].bus->send(frame)) {
       loop_guards_[m].wrote(frame, now);

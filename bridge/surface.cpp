@@ -374,6 +374,14 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  from.name, p.module_id(), p.surface_node(), p.pdo(), data.size());
       continue;
     }
+    if (bus_->send_room() < fragments.size()) {
+      // Whole or not at all: a packet with fragments missing can pass a master's toggle check.
+      ++counters_.pdop_bus_refused;
+      counters_.bus_refused += fragments.size();
+      warn_.warn(Warn::kBusRefused,
+                 "surface: bus {} refused a frame (transmit queue full; counted)", bus_->name());
+      continue;
+    }
     ++counters_.pdop_packets;
     counters_.pdop_packet_bytes += data.size();
     if (p.probable_repeat()) {
@@ -490,8 +498,8 @@ std::string Surface::stats_line() const {
       "echoes-dropped {}, "
       "bus-refused {}, "
       "malformed {}, unknown-module {}, node-events {}; "
-      "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {}, rpdop "
-      "forwarded {} complete {} failed {}; "
+      "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {} bus-refused {}, "
+      "rpdop forwarded {} complete {} failed {}; "
       "{} rx {} tx {} "
       "kernel-drops {} {}",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
@@ -502,8 +510,8 @@ std::string Surface::stats_line() const {
       c.sdo_late_responses_dropped, c.echoes_dropped, c.bus_refused,
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
       c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
-      c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames,
-      b.rx_dropped_kernel, can::to_string(b.state));
+      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(),
+      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
   return s;
 }
 

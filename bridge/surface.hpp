@@ -44,6 +44,7 @@ struct SurfaceCounters {
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
   std::uint64_t pdop_packet_bytes = 0;
+  std::uint64_t pdop_bus_refused = 0;       // packets not put on the bus: no room for all fragments
   std::uint64_t pdop_malformed = 0;         // packets with a bad node, TPDO or size (dropped)
   std::uint64_t pdop_probable_repeats = 0;  // flagged as a probable double reception
   std::uint64_t pdop_discards = 0;          // broken packets the gateways reported

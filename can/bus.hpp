@@ -46,6 +46,10 @@ class Bus {
   // Queues a frame for transmission, strictly in FIFO order, without blocking or suspending.
   // Returns false when the bounded transmit queue is full; the drop is counted.
   virtual bool send(const Frame& frame) = 0;
+  // How many frames send() takes now without refusing (free transmit-queue slots; the largest
+  // size_t for a bus without a bound). For writers of frame sequences that must go whole or not
+  // at all (PDO Packet fragments): a sequence with a gap in it can pass as intact.
+  virtual std::size_t send_room() const = 0;
 
   virtual BusCounters counters() const = 0;
 

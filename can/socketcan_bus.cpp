@@ -432,6 +432,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   asio::steady_timer writer_backoff;
   asio::steady_timer reopen_timer;
   FrameRing tx_queue;
+  std::size_t tx_capacity() const { return options.transmit_queue_frames; }
   BusCounters counters;
   std::function<void(BusState)> state_handler;
   std::uint32_t last_overflow = 0;
@@ -498,6 +499,13 @@ asio::awaitable<std::error_code> SocketCanBus::receive_batch(std::vector<Frame>&
 
 bool SocketCanBus::send(const Frame& frame) {
   return impl_->send(frame);
+}
+
+std::size_t SocketCanBus::send_room() const {
+  if (impl_->closed) return 0;
+  return impl_->tx_queue.size() >= impl_->tx_capacity()
+             ? 0
+             : impl_->tx_capacity() - impl_->tx_queue.size();
 }
 
 BusCounters SocketCanBus::counters() const {

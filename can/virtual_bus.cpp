@@ -7,6 +7,7 @@
 #include <boost/asio/this_coro.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <chrono>
+#include <limits>
 
 namespace canbridge::can {
 
@@ -54,6 +55,11 @@ class VirtualEndpoint final : public Bus {
     queue_.erase(queue_.begin(), queue_.begin() + static_cast<std::ptrdiff_t>(n));
     counters_.rx_frames += n;
     co_return std::error_code{};
+  }
+
+  // Delivery is immediate: only a closed endpoint refuses.
+  std::size_t send_room() const override {
+    return closed_ ? 0 : std::numeric_limits<std::size_t>::max();
   }
 
   bool send(const Frame& frame) override {

@@ -6,6 +6,7 @@
 #include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/use_awaitable.hpp>
+#include <limits>
 
 namespace canbridge::can {
 namespace {
@@ -57,6 +58,15 @@ TEST(VirtualBus, ReceiveWaitsForAFrameSentLater) {
   ASSERT_EQ(out.size(), 1u);
   EXPECT_EQ(out[0].data[0], 0x05);
   EXPECT_NE(out[0].timestamp.count(), 0);
+}
+
+TEST(VirtualBus, SendRoomIsUnboundedUntilClosed) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a");
+  EXPECT_EQ(a->send_room(), std::numeric_limits<std::size_t>::max());
+  a->close();
+  EXPECT_EQ(a->send_room(), 0u);
 }
 
 TEST(VirtualBus, BoundedQueueCountsOverflowAndCloseEndsWait) {

@@ -259,6 +259,24 @@ TEST(SocketCanSystem, CangenBurstOf100000FramesIsReceivedInOrderOrDropsAreCounte
   EXPECT_EQ(misplaced_loss_marks, 0u) << loss_marks << " frames marked follows_loss";
 }
 
+TEST(SocketCanSystem, SendRoomIsTheFreeTransmitQueue) {
+  asio::io_context io(1);
+  SocketCanOptions o = options_for("vcan0");
+  o.transmit_queue_frames = 4;
+  auto bus = SocketCanBus::open(io.get_executor(), o);
+  EXPECT_EQ(bus->send_room(), 4u);
+  // The writer runs only when the loop does: the queue fills synchronously.
+  for (std::size_t room = 4; room > 0; --room) {
+    ASSERT_EQ(bus->send_room(), room);
+    ASSERT_TRUE(bus->send(Frame::standard(0x123, {0x01})));
+  }
+  EXPECT_EQ(bus->send_room(), 0u);
+  EXPECT_FALSE(bus->send(Frame::standard(0x123, {0x02})));
+  ASSERT_TRUE(run_until(io, [&] { return bus->send_room() == 4; }));  // drained to the kernel
+  bus->close();
+  EXPECT_EQ(bus->send_room(), 0u);
+}
+
 TEST(SocketCanSystem, SendsLeaveInStrictFifoOrder) {
   constexpr std::uint32_t kFrames = 10000;
   asio::io_context io(1);
