@@ -57,7 +57,8 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
       relay_(rpdop_relay),
-      relay_timer_(executor_) {
+      relay_timer_(executor_),
+      bus_retry_timer_(executor_) {
   identity_.role = v1::Hello::ROLE_SURFACE;
   identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
   identity_.name = name_;
@@ -176,6 +177,7 @@ void Surface::stop() {
   for (auto& l : std::vector(links_)) l->close();
   for (auto& [name, g] : gateways_) g->stream.close_link();
   relay_timer_.cancel();
+  bus_retry_timer_.cancel();
   bus_->close();
 }
 
@@ -251,7 +253,8 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
     case v1::Payload::kNodeEvents:
       return on_node_events(from, inbound_.node_events());
     case v1::Payload::kPdopPackets:
-      return on_pdop_packets(from, inbound_.pdop_packets());
+      on_pdop_packets(from, inbound_.pdop_packets());
+      return write_pending_packets();
     case v1::Payload::kPdopReports:
       return on_pdop_reports(from, inbound_.pdop_reports());
     case v1::Payload::kPdopNodes:
@@ -374,12 +377,15 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  from.name, p.module_id(), p.surface_node(), p.pdo(), data.size());
       continue;
     }
-    if (bus_->send_room() < fragments.size()) {
-      // Whole or not at all: a packet with fragments missing can pass a master's toggle check.
+    // Whole or not at all (a packet with fragments missing can pass a master's toggle check),
+    // and in order: a packet waits while the bus's transmit queue cannot take all of it.
+    if (pending_frames_ + fragments.size() > kMaxPendingPacketFrames) {
       ++counters_.pdop_bus_refused;
       counters_.bus_refused += fragments.size();
       warn_.warn(Warn::kBusRefused,
-                 "surface: bus {} refused a frame (transmit queue full; counted)", bus_->name());
+                 "surface: bus {} cannot take PDO Packets as fast as they come: packets refused "
+                 "(counted as pdop bus-refused)",
+                 bus_->name());
       continue;
     }
     ++counters_.pdop_packets;
@@ -392,13 +398,30 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  "delivered all the same (counted as probable-repeats)",
                  from.name, p.surface_node(), p.pdo());
     }
-    for (const can::Frame& f : fragments) send_to_bus(f);
+    pending_frames_ += fragments.size();
+    pending_packets_.push_back(std::move(fragments));
     if (pdop_observer_) {
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
                       static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
                       p.first_fragment_us(), p.duration_us(), p.probable_repeat()});
     }
   }
+}
+
+void Surface::write_pending_packets() {
+  while (!pending_packets_.empty() && bus_->send_room() >= pending_packets_.front().size()) {
+    for (const can::Frame& f : pending_packets_.front()) send_to_bus(f);
+    pending_frames_ -= pending_packets_.front().size();
+    pending_packets_.pop_front();
+  }
+  if (pending_packets_.empty() || stopped_ || bus_retry_armed_) return;
+  // The bus says nothing when its queue drains: look again shortly (only while packets wait).
+  bus_retry_armed_ = true;
+  bus_retry_timer_.expires_after(std::chrono::milliseconds(1));
+  bus_retry_timer_.async_wait([this](boost::system::error_code ec) {
+    bus_retry_armed_ = false;
+    if (!ec && !stopped_) write_pending_packets();
+  });
 }
 
 void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {

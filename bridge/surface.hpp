@@ -6,6 +6,7 @@
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
 #include <boost/asio/steady_timer.hpp>
+#include <deque>
 #include <functional>
 #include <map>
 #include <memory>
@@ -44,7 +45,7 @@ struct SurfaceCounters {
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
   std::uint64_t pdop_packet_bytes = 0;
-  std::uint64_t pdop_bus_refused = 0;       // packets not put on the bus: no room for all fragments
+  std::uint64_t pdop_bus_refused = 0;       // packets refused: too many waiting for the bus
   std::uint64_t pdop_malformed = 0;         // packets with a bad node, TPDO or size (dropped)
   std::uint64_t pdop_probable_repeats = 0;  // flagged as a probable double reception
   std::uint64_t pdop_discards = 0;          // broken packets the gateways reported
@@ -105,6 +106,9 @@ class Surface {
   void on_pdop_reports(Gateway& from, const v1::PdopReports& reports);
   // Sends the relay's acknowledgements to the bus and its packets to their gateways.
   void flush_relay();
+  // Writes waiting packets whose fragments all fit the bus's transmit queue, in order; retries
+  // after 1 ms while some wait.
+  void write_pending_packets();
   boost::asio::awaitable<void> watch_relay();
   void after_relay_input();
 
@@ -142,6 +146,13 @@ class Surface {
   // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
   std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
+  // TPDOP packets (their fragments) waiting for room in the bus's transmit queue: bursts from the
+  // backbone outrun the bus. Bounded; beyond, packets are refused (counted).
+  static constexpr std::size_t kMaxPendingPacketFrames = std::size_t{1} << 17;
+  std::deque<std::vector<can::Frame>> pending_packets_;
+  std::size_t pending_frames_ = 0;
+  boost::asio::steady_timer bus_retry_timer_;
+  bool bus_retry_armed_ = false;
   LoopGuard loop_guard_;
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed

@@ -7,6 +7,7 @@
 
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -43,6 +44,33 @@ std::vector<std::uint8_t> pattern(std::size_t size, std::uint8_t seed) {
   for (std::size_t i = 0; i < size; ++i) bytes[i] = static_cast<std::uint8_t>(seed + 7 * i);
   return bytes;
 }
+
+// The surface's bus with a transmit queue the test controls: `room` frames more, then refusals.
+class RoomLimitedBus final : public can::Bus {
+ public:
+  static constexpr std::size_t kUnbounded = std::numeric_limits<std::size_t>::max();
+  explicit RoomLimitedBus(std::unique_ptr<can::Bus> inner) : inner_(std::move(inner)) {}
+  std::size_t room = kUnbounded;
+
+  const std::string& name() const override { return inner_->name(); }
+  asio::awaitable<std::error_code> receive_batch(std::vector<can::Frame>& out) override {
+    return inner_->receive_batch(out);
+  }
+  bool send(const can::Frame& frame) override {
+    if (room == 0) return false;
+    if (room != kUnbounded) --room;
+    return inner_->send(frame);
+  }
+  std::size_t send_room() const override { return std::min(room, inner_->send_room()); }
+  can::BusCounters counters() const override { return inner_->counters(); }
+  void on_state_change(std::function<void(can::BusState)> handler) override {
+    inner_->on_state_change(std::move(handler));
+  }
+  void close() override { inner_->close(); }
+
+ private:
+  std::unique_ptr<can::Bus> inner_;
+};
 
 struct SeenPacket {
   canopen::NodeId surface_node = 0;
@@ -119,7 +147,12 @@ class PdopBridging : public ::testing::Test {
   std::unique_ptr<can::VirtualBus> module_bus_;
   can::VirtualBus surface_bus{io.get_executor(), "surface-bus"};
   BusRecorder master{io, surface_bus.connect("master")};
-  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface")};
+  RoomLimitedBus* surface_port = nullptr;
+  Surface surface{io.get_executor(), "surface", [this] {
+                    auto bus = std::make_unique<RoomLimitedBus>(surface_bus.connect("surface"));
+                    surface_port = bus.get();
+                    return bus;
+                  }()};
   std::shared_ptr<backbone::TcpServer> server = backbone::TcpServer::create(io.get_executor());
   std::unique_ptr<BusRecorder> node;
   std::unique_ptr<Gateway> gateway;
@@ -177,6 +210,28 @@ TEST_F(PdopBridging, TpdopPacketsCrossWholeAndReappearUnderTheSurfaceId) {
   EXPECT_NE(gateway->stats_line().find("pdop packets 3 (125 bytes, 17 fragments) discarded 0"),
             std::string::npos)
       << gateway->stats_line();
+}
+
+TEST_F(PdopBridging, PacketsWaitWholeAndInOrderWhileTheSurfaceBusIsFull) {
+  start();
+  surface_port->room = 10;  // less than one packet's 13 fragments
+  const auto a = pattern(100, 1), b = pattern(100, 2);
+  send_packet(kLocalA, 1, a);
+  send_packet(kLocalA, 1, b);
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop_packets == 2; }));
+  EXPECT_TRUE(tpdo_frames_on_surface(kSurfaceA).empty());  // no partial packet on the bus
+  surface_port->room = RoomLimitedBus::kUnbounded;         // the queue drains
+  ASSERT_TRUE(run_until(io, [&] { return tpdo_frames_on_surface(kSurfaceA).size() == 26; }));
+  auto expected = pdop::fragment(pdop::tpdo_base(1), kSurfaceA, a);
+  const auto then = pdop::fragment(pdop::tpdo_base(1), kSurfaceA, b);
+  expected.insert(expected.end(), then.begin(), then.end());
+  const auto got = tpdo_frames_on_surface(kSurfaceA);
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    EXPECT_EQ(got[i].id, expected[i].id) << i;
+    EXPECT_EQ(got[i].data, expected[i].data) << i;
+  }
+  EXPECT_EQ(surface.counters().pdop_bus_refused, 0u);
+  EXPECT_EQ(surface.counters().bus_refused, 0u);
 }
 
 TEST_F(PdopBridging, ABrokenPacketIsReportedToTheSurfaceAndNeverDelivered) {
