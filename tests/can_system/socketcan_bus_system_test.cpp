@@ -259,6 +259,43 @@ TEST(SocketCanSystem, CangenBurstOf100000FramesIsReceivedInOrderOrDropsAreCounte
   EXPECT_EQ(misplaced_loss_marks, 0u) << loss_marks << " frames marked follows_loss";
 }
 
+TEST(SocketCanSystem, TheFirstFrameAfterKernelDropsCarriesTheLossMark) {
+  asio::io_context io(1);
+  SocketCanOptions o = options_for("vcan0");
+  o.receive_buffer_bytes = 4096;  // a few frames: the burst below overflows it
+  auto bus = SocketCanBus::open(io.get_executor(), o);
+  Collector rx;
+  rx.start(io, *bus);
+  io.poll();  // the reader waits; nothing reads while the burst is written
+  test::RawCanSocket writer("vcan0");
+  constexpr std::uint32_t kFrames = 2000;
+  for (std::uint32_t i = 0; i < kFrames; ++i) {
+    writer.send(
+        Frame::standard(0x321, {static_cast<std::uint8_t>(i), static_cast<std::uint8_t>(i >> 8)}));
+  }
+  // The reader takes what the socket kept; then a last frame, which follows the drops.
+  ASSERT_TRUE(run_until(io, [&] { return !rx.frames.empty(); }));
+  io.poll();
+  writer.send(Frame::standard(0x321, {0xFF, 0xFF}));
+  ASSERT_TRUE(run_until(io, [&] {
+    return !rx.frames.empty() && rx.frames.back().data[0] == 0xFF &&
+           rx.frames.back().data[1] == 0xFF;
+  }));
+  ASSERT_GT(bus->counters().rx_dropped_kernel, 0u) << "the burst did not overflow the socket";
+  std::uint32_t next = 0, marks = 0, misplaced = 0;
+  for (const Frame& f : rx.frames) {
+    const std::uint32_t n = f.data[0] | (std::uint32_t{f.data[1]} << 8);
+    const bool gap = n != next;
+    marks += f.follows_loss() ? 1 : 0;
+    if (f.follows_loss() != gap) ++misplaced;
+    next = n + 1;
+  }
+  EXPECT_GT(marks, 0u);
+  EXPECT_EQ(misplaced, 0u) << marks << " marks, " << rx.frames.size() << " frames, "
+                           << bus->counters().rx_dropped_kernel << " dropped";
+  EXPECT_EQ(rx.frames.size() + bus->counters().rx_dropped_kernel, kFrames + 1);
+}
+
 TEST(SocketCanSystem, SendRoomIsTheFreeTransmitQueue) {
   asio::io_context io(1);
   SocketCanOptions o = options_for("vcan0");
