@@ -76,11 +76,6 @@ constexpr std::size_t kMaxQueuedPdopBytes = std::size_t{8} << 20;
 // Packets are batched into one payload up to this size while the link is behind.
 constexpr std::size_t kPdopBatchBytes = 2048;
 
-// 0x180..0x57F: TPDO1..4 and RPDO1..4 of any node, any t/c (docs/pdop.md section 1).
-bool is_pdo_range(std::uint32_t cob_id) {
-  return cob_id >= 0x180 && cob_id <= 0x57F;
-}
-
 v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
   switch (kind) {
     case NodeEvent::Kind::discovered:
@@ -206,11 +201,6 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
   }
   if (any_pdop) pdop_.resize(modules_.size());
   for (std::size_t m = 0; m < modules_.size(); ++m) {
-    // Fragments forwarded one by one share COB-IDs (fragment k and k + 2): conflating them
-    // would splice packets.
-    if (map_.modules()[m].profile == IdProfile::pdop && !modules_[m].reassemble_pdop) {
-      modules_[m].conflate_pdos = false;
-    }
     if (any_pdop && map_.modules()[m].profile == IdProfile::pdop && modules_[m].reassemble_pdop) {
       pdop_[m].reassembler = std::make_unique<PdopReassembler>(modules_[m].pdop_reassembly);
       pdop_[m].segmenter = std::make_unique<PdopSegmenter>(modules_[m].pdop_segmentation);
@@ -267,15 +257,19 @@ void Gateway::start() {
   if (!pdop_.empty()) asio::co_spawn(executor_, watch_pdop(), asio::detached);
 }
 
+PdopReassembler::TimePoint Gateway::pdop_deadline() const {
+  auto deadline = PdopReassembler::TimePoint::max();
+  for (const PdopModule& p : pdop_) {
+    if (!p.reassembler) continue;
+    deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
+    deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
+  }
+  return deadline;
+}
+
 asio::awaitable<void> Gateway::watch_pdop() {
   while (!stopped_) {
-    auto deadline = PdopReassembler::TimePoint::max();
-    for (const PdopModule& p : pdop_) {
-      if (!p.reassembler) continue;
-      deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
-      deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
-    }
-    pdop_timer_.expires_at(deadline);
+    pdop_timer_.expires_at(pdop_deadline());
     auto [ec] = co_await pdop_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
     if (stopped_) co_return;
     if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
@@ -285,21 +279,19 @@ asio::awaitable<void> Gateway::watch_pdop() {
       PdopSink sink(*this, m, steady_to_unix_offset());
       pdop_[m].reassembler->tick(now, sink);
       pdop_[m].segmenter->tick(now, segmenter_out_);
-      flush_segmenter(m);
+      flush_segmenter(m, now);
     }
     stream_.wake();
   }
 }
 
 void Gateway::after_pdop_input() {
-  if (pdop_.empty()) return;
-  auto deadline = PdopReassembler::TimePoint::max();
-  for (const PdopModule& p : pdop_) {
-    if (!p.reassembler) continue;
-    deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
-    deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
-  }
-  if (deadline < pdop_timer_.expiry()) pdop_timer_.cancel();
+  if (!pdop_.empty() && pdop_deadline() < pdop_timer_.expiry()) pdop_timer_.cancel();
+}
+
+v1::RpdopOutcome* Gateway::add_outcome_report() {
+  v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
+  return payload ? payload->mutable_pdop_reports()->add_outcomes() : nullptr;
 }
 
 v1::Payload* Gateway::pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes) {
@@ -339,8 +331,8 @@ void Gateway::queue_pdop_nodes() {
   pdop_out_.push_front({std::move(payload), 0});
 }
 
-void Gateway::flush_segmenter(std::size_t m) {
-  const auto now = LoopGuard::Clock::now();
+void Gateway::flush_segmenter(std::size_t m, PdopSegmenter::TimePoint now) {
+  if (segmenter_out_.frames.empty() && segmenter_out_.outcomes.empty()) return;
   if (modules_[m].bus->send_room() < segmenter_out_.frames.size()) {
     // All or none: the node sees a refused tail as fragments lost in transit and the segmenter
     // recovers by asking it (docs/pdop.md 4.3); a gap inside a window it might not see at all.
@@ -368,19 +360,18 @@ void Gateway::flush_segmenter(std::size_t m) {
       ++counters_.rpdop_failed;
       spdlog::info("gateway {}: module {} RPDOP {}", name_, modules_[m].id, to_string(o));
     }
-    v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
-    if (!payload) continue;
-    v1::RpdopOutcome& r = *payload->mutable_pdop_reports()->add_outcomes();
-    r.set_request_id(o.request_id);
-    r.set_module_id(modules_[m].id);
-    r.set_surface_node(map_.surface_of(m, o.node));
-    r.set_rpdo(o.rpdo);
-    r.set_result(to_proto(o.result));
-    r.set_status(static_cast<std::uint32_t>(o.status));
-    r.set_fragments(o.fragments);
-    r.set_fragments_sent(o.fragments_sent);
-    r.set_ack_requests(o.ack_requests);
-    r.set_elapsed_us(static_cast<std::uint64_t>(
+    v1::RpdopOutcome* r = add_outcome_report();
+    if (!r) continue;
+    r->set_request_id(o.request_id);
+    r->set_module_id(modules_[m].id);
+    r->set_surface_node(map_.surface_of(m, o.node));
+    r->set_rpdo(o.rpdo);
+    r->set_result(to_proto(o.result));
+    r->set_status(static_cast<std::uint32_t>(o.status));
+    r->set_fragments(o.fragments);
+    r->set_fragments_sent(o.fragments_sent);
+    r->set_ack_requests(o.ack_requests);
+    r->set_elapsed_us(static_cast<std::uint64_t>(
         std::chrono::duration_cast<std::chrono::microseconds>(o.elapsed).count()));
   }
   segmenter_out_.outcomes.clear();
@@ -400,7 +391,7 @@ void Gateway::on_node_restart(const NodeEvent& e, PdopReassembler::TimePoint now
     p.reassembler->on_node_restart(node, now, sink);
     p.segmenter->cancel_node(node, now, segmenter_out_);
   }
-  flush_segmenter(e.module_index);
+  flush_segmenter(e.module_index, now);
 }
 
 void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
@@ -418,14 +409,13 @@ void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
                  "of this gateway: refused (counted)",
                  p.surface_node(), p.module_id());
       ++counters_.rpdop_failed;
-      v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
-      if (!payload) continue;
-      v1::RpdopOutcome& r = *payload->mutable_pdop_reports()->add_outcomes();
-      r.set_request_id(p.request_id());
-      r.set_module_id(p.module_id());
-      r.set_surface_node(p.surface_node());
-      r.set_rpdo(p.pdo());
-      r.set_result(v1::RpdopOutcome::REFUSED_ADDRESS);
+      if (v1::RpdopOutcome* r = add_outcome_report()) {
+        r->set_request_id(p.request_id());
+        r->set_module_id(p.module_id());
+        r->set_surface_node(p.surface_node());
+        r->set_rpdo(p.pdo());
+        r->set_result(v1::RpdopOutcome::REFUSED_ADDRESS);
+      }
       continue;
     }
     const std::size_t m = owner->module_index;
@@ -433,7 +423,7 @@ void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
     pdop_[m].segmenter->submit(owner->local, p.pdo(),
                                std::vector<std::uint8_t>(data.begin(), data.end()), p.request_id(),
                                now, segmenter_out_);
-    flush_segmenter(m);
+    flush_segmenter(m, now);
   }
   stream_.wake();
 }
@@ -505,20 +495,21 @@ void Gateway::produce(backbone::PayloadSink& sink) {
   // already waited for all its fragments).
   while (!pdop_out_.empty()) {
     // A packet larger than one write still goes: the session writes any message it takes.
-    std::string payload = pdop_out_.front().payload.SerializeAsString();
-    if (payload.size() > tuning_.session.resend_buffer_bytes) {
+    const v1::Payload& front = pdop_out_.front().payload;
+    const std::size_t size = front.ByteSizeLong();
+    if (size > tuning_.session.resend_buffer_bytes) {
       // Never accepted by the resend buffer (config validation prevents it): do not block.
       ++counters_.pdop_refused;
       warn_.warn(Warn::kPdopRefused,
                  "gateway: a PDO Packet payload of {} bytes exceeds the resend buffer: refused "
                  "(counted as pdop-refused)",
-                 payload.size());
+                 size);
       pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
       pdop_out_.pop_front();
       continue;
     }
-    if (sink.room() == 0 || !sink.reliable_room(payload.size())) break;
-    sink.send_reliable(std::move(payload));
+    if (sink.room() == 0 || !sink.reliable_room(size)) break;  // serialized only when it goes
+    sink.send_reliable(front.SerializeAsString());
     pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
     pdop_out_.pop_front();
   }
@@ -594,15 +585,13 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         }
         const auto at = steady_time_of(frame, now, clock_offset);
         if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
-      }
-      // Frames of nodes without a surface id go on to the translator, which counts them.
-      if (reassembler && map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0) {
-        const auto at = steady_time_of(frame, now, clock_offset);
-        if (reassembler->on_frame(frame, at, *pdop_sink)) continue;
-        // The nodes' RPDOP acknowledgements are the segmenter's; the surface acknowledges its
+        // Frames of nodes without a surface id go on to the translator, which counts them.
+        // The nodes' RPDOP acknowledgements are the segmenter's: the surface acknowledges its
         // master itself.
-        if (segmenter->on_frame(frame, now, segmenter_out_)) {
-          flush_segmenter(module_index);
+        if (map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0 &&
+            (reassembler->on_frame(frame, at, *pdop_sink) ||
+             segmenter->on_frame(frame, now, segmenter_out_))) {
+          flush_segmenter(module_index, now);
           continue;
         }
       }
@@ -612,7 +601,9 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         count(sdo_trackers_[module_index][node].on_response(*surface, to_surface_[module_index]));
       }
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
-      const bool fragment = fragments_as_frames && is_pdo_range(surface->id);
+      const bool fragment =
+          fragments_as_frames && !surface->is_extended() &&
+          canopen::pdop::tpdo_number(canopen::pdop::decode(surface->id).function_code);
       if (!outbox_.push(module.id, *surface, module.conflate_pdos, fragment) &&
           !is_process_data(*surface)) {
         warn_.warn(Warn::kRefused,

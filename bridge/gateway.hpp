@@ -116,7 +116,11 @@ class Gateway {
   boost::asio::awaitable<void> watch_pdop();
   void after_pdop_input();
   void on_rpdop_packets(const v1::PdopPackets& packets);
-  void flush_segmenter(std::size_t module_index);
+  void flush_segmenter(std::size_t module_index, PdopSegmenter::TimePoint now);
+  // The earliest deadline of every reassembler and segmenter (max when none).
+  PdopReassembler::TimePoint pdop_deadline() const;
+  // A new RPDOP outcome in the report queue; nullptr when the queue is full (counted).
+  v1::RpdopOutcome* add_outcome_report();
   // Appends to the newest queued payload of `kind` while it is small (batches small packets
   // when the link is slower than the bus), else queues a new one. False when the queue is full.
   v1::Payload* pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes);

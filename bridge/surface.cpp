@@ -225,8 +225,9 @@ asio::awaitable<void> Surface::read_bus() {
     for (auto& [name, gateway] : gateways_) {
       for (const can::Frame& frame : forward_) {
         // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
-        const bool fragment = !frame.is_extended() && frame.id >= 0x200 && frame.id <= 0x57F &&
-                              fragments_as_frames_[frame.id & canopen::pdop::kMaxNode];
+        const bool fragment =
+            !frame.is_extended() && fragments_as_frames_[frame.id & canopen::pdop::kMaxNode] &&
+            canopen::pdop::rpdo_number(canopen::pdop::decode(frame.id).function_code);
         if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_, fragment) &&
             !is_process_data(frame)) {
           warn_.warn(Warn::kRefused,
