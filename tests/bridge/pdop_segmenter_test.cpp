@@ -26,47 +26,21 @@
 #include "bridge/canopen/pdop.hpp"
 #include "can/frame.hpp"
 #include "sim/rpdop_receiver.hpp"
-
-namespace canbridge::can {
-void PrintTo(const Frame& frame, std::ostream* os) {
-  *os << to_string(frame);
-}
-}  // namespace canbridge::can
+#include "tests/bridge/rpdop_test_helpers.hpp"
 
 namespace canbridge::bridge {
-
-void PrintTo(PdopResult result, std::ostream* os) {
-  *os << to_string(result);
-}
-void PrintTo(const PdopOutcome& outcome, std::ostream* os) {
-  *os << to_string(outcome);
-}
-
 namespace {
+
+using namespace rpdop_test;
 
 namespace pdop = canopen::pdop;
 using namespace std::chrono_literals;
 using can::Frame;
 using pdop::Ack;
 using pdop::AckStatus;
-using Bytes = std::vector<std::uint8_t>;
-using Frames = std::vector<Frame>;
 using TimePoint = PdopSegmenter::TimePoint;
 using Duration = PdopSegmenter::Duration;
 
-const TimePoint t0 = TimePoint{} + 1000s;
-
-// 0, 1, 2, ... so a misplaced byte shows in a failure.
-Bytes counting(std::size_t size, std::uint8_t first = 0) {
-  Bytes bytes(size);
-  std::iota(bytes.begin(), bytes.end(), first);
-  return bytes;
-}
-
-// The fragments of `bytes` to `node`'s RPDO `rpdo`, as the codec cuts them.
-Frames fragments(NodeId node, unsigned rpdo, const Bytes& bytes) {
-  return pdop::fragment(pdop::rpdo_base(rpdo), node, bytes);
-}
 Frames slice(const Frames& frames, std::size_t from, std::size_t to) {
   return Frames(frames.begin() + static_cast<std::ptrdiff_t>(from),
                 frames.begin() + static_cast<std::ptrdiff_t>(to));
@@ -75,10 +49,6 @@ Frames concat(Frames a, const Frames& b) {
   a.insert(a.end(), b.begin(), b.end());
   return a;
 }
-Frame abort_of(NodeId node, unsigned rpdo) {
-  return pdop::abort_frame(pdop::rpdo_base(rpdo), node);
-}
-
 // One segmenter at an injected time; every call starts with an empty output.
 struct Rig {
   explicit Rig(PdopSegmenterOptions options = {}) : seg(options) {}

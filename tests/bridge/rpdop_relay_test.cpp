@@ -28,39 +28,21 @@
 #include "bridge/canopen/pdop.hpp"
 #include "bridge/pdop_segmenter.hpp"
 #include "can/frame.hpp"
-
-// Defined in pdop_segmenter_test.cpp, which is linked into the same test binary.
-namespace canbridge::can {
-void PrintTo(const Frame& frame, std::ostream* os);
-}  // namespace canbridge::can
-namespace canbridge::bridge {
-void PrintTo(const PdopOutcome& outcome, std::ostream* os);
-}  // namespace canbridge::bridge
+#include "tests/bridge/rpdop_test_helpers.hpp"
 
 namespace canbridge::bridge {
 namespace {
+
+using namespace rpdop_test;
 
 namespace pdop = canopen::pdop;
 using namespace std::chrono_literals;
 using can::Frame;
 using pdop::Ack;
 using pdop::AckStatus;
-using Bytes = std::vector<std::uint8_t>;
-using Frames = std::vector<Frame>;
 using TimePoint = RpdopRelay::TimePoint;
 using Duration = RpdopRelay::Clock::duration;
 
-const TimePoint t0 = TimePoint{} + 1000s;
-
-// 0, 1, 2, ... so a misplaced byte shows in a failure.
-Bytes counting(std::size_t size, std::uint8_t first = 0) {
-  Bytes bytes(size);
-  std::iota(bytes.begin(), bytes.end(), first);
-  return bytes;
-}
-Frames fragments(NodeId node, unsigned rpdo, const Bytes& bytes) {
-  return pdop::fragment(pdop::rpdo_base(rpdo), node, bytes);
-}
 Frame ack(NodeId node, std::uint8_t rpdo, AckStatus status, std::uint16_t received,
           std::uint8_t credit) {
   return pdop::encode_ack(node, Ack{rpdo, status, received, credit});
@@ -68,9 +50,6 @@ Frame ack(NodeId node, std::uint8_t rpdo, AckStatus status, std::uint16_t receiv
 Frame raw_ack(NodeId node, std::uint8_t rpdo, std::uint8_t status, std::uint16_t received,
               std::uint8_t credit) {
   return ack(node, rpdo, static_cast<AckStatus>(status), received, credit);
-}
-Frame abort_of(NodeId node, unsigned rpdo) {
-  return pdop::abort_frame(pdop::rpdo_base(rpdo), node);
 }
 // A fragment built by hand: any t, c and length.
 Frame fragment_frame(NodeId node, unsigned rpdo, bool t, bool c,
