@@ -89,11 +89,10 @@ void Surface::after_relay_input() {
 }
 
 void Surface::flush_relay() {
-  for (const can::Frame& ack : relay_out_.frames) send_to_bus(ack);
-  relay_out_.frames.clear();
-  // Taken out first: answering a packet at once (link down) appends to relay_out_.
-  std::vector<RpdopRelay::Packet> packets = std::move(relay_out_.packets);
-  relay_out_.packets.clear();
+  // Taken out first: answering a packet at once (link down) appends its acknowledgement to
+  // relay_out_.frames, after those already there.
+  std::vector<RpdopRelay::Packet> packets;
+  packets.swap(relay_out_.packets);
   for (RpdopRelay::Packet& packet : packets) {
     const PdopOwner owner = pdop_owner_[packet.node];
     Gateway* gateway =
