@@ -2,8 +2,13 @@
 # Tunnel throughput and latency against the raw vcan ceiling, all in one boot of the vcan rig.
 #
 #   bench/tunnel_bench.sh [BUILD_DIR] [RUNS]      (default: build, 5 runs)
+#   CANBRIDGE_BASELINE=OLD/canbridge bench/tunnel_bench.sh ...
 #
-# Per run, three paths carry a 100,000-frame `cangen -g 0` burst (id 0x181, 8 bytes, counter
+# With CANBRIDGE_BASELINE set, each run also carries the burst and the paced run through that
+# older canbridge executable (path "before"), so a change is compared with its baseline in the
+# same boot, against the same raw ceiling.
+#
+# Per run, three paths (four with a baseline) carry a 100,000-frame `cangen -g 0` burst (id 0x181, 8 bytes, counter
 # payload) to a receiver that counts loss and order (bench/can_counter):
 #   raw    cangen vcan0 -> receiver on vcan0                      (the ceiling)
 #   can-gw cangen vcan1 -> kernel can-gw -> vcan0                 (in-kernel reference)
@@ -19,11 +24,14 @@ runs=${2:-5}
 
 if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
   exec "$root/tests/rig/vcan_rig.sh" --vcan 2 --mem 1536M --timeout 1200 -- \
-    env CANBRIDGE_IN_RIG=1 "$0" "$build" "$runs"
+    env CANBRIDGE_IN_RIG=1 CANBRIDGE_BASELINE="${CANBRIDGE_BASELINE:-}" "$0" "$build" "$runs"
 fi
 
 counter=$build/bench/can_counter
 canbridge=$build/bridge/canbridge
+baseline=${CANBRIDGE_BASELINE:-}
+paths="raw cangw tunnel"
+[[ -n $baseline ]] && paths="$paths before"
 work=$(mktemp -d /tmp/canbridge-bench.XXXXXX)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
 burst=100000
@@ -73,19 +81,25 @@ for ((r = 1; r <= runs; r++)); do
   measure cangw_paced vcan1 vcan0 $paced 1
   cangw -F
 
-  "$canbridge" surface --config "$work/surface.yaml" >"$work/surface.log" 2>&1 &
-  spid=$!
-  wait_line "$work/surface.log" listening
-  "$canbridge" gateway --config "$work/gateway.yaml" >"$work/gateway.log" 2>&1 &
-  gpid=$!
-  wait_line "$work/surface.log" "gateway 'bench-gw' ready"
-  wait_line "$work/gateway.log" "ready"
-  measure tunnel vcan1 vcan0 $burst 0
-  measure tunnel_paced vcan1 vcan0 $paced 1
-  kill -TERM $gpid $spid; wait $gpid $spid || true
+  # tunnel_path NAME EXECUTABLE: the burst and the paced run through one canbridge build.
+  tunnel_path() {
+    local name=$1 exe=$2
+    "$exe" surface --config "$work/surface.yaml" >"$work/${name}-surface.log" 2>&1 &
+    local spid=$!
+    wait_line "$work/${name}-surface.log" listening
+    "$exe" gateway --config "$work/gateway.yaml" >"$work/${name}-gateway.log" 2>&1 &
+    local gpid=$!
+    wait_line "$work/${name}-surface.log" "gateway 'bench-gw' ready"
+    wait_line "$work/${name}-gateway.log" "ready"
+    measure "$name" vcan1 vcan0 $burst 0
+    measure "${name}_paced" vcan1 vcan0 $paced 1
+    kill -TERM $gpid $spid; wait $gpid $spid || true
+  }
+  tunnel_path tunnel "$canbridge"
+  [[ -n $baseline ]] && tunnel_path before "$baseline"
 
   raw_rate=$(val raw rate_fps)
-  for p in raw cangw tunnel; do
+  for p in $paths; do
     paced_name=${p}_paced
     [[ $p == raw ]] && paced_name=raw
     ratio=$(awk -v a="$(val $p rate_fps)" -v b="$raw_rate" 'BEGIN{printf "%.3f", a/b}')
@@ -93,12 +107,12 @@ for ((r = 1; r <= runs; r++)); do
       "$(val $p lost)" "$(val $p reordered)" "$(val $paced_name latency_us_p50)" \
       "$(val $paced_name latency_us_p99)" "$(val $paced_name latency_us_max)" | tee -a "$work/table"
   done
-  grep -h "kernel-drops\|dropped" "$work/gateway.log" "$work/surface.log" | tail -2 | sed 's/^/     /'
+  grep -h "kernel-drops\|dropped" "$work/tunnel-gateway.log" "$work/tunnel-surface.log" | tail -2 | sed 's/^/     /'
 done
 
 echo
 echo "medians over $runs runs (ratio = frames/s of the path / frames/s of raw in the same run):"
-for p in raw cangw tunnel; do
+for p in $paths; do
   awk -v p="$p" '$2 == p {print $3, $4, $5, $6, $7, $8}' "$work/table" | sort -n >"$work/col"
   med() { awk -v c="$1" '{print $c}' "$work/col" | sort -n | awk '{a[NR]=$1} END{print a[int((NR+1)/2)]}'; }
   printf '%-7s frames/s %8s  ratio %6s  lost %s  reordered %s  latency p50 %s us  p99 %s us\n' \
