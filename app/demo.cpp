@@ -1,4 +1,4 @@
-#include "bridge/demo.hpp"
+#include "app/demo.hpp"
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -15,10 +15,10 @@
 
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
-#include "bridge/canopen/sdo_client.hpp"
 #include "bridge/gateway.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
+#include "canopen/sdo_client.hpp"
 #include "sim/node_runner.hpp"
 
 namespace canbridge::bridge {

@@ -9,8 +9,8 @@
 #include <string>
 #include <vector>
 
-#include "bridge/demo.hpp"
-#include "bridge/run_roles.hpp"
+#include "app/demo.hpp"
+#include "app/run_roles.hpp"
 #include "config/loader.hpp"
 
 namespace {

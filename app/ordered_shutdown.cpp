@@ -1,4 +1,4 @@
-#include "bridge/ordered_shutdown.hpp"
+#include "app/ordered_shutdown.hpp"
 
 #include <spdlog/spdlog.h>
 

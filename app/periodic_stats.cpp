@@ -1,4 +1,4 @@
-#include "bridge/periodic_stats.hpp"
+#include "app/periodic_stats.hpp"
 
 #include <spdlog/spdlog.h>
 

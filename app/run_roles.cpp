@@ -1,15 +1,16 @@
-#include "bridge/run_roles.hpp"
+#include "app/run_roles.hpp"
 
 #include <spdlog/spdlog.h>
 
 #include <boost/asio/io_context.hpp>
 
+#include "app/ordered_shutdown.hpp"
+#include "app/periodic_stats.hpp"
+#include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
-#include "bridge/ordered_shutdown.hpp"
-#include "bridge/periodic_stats.hpp"
 #include "bridge/surface.hpp"
 #include "can/socketcan_bus.hpp"
 

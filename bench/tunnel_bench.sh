@@ -23,7 +23,7 @@ if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
 fi
 
 counter=$build/bench/can_counter
-canbridge=$build/bridge/canbridge
+canbridge=$build/app/canbridge
 work=$(mktemp -d /tmp/canbridge-bench.XXXXXX)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
 burst=100000

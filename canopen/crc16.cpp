@@ -1,4 +1,4 @@
-#include "bridge/canopen/crc16.hpp"
+#include "canopen/crc16.hpp"
 
 #include <array>
 

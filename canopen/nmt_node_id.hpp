@@ -5,9 +5,9 @@
 #include <cstdint>
 #include <optional>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/little_endian.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/little_endian.hpp"
 
 namespace canbridge::canopen::nmt_node_id {
 

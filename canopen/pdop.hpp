@@ -8,8 +8,8 @@
 #include <span>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
 
 namespace canbridge::canopen::pdop {
 

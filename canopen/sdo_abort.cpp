@@ -1,4 +1,4 @@
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/sdo_abort.hpp"
 
 #include <cstdio>
 #include <string>

@@ -1,4 +1,4 @@
-#include "bridge/canopen/sdo_client.hpp"
+#include "canopen/sdo_client.hpp"
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>

@@ -15,11 +15,11 @@
 #include <system_error>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
-#include "bridge/canopen/sdo_codec.hpp"
 #include "can/bus.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/sdo_abort.hpp"
+#include "canopen/sdo_codec.hpp"
 
 namespace canbridge::canopen {
 

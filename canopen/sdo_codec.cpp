@@ -1,9 +1,9 @@
-#include "bridge/canopen/sdo_codec.hpp"
+#include "canopen/sdo_codec.hpp"
 
 #include <algorithm>
 #include <stdexcept>
 
-#include "bridge/canopen/little_endian.hpp"
+#include "canopen/little_endian.hpp"
 
 namespace canbridge::canopen::sdo {
 

@@ -9,9 +9,9 @@
 #include <system_error>
 #include <variant>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::canopen::sdo {
 

@@ -1,9 +1,9 @@
-#include "bridge/canopen/sdo_transaction_tracker.hpp"
+#include "canopen/sdo_transaction_tracker.hpp"
 
 #include <algorithm>
 #include <span>
 
-#include "bridge/canopen/crc16.hpp"
+#include "canopen/crc16.hpp"
 
 namespace canbridge::canopen::sdo {
 

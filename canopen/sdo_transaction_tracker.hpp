@@ -6,8 +6,8 @@
 #include <array>
 #include <cstdint>
 
-#include "bridge/canopen/sdo_value_translator.hpp"
 #include "can/frame.hpp"
+#include "canopen/sdo_value_translator.hpp"
 
 namespace canbridge::canopen::sdo {
 

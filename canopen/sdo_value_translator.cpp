@@ -1,4 +1,4 @@
-#include "bridge/canopen/sdo_value_translator.hpp"
+#include "canopen/sdo_value_translator.hpp"
 
 namespace canbridge::canopen::sdo {
 

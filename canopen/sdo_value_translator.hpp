@@ -7,8 +7,8 @@
 #include <functional>
 #include <optional>
 
-#include "bridge/canopen/sdo_codec.hpp"
 #include "can/frame.hpp"
+#include "canopen/sdo_codec.hpp"
 
 namespace canbridge::canopen::sdo {
 

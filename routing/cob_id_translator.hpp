@@ -5,9 +5,9 @@
 #include <cstdint>
 #include <optional>
 
-#include "bridge/canopen/nmt_node_id.hpp"
-#include "bridge/node_map.hpp"
 #include "can/frame.hpp"
+#include "canopen/nmt_node_id.hpp"
+#include "routing/node_map.hpp"
 
 namespace canbridge::bridge {
 

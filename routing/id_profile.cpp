@@ -1,4 +1,4 @@
-#include "bridge/id_profile.hpp"
+#include "routing/id_profile.hpp"
 
 #include <array>
 

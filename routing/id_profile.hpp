@@ -7,7 +7,7 @@
 #include <string_view>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
+#include "canopen/cob_id.hpp"
 
 namespace canbridge::bridge {
 

@@ -1,4 +1,4 @@
-#include "bridge/node_map.hpp"
+#include "routing/node_map.hpp"
 
 #include <algorithm>
 

@@ -8,8 +8,8 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/id_profile.hpp"
+#include "canopen/cob_id.hpp"
+#include "routing/id_profile.hpp"
 
 namespace canbridge::bridge {
 

@@ -1,9 +1,9 @@
-#include "bridge/node_table.hpp"
+#include "routing/node_table.hpp"
 
 #include <algorithm>
 #include <cstdio>
 
-#include "bridge/canopen/nmt_node_id.hpp"
+#include "canopen/nmt_node_id.hpp"
 
 namespace canbridge::bridge {
 

@@ -13,9 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/id_profile.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "routing/id_profile.hpp"
 
 namespace canbridge::bridge {
 

@@ -1,4 +1,4 @@
-#include "bridge/pdop_reassembler.hpp"
+#include "routing/pdop_reassembler.hpp"
 
 #include <algorithm>
 #include <bit>

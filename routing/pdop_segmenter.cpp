@@ -1,4 +1,4 @@
-#include "bridge/pdop_segmenter.hpp"
+#include "routing/pdop_segmenter.hpp"
 
 #include <algorithm>
 #include <cstdio>

@@ -1,4 +1,4 @@
-#include "bridge/rpdop_relay.hpp"
+#include "routing/rpdop_relay.hpp"
 
 #include <algorithm>
 #include <stdexcept>

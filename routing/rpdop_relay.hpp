@@ -44,9 +44,9 @@
 #include <string>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/pdop.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/pdop.hpp"
 
 namespace canbridge::bridge {
 

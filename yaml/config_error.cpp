@@ -1,4 +1,4 @@
-#include "config/config_error.hpp"
+#include "yaml/config_error.hpp"
 
 namespace canbridge::config {
 

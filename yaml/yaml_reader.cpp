@@ -1,4 +1,4 @@
-#include "config/yaml_reader.hpp"
+#include "yaml/yaml_reader.hpp"
 
 #include <charconv>
 #include <cstdio>

@@ -11,7 +11,7 @@
 #include <string_view>
 #include <vector>
 
-#include "config/config_error.hpp"
+#include "yaml/config_error.hpp"
 
 namespace canbridge::config {
 
