@@ -572,7 +572,7 @@ backbone::SessionOptions slow_line_session(const BenchConfig& config) {
   return o;
 }
 
-// The batch bound the gateway derives from its session tuning (bridge/backbone_tuning.hpp,
+// The batch bound the gateway derives from its session tuning (app/tuning_from_options.hpp,
 // make_tuning): never more than a write, nor a quarter of the resend buffer, nor 4 KiB.
 std::size_t gateway_batch_bytes(const backbone::SessionOptions& session) {
   return std::max<std::size_t>(

@@ -48,7 +48,7 @@ fi
 
 source_bin=$build/bench/pdop_source
 sink_bin=$build/bench/pdop_sink
-canbridge=$build/bridge/canbridge
+canbridge=$build/app/canbridge
 emulator=$build/tools/link_emulator/canbridge-link-emulator
 for b in "$source_bin" "$sink_bin" "$canbridge" "$emulator"; do
   [[ -x $b ]] || { echo "bench: $b is missing (build it first)" >&2; exit 1; }

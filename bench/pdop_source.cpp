@@ -27,7 +27,7 @@
 #include <string>
 
 #include "bench/pdop_pattern.hpp"
-#include "bridge/canopen/pdop.hpp"
+#include "canopen/pdop.hpp"
 
 namespace {
 

@@ -36,7 +36,7 @@ if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
 fi
 
 probe=$build/bench/sdo_rtt_probe
-canbridge=$build/bridge/canbridge
+canbridge=$build/app/canbridge
 sim=$build/sim/canbridge-sim
 emulator=$build/tools/link_emulator/canbridge-link-emulator
 for b in "$probe" "$canbridge" "$sim" "$emulator"; do

@@ -28,7 +28,7 @@ if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
 fi
 
 counter=$build/bench/can_counter
-canbridge=$build/bridge/canbridge
+canbridge=$build/app/canbridge
 baseline=${CANBRIDGE_BASELINE:-}
 paths="raw cangw tunnel"
 [[ -n $baseline ]] && paths="$paths before"

@@ -1,9 +1,9 @@
-// The backbone settings a role hands to its sessions and outboxes, built from the role's config.
+// The backbone settings a role hands to its sessions and outboxes (app/tuning_from_options.hpp
+// builds them from the role's config).
 #pragma once
 
 #include "backbone/session.hpp"
 #include "bridge/frame_outbox.hpp"
-#include "config/options.hpp"
 
 namespace canbridge::bridge {
 
@@ -11,21 +11,5 @@ struct BackboneTuning {
   backbone::SessionOptions session;
   FrameOutbox::Options outbox;
 };
-
-inline BackboneTuning make_tuning(const config::SessionTuning& t) {
-  BackboneTuning out;
-  out.session.keepalive_interval = t.keepalive;
-  out.session.dead_after = t.dead_after;
-  out.session.retransmit_timeout = t.retransmit;
-  out.session.resend_buffer_messages = t.resend_buffer_messages;
-  out.session.resend_buffer_bytes = t.resend_buffer_bytes;
-  out.session.max_write_bytes = t.max_write_bytes;
-  out.outbox.max_reliable_frames = t.queue_reliable_frames;
-  out.outbox.max_process_frames = t.queue_process_frames;
-  // One batch never exceeds a write, nor a quarter of the resend buffer (so it always fits).
-  out.outbox.max_batch_bytes = std::max<std::size_t>(
-      64, std::min({t.max_write_bytes, t.resend_buffer_bytes / 4, std::size_t{4096}}));
-  return out;
-}
 
 }  // namespace canbridge::bridge

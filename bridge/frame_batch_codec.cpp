@@ -27,7 +27,7 @@ constexpr std::int64_t kMaxUs = std::chrono::nanoseconds::max().count() / 1000;
 constexpr std::int64_t kMinUs = std::chrono::nanoseconds::min().count() / 1000;
 
 // The head is protobuf `bytes`, so its byte order is ours to fix: little endian, written here
-// rather than through bridge/canopen/little_endian.hpp so the codec does not depend on CANopen.
+// rather than through canopen/little_endian.hpp so the codec does not depend on CANopen.
 std::uint16_t head_word(const std::string& head, std::size_t frame) {
   const auto lo = static_cast<unsigned char>(head[frame * kHeadBytes]);
   const auto hi = static_cast<unsigned char>(head[frame * kHeadBytes + 1]);

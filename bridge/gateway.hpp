@@ -16,16 +16,16 @@
 
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
-#include "bridge/canopen/sdo_transaction_tracker.hpp"
-#include "bridge/cob_id_translator.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
-#include "bridge/node_map.hpp"
-#include "bridge/node_table.hpp"
-#include "bridge/pdop_reassembler.hpp"
-#include "bridge/pdop_segmenter.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
+#include "canopen/sdo_transaction_tracker.hpp"
+#include "routing/cob_id_translator.hpp"
+#include "routing/node_map.hpp"
+#include "routing/node_table.hpp"
+#include "routing/pdop_reassembler.hpp"
+#include "routing/pdop_segmenter.hpp"
 
 namespace canbridge::bridge {
 

@@ -8,8 +8,8 @@
 #include <optional>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
 
 namespace canbridge::bridge {
 

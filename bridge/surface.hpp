@@ -17,10 +17,10 @@
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
-#include "bridge/rpdop_relay.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
+#include "routing/rpdop_relay.hpp"
 
 namespace canbridge::bridge {
 

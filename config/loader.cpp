@@ -12,9 +12,9 @@
 #include <string_view>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
-#include "bridge/node_map.hpp"
-#include "config/yaml_reader.hpp"
+#include "canopen/pdop.hpp"
+#include "routing/node_map.hpp"
+#include "yaml/yaml_reader.hpp"
 
 namespace canbridge::config {
 
@@ -393,7 +393,7 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
 }
 
 // The surface's `pdop:` block: the limits of the relay that takes RPDOP packets from the surface
-// master for pdop nodes behind gateways (bridge/rpdop_relay.hpp).
+// master for pdop nodes behind gateways (routing/rpdop_relay.hpp).
 void read_surface_pdop(Reader& in, const YAML::Node& root, bridge::RpdopRelayOptions& out) {
   const YAML::Node key = key_of(root, "pdop");
   if (!key) return;

@@ -4,8 +4,8 @@
 #include <string>
 #include <string_view>
 
-#include "config/config_error.hpp"
 #include "config/options.hpp"
+#include "yaml/config_error.hpp"
 
 namespace canbridge::config {
 

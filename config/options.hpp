@@ -8,10 +8,10 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/id_profile.hpp"
-#include "bridge/pdop_reassembler.hpp"
-#include "bridge/pdop_segmenter.hpp"
-#include "bridge/rpdop_relay.hpp"
+#include "routing/id_profile.hpp"
+#include "routing/pdop_reassembler.hpp"
+#include "routing/pdop_segmenter.hpp"
+#include "routing/rpdop_relay.hpp"
 
 namespace canbridge::config {
 

@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <optional>
 
-#include "bridge/canopen/cob_id.hpp"
+#include "canopen/cob_id.hpp"
 #include "sim/node_spec.hpp"
 
 namespace canbridge::sim {

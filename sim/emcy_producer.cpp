@@ -2,8 +2,8 @@
 
 #include <algorithm>
 
-#include "bridge/canopen/little_endian.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/little_endian.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
 

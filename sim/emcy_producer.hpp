@@ -12,8 +12,8 @@
 #include <system_error>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
 #include "sim/node_spec.hpp"
 #include "sim/object_dictionary.hpp"
 

@@ -2,7 +2,7 @@
 
 #include <array>
 
-#include "bridge/canopen/little_endian.hpp"
+#include "canopen/little_endian.hpp"
 
 namespace canbridge::sim::firmware {
 

@@ -21,7 +21,6 @@
 
 #include "can/socketcan_bus.hpp"
 #include "can/virtual_bus.hpp"
-#include "config/loader.hpp"
 #include "sim/node_runner.hpp"
 #include "sim/rig_file.hpp"
 

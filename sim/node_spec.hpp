@@ -10,7 +10,7 @@
 #include <string_view>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
+#include "canopen/cob_id.hpp"
 #include "sim/object_dictionary.hpp"
 
 namespace canbridge::sim {

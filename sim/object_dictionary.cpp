@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <stdexcept>
 
-#include "bridge/canopen/little_endian.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/little_endian.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
 

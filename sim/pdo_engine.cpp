@@ -5,8 +5,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "bridge/canopen/little_endian.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/little_endian.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
 

@@ -11,8 +11,8 @@
 #include <optional>
 #include <set>
 
-#include "bridge/canopen/little_endian.hpp"
-#include "config/yaml_reader.hpp"
+#include "canopen/little_endian.hpp"
+#include "yaml/yaml_reader.hpp"
 
 namespace canbridge::sim {
 

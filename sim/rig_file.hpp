@@ -7,8 +7,8 @@
 #include <string>
 #include <string_view>
 
-#include "config/loader.hpp"
 #include "sim/node_spec.hpp"
+#include "yaml/config_error.hpp"
 
 namespace canbridge::sim {
 

@@ -10,9 +10,9 @@
 #include <span>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/pdop.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/pdop.hpp"
 #include "sim/node_spec.hpp"
 
 namespace canbridge::sim {

@@ -4,7 +4,7 @@
 #include <stdexcept>
 #include <variant>
 
-#include "bridge/canopen/crc16.hpp"
+#include "canopen/crc16.hpp"
 
 namespace canbridge::sim {
 

@@ -9,10 +9,10 @@
 #include <optional>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
-#include "bridge/canopen/sdo_codec.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
+#include "canopen/sdo_abort.hpp"
+#include "canopen/sdo_codec.hpp"
 #include "sim/object_dictionary.hpp"
 
 namespace canbridge::sim {

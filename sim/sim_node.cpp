@@ -3,10 +3,10 @@
 #include <algorithm>
 #include <stdexcept>
 
-#include "bridge/canopen/little_endian.hpp"
-#include "bridge/canopen/nmt_node_id.hpp"
-#include "bridge/canopen/pdop.hpp"
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/little_endian.hpp"
+#include "canopen/nmt_node_id.hpp"
+#include "canopen/pdop.hpp"
+#include "canopen/sdo_abort.hpp"
 #include "sim/connection_set.hpp"
 #include "sim/emcy_producer.hpp"
 #include "sim/firmware_image.hpp"

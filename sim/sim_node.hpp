@@ -10,8 +10,8 @@
 #include <string>
 #include <vector>
 
-#include "bridge/canopen/cob_id.hpp"
 #include "can/frame.hpp"
+#include "canopen/cob_id.hpp"
 #include "sim/node_spec.hpp"
 #include "sim/object_dictionary.hpp"
 

@@ -6,4 +6,4 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 "$root/tools/install-deps.sh"
 cmake -S "$root" -B "$root/build-demo" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCANBRIDGE_BUILD_TESTS=OFF >/dev/null
 cmake --build "$root/build-demo" --target canbridge
-exec "$root/build-demo/bridge/canbridge" demo "$@"
+exec "$root/build-demo/app/canbridge" demo "$@"

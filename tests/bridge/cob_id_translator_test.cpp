@@ -1,4 +1,4 @@
-#include "bridge/cob_id_translator.hpp"
+#include "routing/cob_id_translator.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-#include "bridge/id_profile.hpp"
+#include "routing/id_profile.hpp"
 
 #include <gtest/gtest.h>
 
@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "bridge/cob_id_translator.hpp"
+#include "routing/cob_id_translator.hpp"
 #include "tests/bridge/translator_probe.hpp"
 
 namespace canbridge::bridge {

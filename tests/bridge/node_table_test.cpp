@@ -1,7 +1,7 @@
 // The heartbeat node table: boot-ups, heartbeats and node-guarding replies in, node events out,
 // with injected times (no sleeps); lost / recovered, the qd loader, renames by the fpga node-id
 // command, malformed frames, the one-timer deadline and module independence.
-#include "bridge/node_table.hpp"
+#include "routing/node_table.hpp"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <ostream>
 #include <vector>
 
-#include "bridge/canopen/nmt_node_id.hpp"
+#include "canopen/nmt_node_id.hpp"
 
 #if defined(__SANITIZE_ADDRESS__)
 #define NODE_TABLE_COUNTS_ALLOCATIONS 1

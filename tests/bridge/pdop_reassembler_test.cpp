@@ -4,7 +4,7 @@
 // a property test: random sizes, interleaving, loss, repetition, gaps and oversize against an
 // oracle computed from what was sent. PdopReassemblerFuzz.* runs the libFuzzer target
 // (tests/fuzz/pdop_reassembler_fuzz.cpp: a reference model and invariants) on random inputs.
-#include "bridge/pdop_reassembler.hpp"
+#include "routing/pdop_reassembler.hpp"
 
 #include <gtest/gtest.h>
 
@@ -21,7 +21,7 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
+#include "canopen/pdop.hpp"
 
 #if defined(__SANITIZE_ADDRESS__)
 #define PDOP_REASSEMBLER_COUNTS_ALLOCATIONS 1

@@ -3,7 +3,7 @@
 // retries and giving up, the abort handshake, cancel, concurrency, edge node ids, refusals,
 // foreign frames, options), then a property test against the simulated node's receiver
 // (sim/rpdop_receiver) over a lossy, duplicating, delaying in-memory bus.
-#include "bridge/pdop_segmenter.hpp"
+#include "routing/pdop_segmenter.hpp"
 
 #include <gtest/gtest-spi.h>
 #include <gtest/gtest.h>
@@ -23,8 +23,8 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
 #include "can/frame.hpp"
+#include "canopen/pdop.hpp"
 #include "sim/rpdop_receiver.hpp"
 #include "tests/bridge/rpdop_test_helpers.hpp"
 

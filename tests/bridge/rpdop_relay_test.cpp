@@ -4,7 +4,7 @@
 // resynchronisation, requests, relayed nodes, interleaving, options), then an end-to-end property
 // test with the gateway's real sender (bridge::PdopSegmenter) on a direct channel, the test
 // playing the gateway's outcomes after random delays.
-#include "bridge/rpdop_relay.hpp"
+#include "routing/rpdop_relay.hpp"
 
 #include <gtest/gtest.h>
 
@@ -25,9 +25,9 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
-#include "bridge/pdop_segmenter.hpp"
 #include "can/frame.hpp"
+#include "canopen/pdop.hpp"
+#include "routing/pdop_segmenter.hpp"
 #include "tests/bridge/rpdop_test_helpers.hpp"
 
 namespace canbridge::bridge {

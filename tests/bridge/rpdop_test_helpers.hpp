@@ -8,9 +8,9 @@
 #include <ostream>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
-#include "bridge/pdop_segmenter.hpp"
 #include "can/frame.hpp"
+#include "canopen/pdop.hpp"
+#include "routing/pdop_segmenter.hpp"
 
 namespace canbridge::can {
 inline void PrintTo(const Frame& frame, std::ostream* os) {

@@ -5,7 +5,7 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/cob_id_translator.hpp"
+#include "routing/cob_id_translator.hpp"
 
 namespace canbridge::bridge::testing {
 

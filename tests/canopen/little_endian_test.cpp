@@ -1,12 +1,12 @@
 // The little-endian helpers and the fpga node-id command codec built on them.
-#include "bridge/canopen/little_endian.hpp"
+#include "canopen/little_endian.hpp"
 
 #include <gtest/gtest.h>
 
 #include <array>
 #include <vector>
 
-#include "bridge/canopen/nmt_node_id.hpp"
+#include "canopen/nmt_node_id.hpp"
 
 namespace canbridge::canopen {
 namespace {

@@ -1,5 +1,5 @@
 // The pure SDO client transaction, frame by frame with an injected clock.
-#include "bridge/canopen/sdo_client.hpp"
+#include "canopen/sdo_client.hpp"
 
 #include <gtest/gtest.h>
 

@@ -1,14 +1,14 @@
 // SDO wire format (CiA 301 7.2.4.3) and abort codes; byte layouts checked against the standard's
 // command bytes: 0x40 upload request, 0x4F/0x4B/0x43 expedited upload response of 1/2/4 bytes,
 // 0x2F/0x2B/0x23 expedited download of 1/2/4 bytes, 0x60 download response, 0x80 abort.
-#include "bridge/canopen/sdo_codec.hpp"
+#include "canopen/sdo_codec.hpp"
 
 #include <gtest/gtest.h>
 
 #include <stdexcept>
 #include <string>
 
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::canopen {
 namespace {

@@ -1,7 +1,7 @@
 // The per-channel SDO tracker: values of every listed object rewritten in every transfer mode
 // (expedited, segmented, block with and without CRC), both directions; unlisted transfers, aborts,
 // restarts and odd frames pass bit-exact. Frames follow the layouts of sim/sdo_server.cpp.
-#include "bridge/canopen/sdo_transaction_tracker.hpp"
+#include "canopen/sdo_transaction_tracker.hpp"
 
 #include <gtest/gtest.h>
 
@@ -12,7 +12,7 @@
 #include <span>
 #include <vector>
 
-#include "bridge/canopen/crc16.hpp"
+#include "canopen/crc16.hpp"
 
 namespace canbridge::canopen::sdo {
 namespace {

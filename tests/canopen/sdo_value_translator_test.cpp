@@ -1,6 +1,6 @@
 // Values that name COB-IDs or nodes, rewritten inside expedited SDO transfers: every listed
 // object, both directions, flag bits kept, ordinary objects and other services untouched.
-#include "bridge/canopen/sdo_value_translator.hpp"
+#include "canopen/sdo_value_translator.hpp"
 
 #include <gtest/gtest.h>
 

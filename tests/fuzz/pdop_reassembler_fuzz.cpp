@@ -47,9 +47,9 @@
 #include <utility>
 #include <vector>
 
-#include "bridge/canopen/pdop.hpp"
-#include "bridge/pdop_reassembler.hpp"
 #include "can/frame.hpp"
+#include "canopen/pdop.hpp"
+#include "routing/pdop_reassembler.hpp"
 
 namespace {
 

@@ -7,7 +7,7 @@
 #include <chrono>
 #include <utility>
 
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/sdo_abort.hpp"
 #include "sim/qd_event_flags.hpp"
 
 namespace canbridge::sim {

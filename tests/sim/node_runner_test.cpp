@@ -15,8 +15,8 @@
 #include <boost/asio/use_awaitable.hpp>
 #include <functional>
 
-#include "bridge/canopen/sdo_client.hpp"
 #include "can/virtual_bus.hpp"
+#include "canopen/sdo_client.hpp"
 
 namespace canbridge::sim {
 namespace {

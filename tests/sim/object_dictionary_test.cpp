@@ -2,7 +2,7 @@
 
 #include <gtest/gtest.h>
 
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/sdo_abort.hpp"
 
 namespace canbridge::sim {
 namespace {

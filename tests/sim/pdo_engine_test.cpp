@@ -9,7 +9,7 @@
 #include <memory>
 #include <utility>
 
-#include "bridge/canopen/sdo_abort.hpp"
+#include "canopen/sdo_abort.hpp"
 #include "sim/connection_set.hpp"
 
 namespace canbridge::sim {

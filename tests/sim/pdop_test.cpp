@@ -1,4 +1,4 @@
-#include "bridge/canopen/pdop.hpp"
+#include "canopen/pdop.hpp"
 
 #include <gtest/gtest.h>
 

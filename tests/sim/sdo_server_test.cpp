@@ -8,8 +8,8 @@
 #include <stdexcept>
 #include <string_view>
 
-#include "bridge/canopen/crc16.hpp"
-#include "bridge/canopen/sdo_client.hpp"
+#include "canopen/crc16.hpp"
+#include "canopen/sdo_client.hpp"
 
 namespace canbridge::sim {
 namespace {

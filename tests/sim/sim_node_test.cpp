@@ -10,7 +10,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "bridge/canopen/crc16.hpp"
+#include "canopen/crc16.hpp"
 #include "sim/firmware_image.hpp"
 
 namespace canbridge::sim {

@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "config/config_error.hpp"
+#include "yaml/config_error.hpp"
 
 namespace canbridge::test {
 

@@ -39,7 +39,7 @@
 #include <thread>
 #include <vector>
 
-#include "bridge/pdop_segmenter.hpp"
+#include "routing/pdop_segmenter.hpp"
 #include "tests/support/raw_can.hpp"
 #include "tests/support/rig_processes.hpp"
 #include "tests/support/sdo_master.hpp"

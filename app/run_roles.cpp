@@ -1,0 +1,164 @@
+#include "app/run_roles.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <boost/asio/io_context.hpp>
+
+#include "app/ordered_shutdown.hpp"
+#include "app/periodic_stats.hpp"
+#include "app/tuning_from_options.hpp"
+#include "backbone/serial_client.hpp"
+#include "backbone/tcp_client.hpp"
+#include "backbone/tcp_server.hpp"
+#include "bridge/gateway.hpp"
+#include "bridge/surface.hpp"
+#include "can/socketcan_bus.hpp"
+
+namespace canbridge::bridge {
+
+namespace asio = boost::asio;
+
+namespace {
+
+std::unique_ptr<can::Bus> open_bus(asio::any_io_executor ex, const std::string& interface,
+                                   const config::CanOptions& options) {
+  can::SocketCanOptions o;
+  o.interface = interface;
+  o.receive_buffer_bytes = options.receive_buffer_bytes;
+  o.transmit_queue_frames = options.transmit_queue_frames;
+  o.batch_size = 256;  // the bridge forwards whole batches: bigger drains, fewer wake-ups
+  std::error_code ec;
+  auto bus = can::SocketCanBus::open(std::move(ex), std::move(o), ec);
+  if (!bus)
+    throw std::runtime_error("cannot open CAN interface '" + interface + "': " + ec.message());
+  return bus;
+}
+
+backbone::SerialOptions serial_options(const config::SerialLineOptions& line,
+                                       const config::GatewayOptions* gateway) {
+  backbone::SerialOptions o;
+  o.device = line.device;
+  o.baud = line.baud;
+  o.hardware_flow_control = line.hardware_flow_control;
+  if (gateway) {
+    o.backoff_min = gateway->reconnect_min;
+    o.backoff_max = gateway->reconnect_max;
+  }
+  return o;
+}
+
+void apply_log_level(const config::LogOptions& log) {
+  spdlog::set_level(spdlog::level::from_str(log.level));
+}
+
+}  // namespace
+
+int run_gateway(const config::GatewayOptions& options) {
+  apply_log_level(options.log);
+  asio::io_context io(1);
+  NodeMap map;
+  std::vector<GatewayModule> modules;
+  for (const auto& m : options.modules) {
+    auto problems = map.add_module(m.id, m.nodes, m.profile);  // validated by the loader already
+    if (!problems.empty()) throw std::runtime_error(problems.front());
+    GatewayModule module;
+    module.id = m.id;
+    module.bus = open_bus(io.get_executor(), m.bus, options.can);
+    module.conflate_pdos = m.conflate_pdos;
+    module.lss = options.lss_module == m.id;
+    module.heartbeat_lost_after = m.heartbeat_lost_after;
+    module.reassemble_pdop = m.reassemble_pdop;
+    module.pdop_reassembly = m.pdop_reassembly;
+    module.pdop_segmentation = m.pdop_segmentation;
+    modules.push_back(std::move(module));
+  }
+  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
+                  make_tuning(options.session));
+  auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
+    gateway.attach(std::move(link));
+  };
+  std::shared_ptr<backbone::TcpClient> tcp;
+  std::shared_ptr<backbone::SerialClient> serial;
+  if (options.serial) {
+    serial = backbone::SerialClient::create(io.get_executor(),
+                                            serial_options(*options.serial, &options));
+  } else {
+    backbone::ClientOptions client_options;
+    client_options.backoff_min = options.reconnect_min;
+    client_options.backoff_max = options.reconnect_max;
+    if (options.session.tcp_crc_framing) {
+      client_options.link.framing = backbone::LinkFraming::cobs_crc32c;
+    }
+    tcp = backbone::TcpClient::create(io.get_executor(), options.connect.host, options.connect.port,
+                                      client_options);
+  }
+  PeriodicStats stats(io.get_executor(), options.log.stats_interval,
+                      [&] { return gateway.stats_line(); });
+  OrderedShutdown shutdown(io, [&] {
+    stats.stop();
+    if (tcp) tcp->stop();
+    if (serial) serial->stop();
+    gateway.stop();
+  });
+  gateway.start();
+  if (tcp) tcp->start(attach);
+  if (serial) serial->start(attach);
+  spdlog::info("gateway {}: {} module(s), backbone {}", options.name, options.modules.size(),
+               options.serial ? "serial " + options.serial->device + " at " +
+                                    std::to_string(options.serial->baud) + " bit/s"
+                              : "tcp " + options.connect.to_string());
+  shutdown.run();
+  spdlog::info("{}", gateway.stats_line());
+  return 0;
+}
+
+int run_surface(const config::SurfaceOptions& options) {
+  apply_log_level(options.log);
+  asio::io_context io(1);
+  Surface surface(io.get_executor(), options.name,
+                  open_bus(io.get_executor(), options.bus, options.can),
+                  make_tuning(options.session), options.conflate_pdos, options.rpdop_relay);
+  auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
+    surface.attach(std::move(link));
+  };
+  std::shared_ptr<backbone::TcpServer> server;
+  if (!options.listen.host.empty()) {
+    backbone::ServerOptions server_options;
+    if (options.session.tcp_crc_framing) {
+      server_options.link.framing = backbone::LinkFraming::cobs_crc32c;
+    }
+    server = backbone::TcpServer::create(io.get_executor(), server_options);
+  }
+  std::vector<std::shared_ptr<backbone::SerialClient>> lines;
+  for (const auto& line : options.serial) {
+    lines.push_back(
+        backbone::SerialClient::create(io.get_executor(), serial_options(line, nullptr)));
+  }
+  PeriodicStats stats(io.get_executor(), options.log.stats_interval,
+                      [&] { return surface.stats_line(); });
+  OrderedShutdown shutdown(io, [&] {
+    stats.stop();
+    if (server) server->stop();
+    for (auto& line : lines) line->stop();
+    surface.stop();
+  });
+  surface.start();
+  if (server) {
+    if (std::error_code ec = server->start(options.listen.host, options.listen.port, attach)) {
+      throw std::runtime_error("cannot listen on " + options.listen.to_string() + ": " +
+                               ec.message());
+    }
+    spdlog::info("surface {}: bus {}, listening on {}:{}", options.name, options.bus,
+                 options.listen.host, server->port());
+  }
+  for (std::size_t i = 0; i < lines.size(); ++i) {
+    lines[i]->start(attach);
+    spdlog::info("surface {}: serial line {} at {} bit/s", options.name, options.serial[i].device,
+                 options.serial[i].baud);
+  }
+  shutdown.run();
+  spdlog::info("{}", surface.stats_line());
+  return 0;
+}
+
+}  // namespace canbridge::bridge
