@@ -10,6 +10,7 @@
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
+#include "routing/rename_follower.hpp"
 
 namespace canbridge::bridge {
 
@@ -445,7 +446,48 @@ void Gateway::after_node_input() {
   if (deadline && *deadline < node_timer_.expiry()) node_timer_.cancel();
 }
 
+void Gateway::follow_node_events() {
+  for (; events_followed_ < node_events_.size(); ++events_followed_) {
+    NodeEvent& e = node_events_[events_followed_];
+    const RenameFollowed followed = follow_rename(map_, e);
+    if (followed.change == RenameFollowed::Change::moved) {
+      ++counters_.nodes_moved;
+      spdlog::info("gateway {}: module {} node {} now has surface id {} (was {})", name_,
+                   modules_[e.module_index].id, e.local, map_.surface_of(e.module_index, e.local),
+                   e.previous_surface);
+      // The surface's PDO Packet relay learns the pdop nodes' surface ids from PdopNodes.
+      if (!pdop_.empty() && pdop_[e.module_index].reassembler) announce_pdop_nodes_ = true;
+    } else if (followed.change == RenameFollowed::Change::refused) {
+      ++counters_.node_moves_refused;
+      warn_.warn(Warn::kRenameRefused,
+                 "gateway {}: rename not followed in the node map: {} "
+                 "(counted; later ones only in the counters)",
+                 name_, followed.reason);
+    }
+  }
+}
+
+void Gateway::report_refused_rename() {
+  const RenameRefusal& r = translator_.rename_refusal();
+  warn_.warn(Warn::kRenameRefused,
+             "gateway {}: {}: refused (counted as rename-refused; later ones only counted)", name_,
+             r.reason);
+  if (!r.node) return;
+  NodeEvent e;
+  e.kind = NodeEvent::Kind::rename_unconfirmed;
+  e.module_index = r.node->module_index;
+  e.local = r.node->local;
+  e.at = NodeTable::Clock::now();
+  if (const NodeRecord* record = node_table_.node(e.module_index, e.local)) {
+    e.state = record->state;
+    e.boot_count = record->boot_count;
+  }
+  node_events_.push_back(e);
+}
+
 void Gateway::queue_node_events() {
+  follow_node_events();
+  events_followed_ = 0;  // node_events_ is emptied below
   if (node_events_.empty()) return;
   v1::Payload payload;
   v1::NodeEvents& out = *payload.mutable_node_events();
@@ -464,7 +506,9 @@ void Gateway::queue_node_events() {
     o.set_local_node(e.local);
     o.set_surface_node(map_.surface_of(m, e.local));
     o.set_previous_local_node(e.previous_local);
-    o.set_previous_surface_node(e.previous_local ? map_.surface_of(m, e.previous_local) : 0);
+    o.set_previous_surface_node(e.previous_surface ? e.previous_surface
+                                : e.previous_local ? map_.surface_of(m, e.previous_local)
+                                                   : 0);
     o.set_nmt_state(static_cast<std::uint32_t>(e.state));
     o.set_boot_count(e.boot_count);
     const NodeRecord* record = node_table_.node(m, e.local);
@@ -578,6 +622,7 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       if (frame.id == canopen::cob::nmt && !frame.is_extended()) {  // a master on the module bus
         node_table_.on_nmt_to_bus(module_index, frame, now, node_events_);
       }
+      follow_node_events();  // a confirming boot-up crosses under the node's new surface id
       if (reassembler) {
         // In bus order: a boot-up ends the node's packets before its next fragment arrives.
         for (std::size_t e = events_before; e < node_events_.size(); ++e) {
@@ -598,7 +643,19 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       auto surface = translator_.to_surface(module_index, frame);
       if (!surface) continue;
       if (const canopen::NodeId node = sdo_node(module_index, frame, canopen::cob::sdo_tx)) {
-        count(sdo_trackers_[module_index][node].on_response(*surface, to_surface_[module_index]));
+        auto& tracker = sdo_trackers_[module_index][node];
+        count(tracker.on_response(*surface, to_surface_[module_index]));
+        // The node's heartbeat period, from the write it confirmed (issue 14): never one gap.
+        if (const auto& w = tracker.confirmed_write();
+            w && w->mux.index == 0x1017 && w->mux.sub == 0) {
+          node_table_.note_heartbeat_time(module_index, node,
+                                          std::chrono::milliseconds(w->value & 0xFFFF));
+        }
+      } else if (const canopen::NodeId client =
+                     sdo_node(module_index, frame, canopen::cob::sdo_rx)) {
+        // A master on the module bus: its writes are seen, its transfer's frames followed.
+        can::Frame observed = frame;
+        sdo_trackers_[module_index][client].on_request(observed, {});
       }
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
       const bool fragment =
@@ -643,6 +700,7 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
   }
   const auto now = LoopGuard::Clock::now();
   for (const can::Frame& frame : decoded_) {
+    const std::uint64_t renames_refused = translator_.dropped(DropReason::rename_refused);
     translator_.to_modules(frame, [&](std::size_t m, can::Frame local) {
       if (only && *only != m) return;
       if (const canopen::NodeId node = sdo_node(m, local, canopen::cob::sdo_rx)) {
@@ -659,8 +717,13 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
         warn_.warn(Warn::kBusRefused,
                    "gateway: bus {} refused a frame (transmit queue full; counted)",
                    modules_[m].bus->name());
+        // A node-id command that never reached the bus moves nobody.
+        if (canopen::nmt_node_id::decode_change(local)) map_.cancel_move(m, local.data[1]);
       }
     });
+    if (translator_.dropped(DropReason::rename_refused) != renames_refused) {
+      report_refused_rename();
+    }
   }
   after_node_input();
 }

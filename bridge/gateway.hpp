@@ -55,12 +55,17 @@ struct GatewayCounters {
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
   std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
-  // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h) rewritten
-  // between bus and surface ids, and those whose id has no counterpart (forwarded unchanged).
+  // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h, 1028h)
+  // rewritten between bus and surface ids, and those whose id has no counterpart (forwarded
+  // unchanged).
   std::uint64_t sdo_values_rewritten = 0;
   std::uint64_t sdo_values_unmapped = 0;
   std::uint64_t node_events = 0;          // node table events queued for the surface
   std::uint64_t node_events_dropped = 0;  // ... dropped: the link was down too long (bounded)
+  // Renamed nodes that moved in the live map, and confirmed renames it could not follow
+  // (refused commands are counted in translation as rename-refused).
+  std::uint64_t nodes_moved = 0;
+  std::uint64_t node_moves_refused = 0;
   // PDO Packets (pdop modules with reassembly; docs/pdop.md).
   std::uint64_t pdop_packets = 0;       // TPDOP packets queued for the surface
   std::uint64_t pdop_packet_bytes = 0;  // ... their data bytes
@@ -104,6 +109,12 @@ class Gateway {
   // Node table: one timer at its next deadline; events go to the surface as reliable payloads.
   boost::asio::awaitable<void> watch_nodes();
   void after_node_input();
+  // Moves renamed nodes in the live map (rename_follower.hpp), for the events not yet followed:
+  // before the frame that confirmed a rename is translated.
+  void follow_node_events();
+  // The translator refused a set-node-id command: logged once, and the surface is told with a
+  // RENAME_UNCONFIRMED event of the commanded node (when the map has it).
+  void report_refused_rename();
   void queue_node_events();
   void produce(backbone::PayloadSink& sink);
 
@@ -136,6 +147,7 @@ class Gateway {
     kPdopRefused,
     kPdopDiscard,
     kRpdopUnknown,
+    kRenameRefused,
     kWarnKinds
   };
 
@@ -152,6 +164,7 @@ class Gateway {
   NodeTable node_table_;
   boost::asio::steady_timer node_timer_;
   std::vector<NodeEvent> node_events_;  // of the input being handled
+  std::size_t events_followed_ = 0;     // node_events_[0, this) went through follow_rename
   struct QueuedEvents {
     std::string payload;  // a serialized NodeEvents payload
     std::size_t events;

@@ -84,6 +84,7 @@ void ValueTransferTracker::confirm(Multiplexer mux) {
 // --- client -> server --------------------------------------------------------------------------
 
 ValueRewrite ValueTransferTracker::on_request(can::Frame& request, const IdMapping& to_local) {
+  confirmed_.reset();
   if (!is_sdo_frame(request)) return ValueRewrite::unchanged;
   const std::uint8_t command = request.data[0];
   if (phase_ == Phase::block_download_sub_block) {
@@ -166,7 +167,12 @@ ValueRewrite ValueTransferTracker::initiate_download(can::Frame& request,
   if ((command & kExpedited) != 0) {
     // Complete in itself; the server's initiate download response ends it.
     reset();
-    return rewrite_request(request, to_local);
+    const ValueRewrite result = rewrite_request(request, to_local);
+    const bool size_indicated = (command & kSizeIndicated) != 0;
+    const auto size = static_cast<std::uint8_t>(size_indicated ? 4 - ((command >> 2) & 0x03) : 4);
+    const std::uint32_t mask = size == 4 ? 0xFFFFFFFFu : (1u << (8 * size)) - 1;
+    requested_ = ConfirmedWrite{read_multiplexer(request), read_u32(request, 4) & mask, size};
+    return result;
   }
   const Multiplexer mux = read_multiplexer(request);
   begin(Phase::download_initiated, mux,
@@ -177,6 +183,7 @@ ValueRewrite ValueTransferTracker::initiate_download(can::Frame& request,
 // --- server -> client --------------------------------------------------------------------------
 
 ValueRewrite ValueTransferTracker::on_response(can::Frame& response, const IdMapping& to_surface) {
+  confirmed_.reset();
   if (!is_sdo_frame(response)) return ValueRewrite::unchanged;
   const std::uint8_t command = response.data[0];
   if (phase_ == Phase::block_upload_sub_block) {
@@ -201,6 +208,12 @@ ValueRewrite ValueTransferTracker::on_response(can::Frame& response, const IdMap
       reset();
       return rewrite_response(response, to_surface);
     case scs::initiate_download:
+      if (phase_ == Phase::idle && requested_ && requested_->mux == read_multiplexer(response)) {
+        const ConfirmedWrite write = *requested_;
+        reset();
+        confirmed_ = write;
+        return ValueRewrite::unchanged;
+      }
       if (phase_ != Phase::download_initiated) break;
       confirm(read_multiplexer(response));
       phase_ = Phase::segmented_download;

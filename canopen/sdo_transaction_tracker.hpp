@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cstdint>
+#include <optional>
 
 #include "can/frame.hpp"
 #include "canopen/sdo_value_translator.hpp"
@@ -56,6 +57,16 @@ namespace canbridge::canopen::sdo {
 // - Frames that are not 8-byte standard data frames are not SDO: unchanged, state kept.
 // - Started (or reset()) in the middle of a block transfer, the tracker cannot know that frames
 //   are segments until the next initiate; the bridge calls reset() when the channel starts over.
+// A write the server confirmed: an expedited download of `mux` (its initiate download response
+// names the same object). The bridge learns from it what the node now holds, e.g. the heartbeat
+// producer time (1017h) its node table watches the node with.
+struct ConfirmedWrite {
+  Multiplexer mux;
+  std::uint32_t value = 0;  // the bytes the node received, little-endian; unsent bytes are 0
+  std::uint8_t size = 0;    // 1..4; 4 when the client did not indicate the size
+  friend bool operator==(const ConfirmedWrite&, const ConfirmedWrite&) = default;
+};
+
 class ValueTransferTracker {
  public:
   // A client -> server frame (surface master -> node), rewritten in place with `to_local`.
@@ -66,6 +77,11 @@ class ValueTransferTracker {
   ValueRewrite on_response(can::Frame& response, const IdMapping& to_surface);
   // Forgets any open transfer, e.g. the node rebooted or the link dropped.
   void reset();
+  // Set by the on_response() whose frame confirmed an expedited download of the client's last
+  // request; cleared by the next on_request() or on_response(). A request from a master on the
+  // module bus is fed with on_request() too (its copy, with an empty IdMapping) so that its
+  // writes are seen and its transfer's frames are followed.
+  const std::optional<ConfirmedWrite>& confirmed_write() const { return confirmed_; }
 
   // No transfer open: the next client frame is read as an initiate.
   bool idle() const { return phase_ == Phase::idle; }
@@ -111,6 +127,10 @@ class ValueTransferTracker {
   bool rewritten_ = false;
   std::array<std::uint8_t, 7> original_{};
   std::array<std::uint8_t, 7> replaced_{};
+  // The expedited download request awaiting the server's response (idle phase), and a write
+  // the last response confirmed.
+  std::optional<ConfirmedWrite> requested_;
+  std::optional<ConfirmedWrite> confirmed_;
 };
 
 }  // namespace canbridge::canopen::sdo

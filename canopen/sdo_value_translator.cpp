@@ -35,9 +35,9 @@ ValueRewrite rewrite_expedited(can::Frame& frame, const IdMapping& map) {
 
 ValueKind value_kind(Multiplexer mux) {
   const std::uint16_t i = mux.index;
-  if (i >= 0x1200 && i <= 0x127F)
-    return mux.sub == 1 || mux.sub == 2 ? ValueKind::cob_id : ValueKind::none;
-  if (i >= 0x1280 && i <= 0x12FF) {
+  if (i >= 0x1200 && i <= 0x12FF) {
+    // Server (1200h-127Fh) and client (1280h-12FFh) parameters alike: sub 3 names the peer, the
+    // client of a server channel or the server of a client channel.
     if (mux.sub == 1 || mux.sub == 2) return ValueKind::cob_id;
     return mux.sub == 3 ? ValueKind::node_id : ValueKind::none;
   }
@@ -45,6 +45,8 @@ ValueKind value_kind(Multiplexer mux) {
     return mux.sub == 1 ? ValueKind::cob_id : ValueKind::none;
   }
   if (i == 0x1014) return mux.sub == 0 ? ValueKind::cob_id : ValueKind::none;
+  // Emergency consumer: sub n holds the COB-ID of the EMCY the node consumes from node n.
+  if (i == 0x1028) return mux.sub >= 1 && mux.sub <= 127 ? ValueKind::cob_id : ValueKind::none;
   if (i == 0x1016)
     return mux.sub >= 1 && mux.sub <= 127 ? ValueKind::node_in_16_23 : ValueKind::none;
   return ValueKind::none;

@@ -17,14 +17,15 @@ enum class ValueKind {
   none,           // an ordinary value: never rewritten
   cob_id,         // COB-ID entry: bits 0-10 (or 0-28 with bit 29) the id, bits 29-31 flags
   node_in_16_23,  // heartbeat consumer entry (1016h): producer node id in bits 16-23
-  node_id,        // UNSIGNED8 node id (SDO client parameter 1280h-12FFh sub-index 3)
+  node_id,        // UNSIGNED8 node id (SDO parameters 1200h-12FFh sub-index 3)
 };
 
 // The objects of CiA 301 whose values name COB-IDs or nodes, in the node's own id space:
-// SDO server parameters 1200h-127Fh sub 1-2, SDO client parameters 1280h-12FFh sub 1-2 (COB-IDs)
-// and sub 3 (server node id), RPDO 1400h-15FFh and TPDO 1800h-19FFh sub 1, EMCY 1014h,
-// heartbeat consumer 1016h sub 1-127. SYNC (1005h) and TIME (1012h) COB-IDs are network-wide,
-// the same on every bus, and are not listed.
+// SDO server parameters 1200h-127Fh sub 1-2 (COB-IDs) and sub 3 (client node id), SDO client
+// parameters 1280h-12FFh sub 1-2 (COB-IDs) and sub 3 (server node id), RPDO 1400h-15FFh and
+// TPDO 1800h-19FFh sub 1, EMCY 1014h, heartbeat consumer 1016h sub 1-127, emergency consumer
+// 1028h sub 1-127 (EMCY COB-IDs). SYNC (1005h) and TIME (1012h) COB-IDs are network-wide, the
+// same on every bus, and are not listed.
 ValueKind value_kind(Multiplexer mux);
 
 // One direction of the id mapping (module bus -> surface, or back), from the bridge's id profile.

@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <string>
 
 #include "can/frame.hpp"
 #include "canopen/nmt_node_id.hpp"
@@ -17,7 +18,7 @@ enum class DropReason : std::uint8_t {
   unknown_node,    // node-addressed COB-ID of a node id nobody maps
   not_routable,    // COB-ID with no owner in that direction (e.g. SYNC/TIME/NMT from a module)
   malformed_nmt,   // NMT frame shorter than 2 bytes
-  rename_refused,  // set-node-id command whose new id is not a node of the same module
+  rename_refused,  // set-node-id command to a surface id the node cannot take (rename_refusal)
   lss_unrouted,    // LSS frame while no module is selected for LSS, or from another module
   count_
 };
@@ -26,10 +27,20 @@ const char* to_string(DropReason reason);
 
 using DropCounters = std::array<std::uint64_t, kDropReasonCount>;
 
-// Pure translation: no I/O, no clock. One instance per gateway, shared by all its modules.
+// The last set-node-id command the translator refused, for the gateway's log and the surface.
+struct RenameRefusal {
+  std::optional<NodeOwner> node;  // the commanded node, when the map has it
+  NodeId surface = 0;             // the command's current surface id (0: by serial)
+  NodeId next_surface = 0;        // the surface id it asked for
+  std::string reason;
+};
+
+// Pure translation: no I/O, no clock. One instance per gateway, shared by all its modules. The
+// map is live: a set-node-id command to a free surface id plans the node's move in it
+// (NodeMap::plan_move), which the gateway applies when the node's boot-up confirms it.
 class CobIdTranslator {
  public:
-  explicit CobIdTranslator(const NodeMap& map) : map_(map) {}
+  explicit CobIdTranslator(NodeMap& map) : map_(map) {}
 
   // The one module LSS (CiA 305, 0x7E5/0x7E4) reaches: LSS addresses "every unconfigured node
   // on the bus", so letting it reach several buses at once would make their nodes answer and
@@ -50,9 +61,15 @@ class CobIdTranslator {
   std::uint64_t dropped(DropReason reason) const {
     return drops_[static_cast<std::size_t>(reason)];
   }
+  // Why the last counted rename_refused was refused.
+  const RenameRefusal& rename_refusal() const { return refusal_; }
 
  private:
   void count(DropReason r) { ++drops_[static_cast<std::size_t>(r)]; }
+  bool refuse_rename(std::optional<NodeOwner> node, NodeId surface, NodeId next_surface,
+                     std::string reason);
+  // `E0 cc nn` (surface ids) for `owner`, the node of cc: fills in local's byte 2, or refuses.
+  bool translate_change(const can::Frame& frame, const NodeOwner& owner, can::Frame& local);
 
   // LSS configure node-id (cs 11h) carries the new node id in byte 1: a surface id on the
   // surface, the local id on the module bus; FFh ("unconfigured") passes unchanged.
@@ -60,8 +77,9 @@ class CobIdTranslator {
   static constexpr std::uint8_t kLssInquireNodeId = 0x5E;  // the response carries it in byte 1
   static constexpr std::uint8_t kLssUnconfigured = 0xFF;
 
-  const NodeMap& map_;
+  NodeMap& map_;
   DropCounters drops_{};
+  RenameRefusal refusal_;
   std::optional<std::size_t> lss_module_;
 };
 
@@ -86,21 +104,21 @@ bool CobIdTranslator::to_modules(const can::Frame& frame, Emit&& emit) {
     }
     auto owner = map_.owner_of_surface(target);
     if (!owner) {
+      if (frame.len == 6 && frame.data[0] == canopen::nmt_node_id::kBySerial) {
+        return refuse_rename(std::nullopt, 0, target,
+                             "set-node-id by serial to surface id " + std::to_string(target) +
+                                 ", which no module maps: a serial does not say which bus the "
+                                 "node is on; rename it by its id (E0) instead");
+      }
       count(DropReason::unknown_node);
       return false;
     }
     can::Frame local = frame;
     local.data[1] = owner->local;
     // (Surface ids may exceed the 5-bit range the node accepts: only the layout is checked here.)
-    if (frame.len == 3 && frame.data[0] == canopen::nmt_node_id::kChange && frame.data[2] != 0) {
-      // `E0 cc nn`: the new id must be a node of the same module bus: a node cannot move to
-      // another bus, and an id the module does not map would vanish from the surface.
-      auto next = map_.owner_of_surface(frame.data[2]);
-      if (!next || next->module_index != owner->module_index) {
-        count(DropReason::rename_refused);
-        return false;
-      }
-      local.data[2] = next->local;
+    if (frame.len == 3 && frame.data[0] == canopen::nmt_node_id::kChange && frame.data[2] != 0 &&
+        !translate_change(frame, *owner, local)) {
+      return false;
     }
     emit(owner->module_index, local);
     return true;

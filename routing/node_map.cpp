@@ -147,4 +147,71 @@ std::vector<std::string> NodeMap::add_module(ModuleId id,
   return problems;
 }
 
+std::optional<std::string> NodeMap::move_problem(std::size_t module_index, NodeId from, NodeId to,
+                                                 NodeId surface) const {
+  if (module_index >= modules_.size()) return "no module " + std::to_string(module_index);
+  const ModuleNodes& m = modules_[module_index];
+  const NodeId max = max_node_id(m.profile);
+  const std::string where = "module " + std::to_string(m.id) + " (" + to_string(m.profile) + ")";
+  if (to == 0 || to > max) {
+    return where + ": local node id " + std::to_string(to) + " is outside 1.." +
+           std::to_string(max);
+  }
+  if (surface == 0 || surface > max) {
+    return where + ": surface node id " + std::to_string(surface) + " is outside 1.." +
+           std::to_string(max) +
+           (m.profile == IdProfile::cia301 ? std::string()
+                                           : std::string(": ") + five_bit_reason(m.profile));
+  }
+  if (to != from && m.local_to_surface[to] != 0) {
+    return where + ": local node id " + std::to_string(to) + " is mapped to surface " +
+           std::to_string(m.local_to_surface[to]);
+  }
+  const auto is_from = [&](std::size_t module, NodeId local) {
+    return from != 0 && module == module_index && local == from;
+  };
+  const Owner& other = surface_owner_[surface];
+  if (other.local != 0 && !is_from(other.module_index, other.local)) {
+    return "surface node id " + std::to_string(surface) + " is already owned by module " +
+           std::to_string(modules_[other.module_index].id) + " node " + std::to_string(other.local);
+  }
+  for (const ProfileCobId& what : profile_cob_ids(m.profile)) {
+    const auto surface_cob = static_cast<std::uint16_t>(what.base + surface);
+    const CobOwner& holder = surface_cob_owner_[surface_cob];
+    if (holder.local_cob != 0 && !is_from(holder.module_index, holder.local)) {
+      return "COB-ID " + hex_cob(surface_cob) + ": " +
+             owner_text(m.id, m.profile, to, surface, what) + " collides with " + describe(holder);
+    }
+  }
+  return std::nullopt;
+}
+
+bool NodeMap::move(std::size_t module_index, NodeId from, NodeId to, NodeId surface) {
+  if (move_problem(module_index, from, to, surface)) return false;
+  ModuleNodes& m = modules_[module_index];
+  const auto& image = profile_cob_ids(m.profile);
+  if (from != 0 && m.local_to_surface[from] != 0) {
+    const NodeId old = m.local_to_surface[from];
+    surface_owner_[old] = Owner{};
+    for (const ProfileCobId& what : image) {
+      const auto old_cob = static_cast<std::uint16_t>(what.base + old);
+      if (surface_cob_owner_[old_cob].module_index == module_index &&
+          surface_cob_owner_[old_cob].local == from) {
+        surface_cob_owner_[old_cob] = CobOwner{};
+      }
+      m.local_to_surface_cob[what.base + from] = 0;
+    }
+    m.local_to_surface[from] = 0;
+  }
+  m.local_to_surface[to] = surface;
+  surface_owner_[surface] = Owner{module_index, to};
+  for (const ProfileCobId& what : image) {
+    const auto surface_cob = static_cast<std::uint16_t>(what.base + surface);
+    m.local_to_surface_cob[what.base + to] = surface_cob;
+    surface_cob_owner_[surface_cob] =
+        CobOwner{module_index, static_cast<std::uint16_t>(what.base + to), to, &what};
+  }
+  return true;
+}
+
 }  // namespace canbridge::bridge

@@ -43,6 +43,9 @@ struct ModuleNodes {
   // Local COB-ID -> surface COB-ID, 0 = not owned: the module's whole image, so translating
   // a frame is one lookup whatever the profile.
   std::vector<std::uint16_t> local_to_surface_cob = std::vector<std::uint16_t>(kStandardCobIds);
+  // A surface id a node takes when the boot-up that confirms its node-id command comes
+  // (plan_move); 0 = none.
+  std::array<NodeId, 128> planned_surface{};
 };
 
 class NodeMap {
@@ -85,6 +88,29 @@ class NodeMap {
   }
   // "module 1 (qd) local node 5 -> surface 5 TPDO2": one owner, for problem messages.
   std::string describe(const CobOwner& owner) const;
+
+  // The live map: a node renamed by the fpga node-id command (docs/nmt-node-id.md) moves.
+  // Why local node `from` of the module cannot become local `to` with surface id `surface`
+  // (nullopt: it can): an id outside 1..127 or the profile's range, `to` mapped to another
+  // surface id, `surface` owned by a node other than `from` (naming it), or a COB-ID of the new
+  // image held by another node's image (naming the owner). `from` 0: a node the map has no pair
+  // for.
+  std::optional<std::string> move_problem(std::size_t module_index, NodeId from, NodeId to,
+                                          NodeId surface) const;
+  // Unmaps `from` (its surface id and COB-IDs become free) and maps `to` to `surface`; false
+  // (nothing changed) when move_problem() names a problem.
+  bool move(std::size_t module_index, NodeId from, NodeId to, NodeId surface);
+  // `local` takes `surface` when a boot-up confirms the node-id command sent to it; a later
+  // plan replaces it. The gateway applies it (rename_follower.hpp).
+  void plan_move(std::size_t module_index, NodeId local, NodeId surface) {
+    modules_[module_index].planned_surface[local] = surface;
+  }
+  NodeId planned_move(std::size_t module_index, NodeId local) const {
+    return local <= canopen::kMaxNodeId ? modules_[module_index].planned_surface[local] : NodeId{0};
+  }
+  void cancel_move(std::size_t module_index, NodeId local) {
+    if (local <= canopen::kMaxNodeId) modules_[module_index].planned_surface[local] = 0;
+  }
 
  private:
   struct Owner {

@@ -156,12 +156,14 @@ void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState st
   NodeRecord& r = s.record;
   const LoaderState loader =
       m.profile == IdProfile::qd ? LoaderState::in_application : LoaderState::none;
+  s.heartbeat_off = false;
   if (!r.known) {
     r = NodeRecord{};
     r.known = true;
     r.state = state;
     r.loader = loader;
     r.last_seen = now;
+    forget_gaps(s);
     s.timing = true;
     set_deadline(s, due(m, s));
     out.push_back(event(NodeEvent::Kind::discovered, module_index, local, r, now));
@@ -172,10 +174,15 @@ void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState st
   if (was_lost) {
     // The silence was an outage, not a period: measure afresh.
     r.lost = false;
-    r.interval = Duration{0};
+    forget_gaps(s);
+    update_interval(s);
     s.timing = state == previous;
   } else if (state == previous) {
-    if (s.timing && now > r.last_seen) r.interval = now - r.last_seen;
+    if (s.timing && now > r.last_seen) {
+      s.gaps[s.next_gap] = now - r.last_seen;
+      s.next_gap = static_cast<std::uint8_t>((s.next_gap + 1) % kGapWindow);
+      update_interval(s);
+    }
     s.timing = true;
   } else {
     // Many stacks send a heartbeat at once on a state change, off their period.
@@ -234,7 +241,11 @@ void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::K
   r.state = state;
   r.loader = loader;
   r.last_seen = now;
-  r.interval = Duration{0};
+  // The node's 1017h is back at its own default: measure afresh.
+  r.heartbeat_time = std::chrono::milliseconds{0};
+  forget_gaps(s);
+  update_interval(s);
+  s.heartbeat_off = false;
   s.timing = false;  // the first heartbeat may follow the boot-up at once, off its period
   set_deadline(s, due(m, s));
   NodeEvent e = event(kind, module_index, local, r, now);
@@ -257,6 +268,8 @@ bool NodeTable::confirm_rename(std::size_t module_index, NodeId local, const Pen
     old.record = NodeRecord{};
     old.hold_until = TimePoint{};
     old.timing = false;
+    old.heartbeat_off = false;
+    forget_gaps(old);
     set_deadline(old, TimePoint::max());
   }
   r.known = true;
@@ -265,12 +278,15 @@ bool NodeTable::confirm_rename(std::size_t module_index, NodeId local, const Pen
   r.state = NmtState::pre_operational;
   r.loader = m.profile == IdProfile::qd ? LoaderState::in_application : LoaderState::none;
   r.last_seen = now;
-  r.interval = Duration{0};
-  if (p.by_serial) r.serial = p.serial;  // find_serial found no other holder
+  r.heartbeat_time = std::chrono::milliseconds{0};  // a reset communication restores 1017h
+  if (p.by_serial) r.serial = p.serial;             // find_serial found no other holder
   Slot& s = m.slots[local];
   s.record = r;
   s.hold_until = TimePoint{};
   s.timing = false;
+  s.heartbeat_off = false;
+  forget_gaps(s);
+  update_interval(s);
   set_deadline(s, due(m, s));
   NodeEvent e = event(NodeEvent::Kind::renamed, module_index, local, r, now);
   e.previous_local = from;
@@ -367,6 +383,40 @@ bool NodeTable::note_serial(std::size_t module_index, NodeId local, std::uint32_
     if (p.active && p.by_serial && p.serial == serial) hold(m, local, p.expires);
   }
   return true;
+}
+
+bool NodeTable::note_heartbeat_time(std::size_t module_index, NodeId local,
+                                    std::chrono::milliseconds producer_time) {
+  if (module_index >= modules_.size()) return false;
+  Module& m = modules_[module_index];
+  if (local == 0 || local > m.max_node || !m.slots[local].record.known) return false;
+  Slot& s = m.slots[local];
+  s.record.heartbeat_time = producer_time;
+  s.heartbeat_off = producer_time == std::chrono::milliseconds{0};
+  if (s.heartbeat_off) {
+    // The silence that follows is no period: measured afresh when the node beats again.
+    forget_gaps(s);
+    s.timing = false;
+  }
+  update_interval(s);
+  set_deadline(s, due(m, s));
+  return true;
+}
+
+void NodeTable::forget_gaps(Slot& s) {
+  s.gaps.fill(Duration{0});
+  s.next_gap = 0;
+}
+
+void NodeTable::update_interval(Slot& s) {
+  NodeRecord& r = s.record;
+  if (r.heartbeat_time != std::chrono::milliseconds{0}) {
+    r.interval = r.heartbeat_time;
+    return;
+  }
+  // The longest recent gap: one short gap (an extra heartbeat) cannot shrink the period, and a
+  // node that slows down is followed at once.
+  r.interval = *std::max_element(s.gaps.begin(), s.gaps.end());
 }
 
 void NodeTable::tick(TimePoint now, std::vector<NodeEvent>& out) {
@@ -474,7 +524,9 @@ NodeTable::Duration NodeTable::lost_after(const Module& m, const NodeRecord& r) 
 
 NodeTable::TimePoint NodeTable::due(const Module& m, const Slot& s) const {
   const NodeRecord& r = s.record;
-  if (!r.known || r.lost || r.loader == LoaderState::in_loader) return TimePoint::max();
+  if (!r.known || r.lost || r.loader == LoaderState::in_loader || s.heartbeat_off) {
+    return TimePoint::max();
+  }
   return std::max(r.last_seen + lost_after(m, r), s.hold_until);
 }
 

@@ -41,9 +41,15 @@ struct NodeRecord {
   std::uint32_t boot_count = 0;         // application boot-ups (0x700 + n, state 00h)
   std::uint32_t loader_boot_count = 0;  // qd loader boot-ups (0x720 + n)
   std::chrono::steady_clock::time_point last_seen{};
-  // Between the last two steady heartbeats (same state, the first not itself a state change or
-  // a boot-up); zero until two were seen.
+  // The heartbeat period the lost rule uses: the producer time the bridge saw written to the
+  // node's 1017h (note_heartbeat_time) since its last boot-up, else the longest of the last
+  // kGapWindow gaps between steady heartbeats (same state, the first not itself a state change
+  // or a boot-up); zero until one of them is known. Never one gap alone: a device sends one
+  // extra heartbeat right after 1017h is written, and that short gap is no period.
   std::chrono::steady_clock::duration interval{0};
+  // The producer time last written to 1017h and confirmed by the node; zero: none seen since
+  // the node booted (a boot-up restores the node's own default).
+  std::chrono::milliseconds heartbeat_time{0};
   std::optional<std::uint32_t> serial;  // 1018h:04, when told by note_serial or a rename
 };
 
@@ -65,6 +71,9 @@ struct NodeEvent {
   std::size_t module_index = 0;
   NodeId local = 0;
   NodeId previous_local = 0;  // renamed / rename_unconfirmed only
+  // renamed: the surface id the node had, as the gateway's live map knew it before the move
+  // (set by follow_rename, rename_follower.hpp; the table works in local ids and leaves it 0).
+  NodeId previous_surface = 0;
   NmtState state = NmtState::boot_up;
   NmtState previous_state = NmtState::boot_up;
   std::uint32_t boot_count = 0;
@@ -108,6 +117,8 @@ class NodeTable {
   using TimePoint = Clock::time_point;
   using Duration = Clock::duration;
   static constexpr int kLostIntervals = 3;
+  // Gaps the measured interval is the longest of.
+  static constexpr std::size_t kGapWindow = 4;
 
   explicit NodeTable(NodeTableOptions options = {});
 
@@ -133,6 +144,12 @@ class NodeTable {
   // by-serial rename name the id the node had. Another record holding the same serial loses it.
   // False (nothing stored) when the node is not in the table.
   bool note_serial(std::size_t module_index, NodeId local, std::uint32_t serial);
+  // The node confirmed a write of `producer_time` to its heartbeat producer time (1017h), seen
+  // by the gateway in an SDO transfer from either master: from now on its lost rule uses that
+  // period instead of the gaps it measures. 0 turns the node's heartbeat off: it is not watched
+  // (never reported lost) until it is heard again. False when the node is not in the table.
+  bool note_heartbeat_time(std::size_t module_index, NodeId local,
+                           std::chrono::milliseconds producer_time);
 
   // Reports the nodes silent for their lost_after (`lost`) and the pending renames whose window
   // ended (`rename_unconfirmed`, before any `lost` of the same tick).
@@ -164,7 +181,10 @@ class NodeTable {
     NodeRecord record;
     TimePoint deadline = TimePoint::max();  // lost at this time unless heard; max: not watched
     TimePoint hold_until{};                 // not lost before this (reset / rename sent to it)
-    bool timing = false;  // the last frame was a steady heartbeat: the next one gives an interval
+    bool timing = false;         // the last frame was a steady heartbeat: the next one gives a gap
+    bool heartbeat_off = false;  // 1017h written to 0: not watched until heard again
+    std::array<Duration, kGapWindow> gaps{};  // the last steady gaps, a ring; zero: none
+    std::uint8_t next_gap = 0;
   };
   struct PendingRename {
     bool active = false;
@@ -199,6 +219,10 @@ class NodeTable {
   NodeEvent unconfirmed_event(std::size_t module_index, NodeId next, const PendingRename& p,
                               TimePoint now) const;
   void hold(Module& m, NodeId local, TimePoint until);
+  // Forgets the measured gaps (an outage, a boot-up: the next period is measured afresh).
+  static void forget_gaps(Slot& s);
+  // record.interval from the configured producer time or the measured gaps.
+  static void update_interval(Slot& s);
   NodeId find_serial(const Module& m, std::uint32_t serial) const;  // 0: none
   Duration lost_after(const Module& m, const NodeRecord& r) const;
   TimePoint due(const Module& m, const Slot& s) const;

@@ -94,10 +94,16 @@ TEST_F(TranslatorTest, SetNodeIdCommandsAreTranslatedWithinTheOwningModuleOnly) 
   ASSERT_EQ(change.size(), 1u);
   EXPECT_EQ(change[0].first, 0u);
   EXPECT_EQ(change[0].second, Frame::standard(0x000, {0xE0, 0x05, 0x09}));
-  // Onto a node of module 2, or onto an id nobody maps: refused, counted, sent nowhere.
+  // Onto a node of module 2: refused, counted, sent nowhere, the reason kept for the log.
   EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 0x25, 0x45})).empty());
-  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 0x25, 0x01})).empty());
-  EXPECT_EQ(drops(DropReason::rename_refused), 2u);
+  EXPECT_EQ(drops(DropReason::rename_refused), 1u);
+  EXPECT_EQ(translator.rename_refusal().next_surface, 0x45);
+  ASSERT_TRUE(translator.rename_refusal().node);
+  EXPECT_EQ(translator.rename_refusal().node->local, 5);
+  EXPECT_NE(translator.rename_refusal().reason.find("module 2 node 5, on another bus"),
+            std::string::npos)
+      << translator.rename_refusal().reason;
+  EXPECT_EQ(map.planned_move(0, 5), 0);
   // `E1 nn serial`: the new id is byte 1; the serial passes untouched.
   auto by_serial = route(Frame::standard(0x000, {0xE1, 0x47, 0x12, 0x34, 0xAB, 0xCD}));
   ASSERT_EQ(by_serial.size(), 1u);
@@ -108,6 +114,56 @@ TEST_F(TranslatorTest, SetNodeIdCommandsAreTranslatedWithinTheOwningModuleOnly) 
   auto malformed = route(Frame::standard(0x000, {0xE0, 0x25, 0x00}));
   ASSERT_EQ(malformed.size(), 1u);
   EXPECT_EQ(malformed[0].second, Frame::standard(0x000, {0xE0, 0x05, 0x00}));
+}
+
+// Issue 14: a free surface id is no longer refused. The node keeps its local id (`E0 cc cc`, a
+// reset communication it confirms with its boot-up) and the move is planned in the live map.
+TEST_F(TranslatorTest, SetNodeIdToAFreeSurfaceIdPlansTheMove) {
+  auto to_free = route(Frame::standard(0x000, {0xE0, 0x25, 0x01}));  // surface 1: nobody's
+  ASSERT_EQ(to_free.size(), 1u);
+  EXPECT_EQ(to_free[0].first, 0u);
+  EXPECT_EQ(to_free[0].second, Frame::standard(0x000, {0xE0, 0x05, 0x05}));
+  EXPECT_EQ(map.planned_move(0, 5), 1);
+  EXPECT_EQ(map.surface_of(0, 5), 0x25);  // not before the boot-up confirms it
+  EXPECT_EQ(drops(DropReason::rename_refused), 0u);
+  // Any free id up to 127 on a cia301 module.
+  ASSERT_EQ(route(Frame::standard(0x000, {0xE0, 0x26, 0x7F})).size(), 1u);
+  EXPECT_EQ(map.planned_move(0, 6), 0x7F);
+  // Outside 1..127, or by serial to an id no module maps (which bus?): refused with a reason.
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 0x25, 0x80})).empty());
+  EXPECT_NE(translator.rename_refusal().reason.find("outside 1..127"), std::string::npos)
+      << translator.rename_refusal().reason;
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE1, 0x01, 0x12, 0x34, 0xAB, 0xCD})).empty());
+  EXPECT_FALSE(translator.rename_refusal().node);
+  EXPECT_NE(translator.rename_refusal().reason.find("by serial"), std::string::npos);
+  EXPECT_EQ(drops(DropReason::rename_refused), 2u);
+  EXPECT_EQ(map.planned_move(0, 5), 1);  // refusals plan nothing
+}
+
+// The profile bounds the free ids: a pdop node keeps its id in 5 bits, and its surface id's
+// COB-IDs (S, S + 32, S + 64, S + 96 in every function) must not be another module's.
+TEST(TranslatorProfiles, SetNodeIdToAFreeSurfaceIdWithinWhatTheProfileAllows) {
+  NodeMap map;
+  ASSERT_TRUE(map.add_module(1, {{10, 42}, {11, 43}}).empty());
+  ASSERT_TRUE(map.add_module(2, {{1, 3}, {2, 4}}, IdProfile::pdop).empty());
+  CobIdTranslator translator{map};
+  const auto route = [&](const Frame& f) { return testing::routes(translator, f); };
+  auto ok = route(Frame::standard(0x000, {0xE0, 3, 9}));
+  ASSERT_EQ(ok.size(), 1u);
+  EXPECT_EQ(ok[0].second, Frame::standard(0x000, {0xE0, 1, 1}));
+  EXPECT_EQ(map.planned_move(1, 1), 9);
+  // 33: above the pdop range.
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 4, 33})).empty());
+  EXPECT_NE(translator.rename_refusal().reason.find("outside 1..31"), std::string::npos)
+      << translator.rename_refusal().reason;
+  // 10: free as a node id, but the cia301 node 42 owns 0x1AA = TPDO1 t=1 of surface 10.
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 4, 10})).empty());
+  EXPECT_NE(translator.rename_refusal().reason.find("collides with module 1"), std::string::npos)
+      << translator.rename_refusal().reason;
+  // A cia301 node cannot take a surface id whose COB-IDs a pdop node holds (3 + 32 = 35).
+  EXPECT_TRUE(route(Frame::standard(0x000, {0xE0, 42, 35})).empty());
+  EXPECT_EQ(translator.dropped(DropReason::rename_refused), 3u);
+  EXPECT_EQ(map.planned_move(1, 2), 0);
 }
 
 TEST_F(TranslatorTest, LssReachesOnlyTheSelectedModuleWithNodeIdsTranslated) {

@@ -210,6 +210,87 @@ TEST(NodeTable, LostAfterThreeIntervalsThenRecovered) {
   EXPECT_EQ(rig.table.counts(m).operational, 1u);
 }
 
+// Ticks at every deadline the table reports up to `until`: the gateway's timer, exactly.
+Events tick_through(Rig& rig, TimePoint until) {
+  Events all;
+  while (auto due = rig.table.next_deadline()) {
+    if (*due > until) break;
+    rig.table.tick(*due, all);
+  }
+  return all;
+}
+
+// Issue 14: a CANopen device sends one extra heartbeat right after 1017h is written. Heartbeats
+// every 100 ms, 1017h written to 200 ms at +950 ms, the extra one 5 ms later, then every 200 ms.
+// Learned from that one 5 ms gap, the rule lost the node at the next regular heartbeat.
+void beat_through_a_1017h_write(Rig& rig, std::size_t m, NodeId node, bool bridge_saw_the_write) {
+  ASSERT_EQ(kinds(rig.beat(m, node, kOp, t0, 100ms, 10)),  // t0 .. t0 + 900 ms
+            std::vector<Kind>{Kind::discovered});
+  EXPECT_TRUE(tick_through(rig, t0 + 950ms).empty());
+  if (bridge_saw_the_write) {
+    ASSERT_TRUE(rig.table.note_heartbeat_time(m, node, 200ms));
+    EXPECT_EQ(rig.table.node(m, node)->heartbeat_time, 200ms);
+  }
+  EXPECT_TRUE(rig.bus(m, heartbeat(node, kOp), t0 + 955ms).empty());  // the extra heartbeat
+  for (int i = 0; i < 10; ++i) {
+    const TimePoint at = t0 + 1155ms + i * 200ms;
+    EXPECT_TRUE(tick_through(rig, at - 1ns).empty()) << "before the regular heartbeat " << i;
+    EXPECT_TRUE(rig.bus(m, heartbeat(node, kOp), at).empty()) << "regular heartbeat " << i;
+  }
+  EXPECT_EQ(rig.table.node(m, node)->interval, 200ms);
+}
+
+TEST(NodeTable, AnExtraHeartbeatAfterA1017hWriteIsNoPeriod) {
+  Rig rig;
+  const auto m = rig.table.add_module(IdProfile::cia301);
+  // Without the write seen: the longest of the last gaps, never the 5 ms one alone.
+  ASSERT_NO_FATAL_FAILURE(beat_through_a_1017h_write(rig, m, 7, false));
+  // A node that really stops is still lost after 3 x 200 ms.
+  const TimePoint last = t0 + 1155ms + 9 * 200ms;
+  EXPECT_TRUE(tick_through(rig, last + 600ms - 1ns).empty());
+  const Events lost = tick_through(rig, last + 600ms);
+  ASSERT_EQ(kinds(lost), std::vector<Kind>{Kind::lost});
+  EXPECT_EQ(lost[0].at, last + 600ms);
+}
+
+TEST(NodeTable, TheProducerTimeWrittenTo1017hIsThePeriod) {
+  Rig rig;
+  const auto m = rig.table.add_module(IdProfile::cia301);
+  ASSERT_NO_FATAL_FAILURE(beat_through_a_1017h_write(rig, m, 7, true));
+  const TimePoint last = t0 + 1155ms + 9 * 200ms;
+  EXPECT_TRUE(tick_through(rig, last + 600ms - 1ns).empty());
+  ASSERT_EQ(kinds(tick_through(rig, last + 600ms)), std::vector<Kind>{Kind::lost});
+
+  // Faster: a node beating every second set to 100 ms is lost 300 ms after its last heartbeat,
+  // not after 3 x its old second.
+  const TimePoint t1 = t0 + 5s;
+  rig.beat(m, 8, kOp, t1, 1s, 3);  // t1 .. t1 + 2 s
+  ASSERT_TRUE(rig.table.note_heartbeat_time(m, 8, 100ms));
+  rig.beat(m, 8, kOp, t1 + 2005ms, 100ms, 3);  // the extra one, then every 100 ms
+  EXPECT_EQ(rig.table.lost_after(m, 8), 300ms);
+  const Events faster = tick_through(rig, t1 + 2205ms + 300ms);
+  ASSERT_EQ(kinds(faster), std::vector<Kind>{Kind::lost});
+  EXPECT_EQ(faster[0].local, 8);
+  EXPECT_EQ(faster[0].at, t1 + 2205ms + 300ms);
+
+  // 0 turns the heartbeat off: the node falls silent and is not lost; heard again, it is.
+  rig.beat(m, 9, kOp, t0 + 10s, 100ms, 3);
+  ASSERT_TRUE(rig.table.note_heartbeat_time(m, 9, 0ms));
+  EXPECT_TRUE(tick_through(rig, t0 + 60s).empty());
+  EXPECT_TRUE(rig.bus(m, heartbeat(9, kOp), t0 + 61s).empty());
+  EXPECT_EQ(kinds(tick_through(rig, t0 + 61s + 3s)), std::vector<Kind>{Kind::lost});
+
+  // A boot-up restores the node's own 1017h: measured afresh. Unknown nodes store nothing.
+  rig.beat(m, 10, kOp, t0 + 70s, 100ms, 2);
+  ASSERT_TRUE(rig.table.note_heartbeat_time(m, 10, 500ms));
+  EXPECT_EQ(rig.table.lost_after(m, 10), 1500ms);
+  rig.bus(m, boot_up(10), t0 + 71s);
+  EXPECT_EQ(rig.table.node(m, 10)->heartbeat_time, 0ms);
+  EXPECT_EQ(rig.table.lost_after(m, 10), 3s);
+  EXPECT_FALSE(rig.table.note_heartbeat_time(m, 11, 100ms));
+  EXPECT_FALSE(rig.table.note_heartbeat_time(5, 10, 100ms));
+}
+
 TEST(NodeTable, RecoveringInAnotherStateIsOneRecoveredEvent) {
   Rig rig;
   const auto m = rig.table.add_module(IdProfile::cia301);

@@ -208,6 +208,12 @@ const Family kFamilies[] = {
     {"1014h EMCY", {0x1014, 0}, 0x85, 0xA5, 4},
     {"1016h sub1 consumer", {0x1016, 1}, 0x000700C8u, 0x002700C8u, 4},
     {"1016h sub127 consumer", {0x1016, 127}, 0x001F0064u, 0x003F0064u, 4},
+    // Issue 14: the emergency consumer and the SDO server's client node id (and every sub 3).
+    {"1028h sub1 EMCY consumer", {0x1028, 1}, 0x87, 0xA7, 4},
+    {"1028h sub127 EMCY consumer, invalid", {0x1028, 127}, 0x8000009Fu, 0x800000BFu, 4},
+    {"12FFh sub3 server node", {0x12FF, 3}, 1, 33, 1},
+    {"1200h sub3 client node", {0x1200, 3}, 7, 39, 1},
+    {"127Fh sub3 client node", {0x127F, 3}, 31, 63, 1},
 };
 
 void expect_data(const can::Frame& f, std::span<const std::uint8_t> expected) {
@@ -382,6 +388,110 @@ TEST(SdoValueTransferTracker, BlockUploadAnsweredBySegmentedOrExpeditedUploadIsF
     EXPECT_EQ(c.size == 1 ? up.data[4] : read_u32(up, 4), c.surface);
     EXPECT_TRUE(expedited.tracker.idle());
   }
+}
+
+// Values naming an id with no counterpart: a surface id no node of this module has (72) on the way
+// down, a local node the module does not map (40) on the way up. Every mode: forwarded
+// byte-for-byte, reported no_counterpart (the gateway counts it), a block CRC untouched.
+TEST(SdoValueTransferTracker, ValuesWithoutCounterpartPassUnchangedInEveryMode) {
+  const Family cases[] = {
+      {"1028h EMCY consumer", {0x1028, 9}, 0x80 + 40, 0x80 + 72, 4},
+      {"1200h sub3 client node", {0x1200, 3}, 40, 72, 1},
+      {"1280h sub3 server node", {0x1280, 3}, 40, 72, 1},
+  };
+  for (const Family& c : cases) {
+    SCOPED_TRACE(c.name);
+    const auto down_bytes = c.surface_bytes();  // as the master sends them
+    const auto up_bytes = c.local_bytes();      // as the node sends them
+    auto unmapped = [](ValueRewrite r) { EXPECT_EQ(r, ValueRewrite::no_counterpart); };
+
+    Channel expedited;
+    can::Frame down = download_request(kSurfaceNode, c.mux, down_bytes);
+    can::Frame before = down;
+    unmapped(expedited.send(down));
+    EXPECT_EQ(down, before);
+    expedited.pass_reply(download_response(kLocalNode, c.mux));
+    expedited.pass(upload_request(kSurfaceNode, c.mux));
+    can::Frame up = upload_response(kLocalNode, c.mux, up_bytes);
+    before = up;
+    unmapped(expedited.reply(up));
+    EXPECT_EQ(up, before);
+
+    Channel segmented;
+    segmented.pass(initiate_segmented_download(c.mux, static_cast<std::uint32_t>(c.size)));
+    segmented.pass_reply(download_response(kLocalNode, c.mux));
+    can::Frame segment = download_segment(false, down_bytes, true);
+    before = segment;
+    unmapped(segmented.send(segment));
+    EXPECT_EQ(segment, before);
+    segmented.pass_reply(download_segment_response(false));
+    segmented.pass(upload_request(kSurfaceNode, c.mux));
+    segmented.pass_reply(
+        segmented_upload_response(kLocalNode, c.mux, static_cast<std::uint32_t>(c.size)));
+    segmented.pass(upload_segment_request(false));
+    segment = upload_segment(false, up_bytes, true);
+    before = segment;
+    unmapped(segmented.reply(segment));
+    EXPECT_EQ(segment, before);
+
+    Channel block;
+    block.pass(initiate_block_download(c.mux, true, static_cast<std::uint32_t>(c.size)));
+    block.pass_reply(block_download_initiated(c.mux, true));
+    segment = block_segment(true, 1, down_bytes, true);
+    before = segment;
+    unmapped(block.send(segment));
+    EXPECT_EQ(segment, before);
+    block.pass_reply(block_ack(false, 1));
+    block.pass(block_end(true, c.size, crc16_xmodem(down_bytes)));  // CRC untouched
+    block.pass_reply(response(0xA1));
+    block.pass(initiate_block_upload(c.mux, true));
+    block.pass_reply(block_upload_initiated(c.mux, true, static_cast<std::uint32_t>(c.size)));
+    block.pass(start_block_upload());
+    segment = block_segment(false, 1, up_bytes, true);
+    before = segment;
+    unmapped(block.reply(segment));
+    EXPECT_EQ(segment, before);
+    block.pass(block_ack(true, 1));
+    block.pass_reply(block_end(false, c.size, crc16_xmodem(up_bytes)));
+    EXPECT_TRUE(block.tracker.idle());
+  }
+}
+
+// --- confirmed writes: what the node now holds (the gateway's 1017h hook) ----------------------
+
+TEST(SdoValueTransferTracker, AConfirmedExpeditedDownloadIsReportedOnce) {
+  const Multiplexer producer{0x1017, 0};
+  Channel ch;
+  can::Frame write = download_request(kSurfaceNode, producer, std::array<std::uint8_t, 2>{200, 0});
+  ch.pass(write);
+  EXPECT_FALSE(ch.tracker.confirmed_write());  // not before the node said so
+  can::Frame ok = download_response(kLocalNode, producer);
+  ch.pass_reply(ok);
+  ASSERT_TRUE(ch.tracker.confirmed_write());
+  EXPECT_EQ(*ch.tracker.confirmed_write(), (ConfirmedWrite{producer, 200, 2}));
+  ch.pass(upload_request(kSurfaceNode, producer));  // the next frame clears it
+  EXPECT_FALSE(ch.tracker.confirmed_write());
+
+  // An abort, a response naming another object, a late duplicate response: nothing confirmed.
+  ch.pass(download_request(kSurfaceNode, producer, std::array<std::uint8_t, 2>{0x2C, 0x01}));
+  ch.pass_reply(response(0x80, producer, 0x06090030));
+  EXPECT_FALSE(ch.tracker.confirmed_write());
+  ch.pass(download_request(kSurfaceNode, producer, std::array<std::uint8_t, 2>{0x2C, 0x01}));
+  ch.pass_reply(download_response(kLocalNode, {0x1018, 0}));
+  EXPECT_FALSE(ch.tracker.confirmed_write());
+  ch.pass_reply(download_response(kLocalNode, producer));
+  EXPECT_FALSE(ch.tracker.confirmed_write());
+  // A 4-byte write without size indicated, and a write of a listed object (the local value).
+  ch.pass(request(0x22, producer, 0x000003E8));
+  ch.pass_reply(download_response(kLocalNode, producer));
+  ASSERT_TRUE(ch.tracker.confirmed_write());
+  EXPECT_EQ(ch.tracker.confirmed_write()->value, 1000u);
+  EXPECT_EQ(ch.tracker.confirmed_write()->size, 4);
+  can::Frame emcy = download_request(kSurfaceNode, {0x1014, 0}, le(0xA5));
+  EXPECT_EQ(ch.send(emcy), ValueRewrite::rewritten);
+  ch.pass_reply(download_response(kLocalNode, {0x1014, 0}));
+  ASSERT_TRUE(ch.tracker.confirmed_write());
+  EXPECT_EQ(ch.tracker.confirmed_write()->value, 0x85u);
 }
 
 // --- unlisted transfers: never touched, their segments never read as commands ------------------

@@ -53,7 +53,9 @@ TEST(SdoValueKind, EveryListedObjectAndNothingElse) {
   EXPECT_EQ(value_kind({0x1200, 2}), ValueKind::cob_id);
   EXPECT_EQ(value_kind({0x127F, 2}), ValueKind::cob_id);
   EXPECT_EQ(value_kind({0x1200, 0}), ValueKind::none);
-  EXPECT_EQ(value_kind({0x1200, 3}), ValueKind::none);
+  EXPECT_EQ(value_kind({0x1200, 3}), ValueKind::node_id);  // the client's node id
+  EXPECT_EQ(value_kind({0x127F, 3}), ValueKind::node_id);
+  EXPECT_EQ(value_kind({0x1200, 4}), ValueKind::none);
   EXPECT_EQ(value_kind({0x1280, 1}), ValueKind::cob_id);
   EXPECT_EQ(value_kind({0x12FF, 2}), ValueKind::cob_id);
   EXPECT_EQ(value_kind({0x1280, 3}), ValueKind::node_id);
@@ -66,7 +68,12 @@ TEST(SdoValueKind, EveryListedObjectAndNothingElse) {
   EXPECT_EQ(value_kind({0x1014, 0}), ValueKind::cob_id);
   EXPECT_EQ(value_kind({0x1016, 1}), ValueKind::node_in_16_23);
   EXPECT_EQ(value_kind({0x1016, 127}), ValueKind::node_in_16_23);
-  EXPECT_EQ(value_kind({0x1016, 0}), ValueKind::none);  // the entry count
+  EXPECT_EQ(value_kind({0x1016, 0}), ValueKind::none);    // the entry count
+  EXPECT_EQ(value_kind({0x1028, 1}), ValueKind::cob_id);  // EMCY consumer: node 1's EMCY
+  EXPECT_EQ(value_kind({0x1028, 127}), ValueKind::cob_id);
+  EXPECT_EQ(value_kind({0x1028, 0}), ValueKind::none);  // the entry count
+  EXPECT_EQ(value_kind({0x1028, 128}), ValueKind::none);
+  EXPECT_EQ(value_kind({0x1029, 1}), ValueKind::none);  // error behaviour
   EXPECT_EQ(value_kind({0x1005, 0}), ValueKind::none);  // SYNC: the same on every bus
   EXPECT_EQ(value_kind({0x1012, 0}), ValueKind::none);  // TIME
   EXPECT_EQ(value_kind({0x1017, 0}), ValueKind::none);

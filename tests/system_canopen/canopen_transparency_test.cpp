@@ -423,6 +423,12 @@ TEST_F(Transparency, SetNodeIdIsFollowedLiveOnTheSurface) {
         << "a refused rename reached a node";
   }
   ASSERT_NO_FATAL_FAILURE(rename(kRenamed, kPdop));
+  // Issue 14: a free surface id (no module maps 9, and a pdop node's COB-IDs of 9 collide with
+  // no other module's). The node keeps its local id (`E0 1 1`) and moves in the gateway's live
+  // map when it boots; its old id is freed, so it can move back.
+  constexpr std::uint8_t kFree = 9;
+  ASSERT_NO_FATAL_FAILURE(rename(kPdop, kFree));
+  ASSERT_NO_FATAL_FAILURE(rename(kFree, kPdop));
 }
 
 // Item 6: EMCYs arrive under the surface EMCY COB-ID (0x80 + surface id): a cia301 node's 8210h
