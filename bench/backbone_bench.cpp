@@ -160,7 +160,7 @@ class GatewayEnd {
 
   void produce(backbone::PayloadSink& sink) {
     while (next_ < total_ && outbox_.size() < kOutboxTopUp) {
-      if (!outbox_.push(kModule, workload_frame(next_), /*conflate=*/false)) break;
+      if (!outbox_.push(kModule, workload_frame(next_), {})) break;
       ++next_;
     }
     outbox_.produce(sink);

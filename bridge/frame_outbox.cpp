@@ -1,8 +1,9 @@
 #include "bridge/frame_outbox.hpp"
 
-#include <algorithm>
+#include <fmt/format.h>
 
-#include "bridge/delivery_class.hpp"
+#include <algorithm>
+#include <vector>
 
 namespace canbridge::bridge {
 
@@ -16,9 +17,7 @@ std::size_t frame_bytes(const can::Frame& f) {
   const bool escaped = f.is_extended() || f.is_remote();
   return 2 + (f.is_remote() ? 0 : f.len) + (escaped ? 5 : 0);
 }
-}  // namespace
 
-namespace {
 bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
@@ -46,44 +45,69 @@ std::size_t withdraw_sdo_requests(std::string& payload) {
   return removed;
 }
 
-FrameOutbox::FrameOutbox(Options options)
-    : options_(options), queue_({options.max_reliable_frames, options.max_process_frames}) {}
-
-bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
-                       bool packet_fragment) {
-  using Push = backbone::PriorityScheduler<Entry>::Push;
-  packet_fragment = packet_fragment && !frame.is_extended() && !frame.is_remote();
-  can::Frame first_fragment_id;
-  if (packet_fragment) {
-    first_fragment_id.id = frame.id & ~std::uint32_t{0x60};
-    conflate = false;
+namespace {
+// The scheduler's lanes, in kLanes order (the frame lanes only).
+std::vector<backbone::SchedulerLane> scheduler_lanes(const LaneBounds& bounds) {
+  std::vector<backbone::SchedulerLane> lanes;
+  for (std::size_t i = 0; i < kFrameLanes; ++i) {
+    lanes.push_back({bounds.*kLanes[i].bound, kLanes[i].overflow});
   }
-  const std::uint32_t priority = arbitration_priority(packet_fragment ? first_fragment_id : frame);
-  const Push result = is_process_data(frame)
-                          ? queue_.push_process(priority, conflation_key(module_id, frame),
-                                                conflate || is_heartbeat_state(frame),
-                                                Entry{module_id, frame, next_ordinal_})
-                          : queue_.push_reliable(priority, Entry{module_id, frame, next_ordinal_});
-  ++next_ordinal_;
-  return result != Push::refused;
+  return lanes;
 }
 
-bool FrameOutbox::withdrawn(const Entry& entry) const {
-  const can::Frame& f = entry.frame;
-  return entry.ordinal < withdraw_before_ && is_sdo_request(f);
+// The identifier of a PDO Packet's first fragment (bits 6-5, t and c, clear): its four t/c
+// variants are different COB-IDs, which arbitration order would send last fragment first.
+can::Frame first_fragment_of(const can::Frame& fragment) {
+  can::Frame first = fragment;
+  first.id &= ~std::uint32_t{0x60};
+  return first;
+}
+
+// The FIFO a frame joins in its lane (FifoPer), unique per module.
+std::uint64_t fifo_key(const Lane& lane, std::uint32_t module_id, const can::Frame& frame) {
+  switch (lane.fifo) {
+    case FifoPer::sender:
+      return (std::uint64_t{module_id} << 32) | bus_sender(frame);
+    case FifoPer::packet:
+      return conflation_key(module_id, first_fragment_of(frame));
+    case FifoPer::cob_id:
+    case FifoPer::role:
+      break;
+  }
+  return conflation_key(module_id, frame);
+}
+
+// Where the FIFO's head competes: its arbitration order, a fragment as its packet's first one.
+std::uint32_t priority_of(const Lane& lane, const can::Frame& frame) {
+  return arbitration_priority(lane.fifo == FifoPer::packet ? first_fragment_of(frame) : frame);
+}
+}  // namespace
+
+FrameOutbox::FrameOutbox(Options options) : options_(options), queue_(scheduler_lanes(options)) {}
+
+bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
+                       const DeliveryOptions& options) {
+  const DeliveryClass delivery = classify(frame, options);
+  const Lane& lane = lane_of(delivery);
+  const bool replace = lane.conflation == Conflation::always ||
+                       (lane.conflation == Conflation::module_option && options.conflate_pdos);
+  const auto result =
+      queue_.push(static_cast<std::size_t>(delivery), fifo_key(lane, module_id, frame),
+                  priority_of(lane, frame), replace, Entry{module_id, frame});
+  return result != backbone::SchedulerPush::refused;
+}
+
+void FrameOutbox::withdraw_queued_sdo_requests() {
+  counters_.sdo_requests_withdrawn +=
+      queue_.erase_if([](const Entry& entry) { return is_sdo_request(entry.frame); });
 }
 
 void FrameOutbox::produce(backbone::PayloadSink& sink) {
   while (sink.room() > kBatchOverhead + kMaxFrameBytes) {
     const auto front = queue_.front();
     if (!front) return;
-    if (withdrawn(*front->item)) {
-      queue_.pop();
-      ++counters_.sdo_requests_withdrawn;
-      continue;
-    }
     const std::uint32_t module_id = front->item->module_id;
-    const bool reliable = front->reliable;
+    const bool reliable = kLanes[front->lane].reliable;
     std::size_t budget = std::min(sink.room(), options_.max_batch_bytes) - kBatchOverhead;
     if (reliable) {
       // A smaller batch when the resend buffer has less room than a full one; nothing at all
@@ -98,12 +122,7 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     std::size_t used = 0;
     std::size_t frames = 0;
     for (auto next = queue_.front(); next; next = queue_.front()) {
-      if (withdrawn(*next->item)) {
-        queue_.pop();
-        ++counters_.sdo_requests_withdrawn;
-        continue;
-      }
-      if (next->reliable != reliable || next->item->module_id != module_id) break;
+      if (kLanes[next->lane].reliable != reliable || next->item->module_id != module_id) break;
       const std::size_t bytes = frame_bytes(next->item->frame);
       if (used + bytes > budget) break;
       builder_.append(batch, queue_.pop()->item.frame);
@@ -125,13 +144,45 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
 }
 
 OutboxCounters FrameOutbox::counters() const {
-  const auto& q = queue_.counters();
   OutboxCounters c = counters_;
-  c.queued = q.reliable_queued + q.process_queued;
-  c.conflated = q.conflated;
-  c.process_dropped = q.process_dropped;
-  c.reliable_refused = q.reliable_refused;
+  for (std::size_t i = 0; i < kFrameLanes; ++i) {
+    const auto& q = queue_.counters(i);
+    c.lanes[i] = {q.queued, q.conflated, q.dropped_oldest, q.refused};
+    c.queued += q.queued;
+    c.conflated += q.conflated;
+    (kLanes[i].reliable ? c.reliable_refused : c.process_dropped) += q.refused;
+    // A reliable lane never drops (Overflow::refuse); if one ever did, it would show here.
+    (kLanes[i].reliable ? c.reliable_refused : c.process_dropped) += q.dropped_oldest;
+  }
   return c;
+}
+
+OutboxCounters& OutboxCounters::operator+=(const OutboxCounters& other) {
+  queued += other.queued;
+  conflated += other.conflated;
+  process_dropped += other.process_dropped;
+  reliable_refused += other.reliable_refused;
+  frames_sent += other.frames_sent;
+  batches_sent += other.batches_sent;
+  sdo_requests_withdrawn += other.sdo_requests_withdrawn;
+  for (std::size_t i = 0; i < lanes.size(); ++i) {
+    lanes[i].queued += other.lanes[i].queued;
+    lanes[i].conflated += other.lanes[i].conflated;
+    lanes[i].dropped_oldest += other.lanes[i].dropped_oldest;
+    lanes[i].refused += other.lanes[i].refused;
+  }
+  return *this;
+}
+
+std::string lanes_summary(const OutboxCounters& counters) {
+  std::string out;
+  for (std::size_t i = 0; i < kFrameLanes; ++i) {
+    const LaneCounters& l = counters.lanes[i];
+    out += fmt::format("{}lane {} queued {} conflated {} dropped-oldest {} refused {}",
+                       i == 0 ? "" : ", ", kLanes[i].name, l.queued, l.conflated, l.dropped_oldest,
+                       l.refused);
+  }
+  return out;
 }
 
 }  // namespace canbridge::bridge

@@ -1,27 +1,47 @@
-// Frames waiting for one backbone peer: queued in CAN arbitration order (bounded, process data
-// conflated per COB-ID), and packed into FrameBatch payloads when the session has room.
+// Frames waiting for one backbone peer, in the lanes of their delivery class (bounded; each
+// sender's frames in its order, the senders in CAN arbitration order), packed into FrameBatch
+// payloads when the session has room.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <string>
 
 #include "backbone/priority_scheduler.hpp"
 #include "backbone/session.hpp"
+#include "bridge/delivery_class.hpp"
+#include "bridge/delivery_lanes.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "can/frame.hpp"
 #include "canbridge.pb.h"
 
 namespace canbridge::bridge {
 
+// One frame lane's counts (kLanes gives each lane's overflow rule).
+struct LaneCounters {
+  std::uint64_t queued = 0;          // new entries (conflations not included)
+  std::uint64_t conflated = 0;       // a newer value replaced the queued one
+  std::uint64_t dropped_oldest = 0;  // the lane was full: its oldest frame made room
+  std::uint64_t refused = 0;         // the lane was full: the new frame was refused
+};
+
 struct OutboxCounters {
+  // Totals over the lanes, under the names of the stats lines.
   std::uint64_t queued = 0;
-  std::uint64_t conflated = 0;         // process frames replaced by a newer value
-  std::uint64_t process_dropped = 0;   // process frames dropped: queue full, no conflation
-  std::uint64_t reliable_refused = 0;  // reliable frames refused: queue full (a failure)
+  std::uint64_t conflated = 0;         // latest values and process frames replaced by a newer one
+  std::uint64_t process_dropped = 0;   // unreliable frames lost to a full lane (dropped/refused)
+  std::uint64_t reliable_refused = 0;  // reliable frames refused: lane full (a failure)
   std::uint64_t frames_sent = 0;
   std::uint64_t batches_sent = 0;
-  std::uint64_t sdo_requests_withdrawn = 0;  // dropped by withdraw_queued_sdo_requests()
+  std::uint64_t sdo_requests_withdrawn = 0;       // dropped by withdraw_queued_sdo_requests()
+  std::array<LaneCounters, kFrameLanes> lanes{};  // indexed by DeliveryClass
+
+  OutboxCounters& operator+=(const OutboxCounters& other);
 };
+
+// "lane reliable queued 3 conflated 0 dropped-oldest 0 refused 0, lane latest-value ...": every
+// frame lane's counts, for a stats line.
+std::string lanes_summary(const OutboxCounters& counters);
 
 // SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
 // unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
@@ -30,9 +50,7 @@ std::size_t withdraw_sdo_requests(std::string& payload);
 
 class FrameOutbox {
  public:
-  struct Options {
-    std::size_t max_reliable_frames = 1u << 16;
-    std::size_t max_process_frames = 1u << 14;
+  struct Options : LaneBounds {
     // Upper bound of one FrameBatch payload: smaller batches lose less to one corrupted serial
     // frame; larger ones amortise the envelope.
     std::size_t max_batch_bytes = 4096;
@@ -40,36 +58,32 @@ class FrameOutbox {
 
   explicit FrameOutbox(Options options);
 
-  // Queues one frame of `module_id`; `conflate` allows replacing a queued process frame of the
-  // same COB-ID. False when the frame was refused or dropped (counted).
-  // `packet_fragment`: a PDO Packet fragment crossing as a frame (docs/pdop.md section 8,
-  // `reassemble: false`). Its four t/c variants are different COB-IDs, which arbitration order
-  // would send last fragment first; it is ordered as its packet's first fragment (bits 6-5
-  // clear), so a packet's fragments leave in bus order. Never conflated (fragment k and k + 2
-  // share a COB-ID).
-  bool push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
-            bool packet_fragment = false);
+  // Queues one frame of `module_id` in the lane of its delivery class (classify(frame,
+  // options)). False when the frame was refused (counted): a reliable frame that will not be sent,
+  // or a fragment. A frame that displaced an older value is queued (the drop is counted).
+  bool push(std::uint32_t module_id, const can::Frame& frame, const DeliveryOptions& options);
 
   // Moves queued frames into the session's write, lowest arbitration priority first, as
-  // FrameBatch payloads: a run of frames of one module and one class per payload.
+  // FrameBatch payloads: a run of frames of one module and one reliability per payload.
   void produce(backbone::PayloadSink& sink);
 
   // SDO requests (0x601-0x67F) queued now are never sent: the surface has answered them with an
   // abort because the peer's link went down, and a node must not execute later a request its
   // master was told failed. Frames queued afterwards are not affected.
-  void withdraw_queued_sdo_requests() { withdraw_before_ = next_ordinal_; }
+  void withdraw_queued_sdo_requests();
 
   bool empty() const { return queue_.empty(); }
   std::size_t size() const { return queue_.size(); }
+  std::size_t lane_size(DeliveryClass delivery) const {
+    return queue_.lane_size(static_cast<std::size_t>(delivery));
+  }
   OutboxCounters counters() const;
 
  private:
   struct Entry {
     std::uint32_t module_id;
     can::Frame frame;
-    std::uint64_t ordinal;  // push order, for withdraw_queued_sdo_requests()
   };
-  bool withdrawn(const Entry& entry) const;
 
   Options options_;
   backbone::PriorityScheduler<Entry> queue_;
@@ -77,8 +91,6 @@ class FrameOutbox {
   v1::Payload payload_;
   std::string serialized_;
   OutboxCounters counters_;
-  std::uint64_t next_ordinal_ = 0;
-  std::uint64_t withdraw_before_ = 0;
 };
 
 }  // namespace canbridge::bridge

@@ -519,8 +519,7 @@ void Gateway::queue_node_events() {
   node_events_.clear();
   // Bounded: a link down for hours must not grow the queue without end. The oldest go first;
   // the surface learns the current state from the next events and from the heartbeats.
-  constexpr std::size_t kMaxQueuedEventPayloads = 1024;
-  if (events_out_.size() == kMaxQueuedEventPayloads) {
+  if (!events_out_.empty() && events_out_.size() >= tuning_.outbox.max_node_event_payloads) {
     counters_.node_events_dropped += events_out_.front().events;
     events_out_.pop_front();
     warn_.warn(Warn::kEventsDropped,
@@ -658,14 +657,12 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         sdo_trackers_[module_index][client].on_request(observed, {});
       }
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
-      const bool fragment =
-          fragments_as_frames && !surface->is_extended() &&
-          canopen::pdop::tpdo_number(canopen::pdop::decode(surface->id).function_code);
-      if (!outbox_.push(module.id, *surface, module.conflate_pdos, fragment) &&
-          !is_process_data(*surface)) {
+      if (!outbox_.push(
+              module.id, *surface,
+              {.conflate_pdos = module.conflate_pdos, .pdop_fragments = fragments_as_frames})) {
         warn_.warn(Warn::kRefused,
-                   "gateway: backbone queue full: reliable frames refused (counted as "
-                   "reliable-refused; the link is too slow or down too long)");
+                   "gateway: backbone queue full: frames refused (counted per lane; reliable "
+                   "ones as reliable-refused; the link is too slow or down too long)");
       }
     }
     after_node_input();
@@ -757,9 +754,9 @@ std::string Gateway::stats_line() const {
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
       c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped);
-  s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}",
+  s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
                    to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
-                   c.backbone_tx_bytes);
+                   c.backbone_tx_bytes, lanes_summary(c.outbox));
   if (!pdop_.empty()) {
     std::uint64_t dropped_frames = 0;
     for (const PdopModule& p : pdop_) {

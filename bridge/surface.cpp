@@ -224,14 +224,13 @@ asio::awaitable<void> Surface::read_bus() {
     for (auto& [name, gateway] : gateways_) {
       for (const can::Frame& frame : forward_) {
         // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
-        const bool fragment =
-            !frame.is_extended() && fragments_as_frames_[frame.id & canopen::pdop::kMaxNode] &&
-            canopen::pdop::rpdo_number(canopen::pdop::decode(frame.id).function_code);
-        if (!gateway->outbox.push(kAnyModule, frame, conflate_pdos_, fragment) &&
-            !is_process_data(frame)) {
+        const DeliveryOptions delivery{
+            .conflate_pdos = conflate_pdos_,
+            .pdop_fragments = fragments_as_frames_[frame.id & canopen::pdop::kMaxNode]};
+        if (!gateway->outbox.push(kAnyModule, frame, delivery)) {
           warn_.warn(Warn::kRefused,
-                     "surface: backbone queue to gateway '{}' full: reliable frames refused "
-                     "(counted as reliable-refused)",
+                     "surface: backbone queue to gateway '{}' full: frames refused (counted per "
+                     "lane; reliable ones as reliable-refused)",
                      name);
         }
       }
@@ -499,14 +498,7 @@ SurfaceCounters Surface::counters() const {
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
-    const OutboxCounters o = g->outbox.counters();
-    c.outbox.queued += o.queued;
-    c.outbox.conflated += o.conflated;
-    c.outbox.process_dropped += o.process_dropped;
-    c.outbox.reliable_refused += o.reliable_refused;
-    c.outbox.frames_sent += o.frames_sent;
-    c.outbox.batches_sent += o.batches_sent;
-    c.outbox.sdo_requests_withdrawn += o.sdo_requests_withdrawn;
+    c.outbox += g->outbox.counters();
   }
   return c;
 }
@@ -535,6 +527,7 @@ std::string Surface::stats_line() const {
       c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
       c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(),
       b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
+  s += "; " + lanes_summary(c.outbox);
   return s;
 }
 

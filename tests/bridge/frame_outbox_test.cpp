@@ -1,5 +1,6 @@
-// FrameOutbox against a fake session sink: arbitration order, conflation, the reliable bounds and
-// backpressure, the write budget, batch boundaries, and the wire cost per frame.
+// FrameOutbox against a fake session sink: arbitration order, each sender's order, every lane's
+// bound and overflow rule, conflation, backpressure, the write budget, batch boundaries, and the
+// wire cost per frame.
 #include "bridge/frame_outbox.hpp"
 
 #include <gtest/gtest.h>
@@ -107,6 +108,12 @@ bool drain(FrameOutbox& outbox, FakeSink& sink) {
   return true;
 }
 
+// The delivery options the roles pass: a module that conflates its PDOs, one that keeps them
+// all, and a node whose PDO Packets cross as frames.
+constexpr DeliveryOptions kConflate{.conflate_pdos = true};
+constexpr DeliveryOptions kKeep{.conflate_pdos = false};
+constexpr DeliveryOptions kFragments{.conflate_pdos = true, .pdop_fragments = true};
+
 can::Frame extended(std::uint32_t id, std::initializer_list<std::uint8_t> bytes) {
   return can::Frame::make(id, can::FrameFlags::extended, bytes);
 }
@@ -114,17 +121,18 @@ can::Frame extended(std::uint32_t id, std::initializer_list<std::uint8_t> bytes)
 TEST(FrameOutbox, FramesLeaveInCanArbitrationOrder) {
   FrameOutbox outbox({});
   const std::uint32_t kModule = 1;
-  // Pushed in reverse of the expected order, and the extended frame before its standard twin.
+  // Pushed in reverse of the expected order (but for the master's own two frames, which keep
+  // theirs), and the extended frame before its standard twin. Every frame from another sender.
   const can::Frame heartbeat = can::Frame::standard(0x701, {0x05});
-  const can::Frame sdo = can::Frame::standard(0x581, {0x43, 0x00, 0x10});
+  const can::Frame sdo = can::Frame::standard(0x582, {0x43, 0x00, 0x10});
   const can::Frame pdo_next = can::Frame::standard(0x182, {0x22});
+  const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x00});
   const can::Frame ext_same_base = extended((0x181u << 18) | 0x5, {0xEE});
   const can::Frame pdo = can::Frame::standard(0x181, {0x11});
-  const can::Frame emcy = can::Frame::standard(0x081, {0x00, 0x10});
+  const can::Frame emcy = can::Frame::standard(0x083, {0x00, 0x10});
   const can::Frame sync = can::Frame::standard(0x080, {});
-  const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x00});
-  for (const auto& f : {heartbeat, sdo, pdo_next, ext_same_base, pdo, emcy, sync, nmt}) {
-    ASSERT_TRUE(outbox.push(kModule, f, true));
+  for (const auto& f : {heartbeat, sdo, pdo_next, nmt, ext_same_base, pdo, emcy, sync}) {
+    ASSERT_TRUE(outbox.push(kModule, f, kConflate));
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -136,9 +144,9 @@ TEST(FrameOutbox, FramesLeaveInCanArbitrationOrder) {
 TEST(FrameOutbox, FramesOfOneCobIdStayInArrivalOrder) {
   FrameOutbox outbox({});
   for (std::uint8_t i = 0; i < 20; ++i) {
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), true));  // reliable
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {i}), true));        // reliable
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), false));       // process
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), kConflate));  // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {i}), kConflate));        // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), kKeep));            // process
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -166,8 +174,10 @@ TEST(FrameOutbox, PacketFragmentsLeaveInBusOrderNotArbitrationOrder) {
   const can::Frame other = can::Frame::standard(0x182, {0x22});  // another node's PDO
   for (bool in_order : {false, true}) {
     FrameOutbox outbox({});
-    for (const auto& f : fragments) ASSERT_TRUE(outbox.push(1, f, true, in_order));
-    ASSERT_TRUE(outbox.push(1, other, true));
+    for (const auto& f : fragments) {
+      ASSERT_TRUE(outbox.push(1, f, in_order ? kFragments : kConflate));
+    }
+    ASSERT_TRUE(outbox.push(1, other, kConflate));  // node 2 is no pdop node
     FakeSink sink;
     ASSERT_TRUE(drain(outbox, sink));
     const auto frames = all_frames(decode(sink));
@@ -187,10 +197,10 @@ TEST(FrameOutbox, PacketFragmentsLeaveInBusOrderNotArbitrationOrder) {
 TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
   FrameOutbox conflating({});
   for (std::uint8_t v = 1; v <= 5; ++v) {
-    ASSERT_TRUE(conflating.push(1, can::Frame::standard(0x181, {v}), true));
+    ASSERT_TRUE(conflating.push(1, can::Frame::standard(0x181, {v}), kConflate));
   }
   // Same COB-ID on another module is another signal: not conflated with module 1's.
-  ASSERT_TRUE(conflating.push(2, can::Frame::standard(0x181, {9}), true));
+  ASSERT_TRUE(conflating.push(2, can::Frame::standard(0x181, {9}), kConflate));
   EXPECT_EQ(conflating.size(), 2u);
   EXPECT_EQ(conflating.counters().conflated, 4u);
   FakeSink sink;
@@ -203,7 +213,7 @@ TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
 
   FrameOutbox keeping({});
   for (std::uint8_t v = 1; v <= 5; ++v) {
-    ASSERT_TRUE(keeping.push(1, can::Frame::standard(0x181, {v}), false));
+    ASSERT_TRUE(keeping.push(1, can::Frame::standard(0x181, {v}), kKeep));
   }
   EXPECT_EQ(keeping.counters().conflated, 0u);
   FakeSink all;
@@ -223,7 +233,7 @@ TEST(FrameOutbox, ReliableFramesAreNeverConflated) {
                                           can::Frame::standard(0x705, {0x00}),
                                           extended(0x1234567, {1}),
                                           extended(0x1234567, {2})};
-  for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, true));
+  for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, kConflate));
   EXPECT_EQ(outbox.size(), frames.size());
   EXPECT_EQ(outbox.counters().conflated, 0u);
   FakeSink sink;
@@ -238,11 +248,11 @@ TEST(FrameOutbox, HeartbeatStatesAreConflatedAndUnreliableWhileBootUpsAreNot) {
   // as a replay (reliable payloads are resent). Boot-ups are events: every one is delivered.
   FrameOutbox outbox({});
   for (std::uint8_t state : {0x7F, 0x05, 0x05, 0x04}) {
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {state}), /*conflate=*/false));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {state}), kKeep));
   }
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x706, {0x05}), false));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), false));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x706, {0x05}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep));
   EXPECT_EQ(outbox.counters().conflated, 3u);
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -263,16 +273,21 @@ TEST(FrameOutbox, WithdrawnSdoRequestsAreNeverSentAndLaterOnesAre) {
   const can::Frame old_request = can::Frame::standard(0x625, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
   const can::Frame response = can::Frame::standard(0x5A5, {0x43, 0x00, 0x10, 0x00, 1, 0, 0, 0});
   const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x25});
-  ASSERT_TRUE(outbox.push(1, old_request, true));
-  ASSERT_TRUE(outbox.push(1, nmt, true));
-  ASSERT_TRUE(outbox.push(1, response, true));
+  // Another withdrawn request behind the master's NMT (not at the head of the master's FIFO).
+  const can::Frame old_request_2 = can::Frame::standard(0x626, {0x40, 0x00, 0x10, 0x00, 0, 0, 0});
+  ASSERT_TRUE(outbox.push(1, old_request, kConflate));
+  ASSERT_TRUE(outbox.push(1, nmt, kConflate));
+  ASSERT_TRUE(outbox.push(1, response, kConflate));
+  ASSERT_TRUE(outbox.push(1, old_request_2, kConflate));
   outbox.withdraw_queued_sdo_requests();
+  EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 2u);
+  EXPECT_EQ(outbox.size(), 2u);  // gone at once: the NMT no longer waits behind a request
   const can::Frame new_request = can::Frame::standard(0x625, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0});
-  ASSERT_TRUE(outbox.push(1, new_request, true));
+  ASSERT_TRUE(outbox.push(1, new_request, kConflate));
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   EXPECT_EQ(all_frames(decode(sink)), (std::vector{nmt, response, new_request}));
-  EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 1u);
+  EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 2u);
 }
 
 TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
@@ -280,7 +295,7 @@ TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
   const can::Frame request = can::Frame::standard(0x625, {0x23, 0x00, 0x18, 0x01, 1, 2, 3, 4});
   const can::Frame nmt = can::Frame::standard(0x000, {0x82, 0x25});
   const can::Frame emcy = can::Frame::standard(0x0A5, {1, 2});
-  for (const auto& f : {nmt, emcy, request}) ASSERT_TRUE(outbox.push(kAnyModule, f, true));
+  for (const auto& f : {nmt, emcy, request}) ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate));
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   ASSERT_EQ(sink.sent.size(), 1u);
@@ -307,29 +322,38 @@ TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
   options.max_process_frames = 2;
   FrameOutbox outbox(options);
   for (std::uint8_t i = 0; i < 4; ++i) {
-    EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {i}), true));
+    EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {i}), kConflate));
   }
-  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x585, {4}), true));
+  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x585, {4}), kConflate));
   EXPECT_EQ(outbox.counters().reliable_refused, 1u);
-  // Process data has its own bound, so a full reliable queue does not block it (and vice versa).
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), false));
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), false));
-  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x183, {1}), false));
+  // Process data has its own bound, so a full reliable lane does not block it (and vice versa);
+  // a full process lane drops its oldest frame for the newest.
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), kKeep));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), kKeep));
   const OutboxCounters c = outbox.counters();
   EXPECT_EQ(c.process_dropped, 1u);
   EXPECT_EQ(c.reliable_refused, 1u);
-  EXPECT_EQ(c.queued, 6u);
+  EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::reliable)].refused, 1u);
+  EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::process_data)].dropped_oldest, 1u);
+  EXPECT_EQ(c.queued, 7u);
+  EXPECT_EQ(outbox.size(), 6u);
 
   // Room again once the queue drains.
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), true));
+  std::vector<std::uint32_t> process_ids;
+  for (const auto& f : all_frames(decode(sink))) {
+    if (f.id != 0x585) process_ids.push_back(f.id);
+  }
+  EXPECT_EQ(process_ids, (std::vector<std::uint32_t>{0x182, 0x183}));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kConflate));
 }
 
 TEST(FrameOutbox, ReliableFramesWaitWhileTheResendBufferIsFull) {
   FrameOutbox outbox({});
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {0x00, 0x10}), true));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x60}), true));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {0x00, 0x10}), kConflate));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x60}), kConflate));
   FakeSink sink;
   sink.reliable_room_ = false;
   for (int write = 0; write < 3; ++write) {
@@ -355,8 +379,8 @@ TEST(FrameOutbox, NoPayloadExceedsTheRoomOfItsWrite) {
     for (int i = 0; i < 300; ++i) {
       const auto v = static_cast<std::uint8_t>(i);
       const auto pdo = static_cast<std::uint32_t>(0x181 + i % 50);
-      if (!outbox.push(1, can::Frame::standard(pdo, {v, v, v, v, v, v, v, v}), false)) return false;
-      if (!outbox.push(2, extended(0x100000u + static_cast<std::uint32_t>(i), {v}), true)) {
+      if (!outbox.push(1, can::Frame::standard(pdo, {v, v, v, v, v, v, v, v}), kKeep)) return false;
+      if (!outbox.push(2, extended(0x100000u + static_cast<std::uint32_t>(i), {v}), kConflate)) {
         return false;
       }
     }
@@ -387,14 +411,14 @@ TEST(FrameOutbox, BatchesSplitByModuleAndClass) {
   FrameOutbox outbox({});
   // Arbitration order interleaves modules and classes: 0x181(m1) 0x182(m1) | 0x183(m2) |
   // 0x184(m1) | 0x585(m1, reliable) 0x586(m1, reliable) | 0x705(m2, reliable).
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), false));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), false));
-  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), false));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), kKeep));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), kKeep));
   // SDO and boot-up are reliable whatever the conflate flag says.
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), false));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), false));
-  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {0x00}), false));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), kKeep));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {0x00}), kKeep));
   FakeSink sink;
   sink.next_write();
   outbox.produce(sink);  // everything fits one write
@@ -420,7 +444,7 @@ TEST(FrameOutbox, StandardFramesCostAboutTenBytesEach) {
   for (std::size_t i = 0; i < kFrames; ++i) {
     const auto v = static_cast<std::uint8_t>(i);
     const auto id = static_cast<std::uint32_t>(0x181 + i % 0x3FF);  // 0x181..0x57F: PDOs
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(id, {v, 1, 2, 3, 4, 5, 6, 7}), false));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(id, {v, 1, 2, 3, 4, 5, 6, 7}), kKeep));
   }
   FakeSink sink(16 * 1024);
   ASSERT_TRUE(drain(outbox, sink));
@@ -438,6 +462,180 @@ TEST(FrameOutbox, StandardFramesCostAboutTenBytesEach) {
   ::testing::Test::RecordProperty("payload_bytes_per_frame", std::to_string(per_frame));
   EXPECT_LE(per_frame, 10.5);
   EXPECT_LE(with_envelopes, 10.5);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Each sender's order (issue 14: a boot-up and the EMCY right after it arrived swapped).
+
+std::vector<std::string> names(const std::vector<can::Frame>& frames,
+                               const std::vector<std::pair<can::Frame, std::string>>& known) {
+  std::vector<std::string> out;
+  for (const auto& f : frames) {
+    std::string name = "?";
+    for (const auto& [frame, n] : known) {
+      if (frame == f) name = n;
+    }
+    out.push_back(name);
+  }
+  return out;
+}
+
+TEST(FrameOutbox, OneNodesReliableFramesKeepItsOrderWhileNodesFollowArbitration) {
+  // Node 5 boots and reports an EMCY right after; node 3's frames interleave. All cross in one
+  // batch. Node 3 may overtake node 5 (its head 0x083 wins arbitration over 0x705), but node 5's
+  // EMCY (0x085) must not overtake node 5's boot-up.
+  const can::Frame boot_up_5 = can::Frame::standard(0x705, {0x00});
+  const can::Frame emcy_3 = can::Frame::standard(0x083, {0x00, 0x10, 0x01});
+  const can::Frame emcy_5 = can::Frame::standard(0x085, {0x00, 0x50, 0x01});
+  const can::Frame sdo_3 = can::Frame::standard(0x583, {0x60, 0x17, 0x10});
+  const can::Frame emcy_5_reset = can::Frame::standard(0x085, {0x00, 0x00, 0x00});
+  const std::vector<std::pair<can::Frame, std::string>> known = {{boot_up_5, "boot-up 5"},
+                                                                 {emcy_3, "emcy 3"},
+                                                                 {emcy_5, "emcy 5"},
+                                                                 {sdo_3, "sdo 3"},
+                                                                 {emcy_5_reset, "emcy-reset 5"}};
+  FrameOutbox outbox({});
+  for (const auto& f : {boot_up_5, emcy_3, emcy_5, sdo_3, emcy_5_reset}) {
+    ASSERT_TRUE(outbox.push(1, f, kConflate));
+  }
+  FakeSink sink;
+  sink.next_write();
+  outbox.produce(sink);
+  ASSERT_TRUE(outbox.empty());
+  ASSERT_EQ(sink.sent.size(), 1u);  // one batch
+  EXPECT_EQ(names(all_frames(decode(sink)), known),
+            (std::vector<std::string>{"emcy 3", "sdo 3", "boot-up 5", "emcy 5", "emcy-reset 5"}));
+}
+
+TEST(FrameOutbox, NodesOfDifferentModulesAreDifferentSenders) {
+  // Node 5 of module 2 is another device than node 5 of module 1: it is not held behind it.
+  FrameOutbox outbox({});
+  const can::Frame boot_up_5 = can::Frame::standard(0x705, {0x00});
+  const can::Frame emcy_5 = can::Frame::standard(0x085, {0x00, 0x50, 0x01});
+  ASSERT_TRUE(outbox.push(1, boot_up_5, kConflate));
+  ASSERT_TRUE(outbox.push(2, emcy_5, kConflate));
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  const auto batches = decode(sink);
+  ASSERT_EQ(batches.size(), 2u);
+  EXPECT_EQ(batches[0].module_id, 2u);
+  EXPECT_EQ(batches[1].module_id, 1u);
+}
+
+TEST(FrameOutbox, TheMastersFramesKeepTheMastersOrder) {
+  // A master writes 1017h of node 5 and then starts all nodes: the NMT (0x000, the bus's most
+  // urgent identifier) must not reach the far bus before the SDO request sent ahead of it. Other
+  // senders still overtake by arbitration: node 1's EMCY leaves before the master's request.
+  const can::Frame request = can::Frame::standard(0x605, {0x2B, 0x17, 0x10, 0x00, 0xE8, 0x03});
+  const can::Frame nmt_start = can::Frame::standard(0x000, {0x01, 0x00});
+  const can::Frame sync = can::Frame::standard(0x080, {});  // process data: not the master's FIFO
+  const can::Frame emcy_1 = can::Frame::standard(0x081, {0x00, 0x10});
+  const can::Frame lss = can::Frame::standard(0x7E5, {0x04, 0x01});
+  const std::vector<std::pair<can::Frame, std::string>> known = {
+      {request, "request"}, {nmt_start, "nmt"}, {sync, "sync"}, {emcy_1, "emcy 1"}, {lss, "lss"}};
+  FrameOutbox outbox({});
+  for (const auto& f : {request, nmt_start, sync, emcy_1, lss}) {
+    ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate));
+  }
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(names(all_frames(decode(sink)), known),
+            (std::vector<std::string>{"sync", "emcy 1", "request", "nmt", "lss"}));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Every lane's bound and overflow rule (bridge/delivery_lanes.hpp).
+
+TEST(FrameOutbox, AFullLatestValueLaneDropsTheOldestValue) {
+  FrameOutbox::Options options;
+  options.max_latest_values = 2;
+  FrameOutbox outbox(options);
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x701, {0x05}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x702, {0x05}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x701, {0x04}), kKeep));  // replaces, in place
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x703, {0x7F}), kKeep));  // drops node 1's
+  const auto lane = outbox.counters().lanes[static_cast<std::size_t>(DeliveryClass::latest_value)];
+  EXPECT_EQ(lane.conflated, 1u);
+  EXPECT_EQ(lane.dropped_oldest, 1u);
+  EXPECT_EQ(lane.refused, 0u);
+  EXPECT_EQ(outbox.counters().process_dropped, 1u);
+  EXPECT_EQ(outbox.lane_size(DeliveryClass::latest_value), 2u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  const auto batches = decode(sink);
+  for (const auto& b : batches) EXPECT_FALSE(b.reliable);  // never resent
+  EXPECT_EQ(all_frames(batches), (std::vector{can::Frame::standard(0x702, {0x05}),
+                                              can::Frame::standard(0x703, {0x7F})}));
+}
+
+TEST(FrameOutbox, AFullProcessLaneDropsTheOldestWhetherOrNotItConflates) {
+  for (const DeliveryOptions& options : {kKeep, kConflate}) {
+    FrameOutbox::Options bounds;
+    bounds.max_process_frames = 3;
+    FrameOutbox outbox(bounds);
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), options));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), options));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {2}), options));  // conflated or kept
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), options));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {1}), options));
+    const auto lane =
+        outbox.counters().lanes[static_cast<std::size_t>(DeliveryClass::process_data)];
+    FakeSink sink;
+    ASSERT_TRUE(drain(outbox, sink));
+    const auto frames = all_frames(decode(sink));
+    if (options.conflate_pdos) {
+      EXPECT_EQ(lane.conflated, 1u);
+      EXPECT_EQ(lane.dropped_oldest, 1u);  // 0x181 (value 2) was the oldest entry
+      EXPECT_EQ(ids(frames), (std::vector<std::uint32_t>{0x182, 0x183, 0x184}));
+    } else {
+      EXPECT_EQ(lane.conflated, 0u);
+      EXPECT_EQ(lane.dropped_oldest, 2u);  // 0x181 (value 1), then 0x182
+      EXPECT_EQ(frames,
+                (std::vector{can::Frame::standard(0x181, {2}), can::Frame::standard(0x183, {1}),
+                             can::Frame::standard(0x184, {1})}));
+    }
+  }
+}
+
+TEST(FrameOutbox, AFullFragmentLaneRefusesNewFragments) {
+  FrameOutbox::Options options;
+  options.max_fragment_frames = 2;
+  FrameOutbox outbox(options);
+  const can::Frame f0 = can::Frame::standard(0x1A1, {0, 1, 2, 3, 4, 5, 6, 7});
+  const can::Frame f1 = can::Frame::standard(0x1E1, {1, 1, 2, 3, 4, 5, 6, 7});
+  const can::Frame f2 = can::Frame::standard(0x1A1, {2, 1, 2, 3, 4, 5, 6, 7});
+  EXPECT_TRUE(outbox.push(1, f0, kFragments));
+  EXPECT_TRUE(outbox.push(1, f1, kFragments));
+  EXPECT_FALSE(outbox.push(1, f2, kFragments));  // an older fragment stays: its packet is intact
+  const auto c = outbox.counters();
+  EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::ordered_fragment)].refused, 1u);
+  EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::ordered_fragment)].conflated, 0u);
+  EXPECT_EQ(c.process_dropped, 1u);
+  EXPECT_EQ(c.reliable_refused, 0u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)), (std::vector{f0, f1}));
+}
+
+TEST(FrameOutbox, LaneCountersAddUpAcrossOutboxesAndShowInOneSummary) {
+  FrameOutbox a({});
+  FrameOutbox b({});
+  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {1}), kConflate));
+  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {2}), kConflate));
+  ASSERT_TRUE(b.push(1, can::Frame::standard(0x585, {1}), kConflate));
+  OutboxCounters sum;
+  sum += a.counters();
+  sum += b.counters();
+  EXPECT_EQ(sum.queued, 2u);
+  EXPECT_EQ(sum.conflated, 1u);
+  EXPECT_EQ(sum.lanes[static_cast<std::size_t>(DeliveryClass::reliable)].queued, 1u);
+  EXPECT_EQ(sum.lanes[static_cast<std::size_t>(DeliveryClass::process_data)].queued, 1u);
+  EXPECT_EQ(sum.lanes[static_cast<std::size_t>(DeliveryClass::process_data)].conflated, 1u);
+  EXPECT_EQ(lanes_summary(sum),
+            "lane reliable queued 1 conflated 0 dropped-oldest 0 refused 0, "
+            "lane latest-value queued 0 conflated 0 dropped-oldest 0 refused 0, "
+            "lane process queued 1 conflated 1 dropped-oldest 0 refused 0, "
+            "lane fragment queued 0 conflated 0 dropped-oldest 0 refused 0");
 }
 
 }  // namespace

@@ -1,7 +1,8 @@
 // One surface and several real gateways in process, over loopback TCP: each gateway is bound by
 // the name in its hello, traffic is routed by module both ways, a gateway announcing a module
 // another one serves is refused without disturbing the others, a restarted gateway comes back,
-// and reliable frames cross link cuts exactly once and in order.
+// reliable frames cross link cuts exactly once and in order, and each sender's frames reach the
+// far bus in the order it sent them.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -445,6 +446,41 @@ TEST_F(SurfaceGateways, FramesTheBridgeWroteAreNeverForwardedAgainWhenABusEchoes
   ASSERT_TRUE(run_until(io, [&] { return a->node().count(0x600 + kLocal) == 2; }));
   EXPECT_EQ(a->node().frames.size(), at_node_before + 1);  // only the marker arrived
   EXPECT_EQ(surface.counters().echoes_dropped, 1u);
+}
+
+TEST_F(SurfaceGateways, EachSendersFramesReachTheFarBusInItsOrder) {
+  start_a_and_b();
+  // Node 5 boots and reports an EMCY right after it; node 3's EMCY and SDO response interleave.
+  // Written at once, they reach the gateway in one bus batch and cross in one backbone batch.
+  constexpr std::uint8_t kOther = 3;  // surface node 35 on module 1
+  const std::vector<can::Frame> module_frames = {
+      can::Frame::standard(0x700 + kLocal, {0x00}),
+      can::Frame::standard(0x080 + kOther, {0x00, 0x10, 0x01}),
+      can::Frame::standard(0x080 + kLocal, {0x00, 0x50, 0x01}),
+      sdo_response(kOther, 7),
+  };
+  for (const can::Frame& f : module_frames) ASSERT_TRUE(a->node().send(f));
+  ASSERT_TRUE(run_until(io, [&] { return master.frames.size() >= 4; }));
+  // Node 35 may go first (its EMCY wins arbitration against a boot-up); node 37's EMCY must not
+  // overtake node 37's boot-up, as it did when the outbox ordered by COB-ID alone.
+  const std::uint32_t other = kOther + 32;
+  EXPECT_EQ(master.frames,
+            (std::vector{can::Frame::standard(0x080 + other, {0x00, 0x10, 0x01}),
+                         sdo_response(static_cast<std::uint8_t>(other), 7),
+                         can::Frame::standard(0x700 + kSurfaceNodeA, {0x00}),
+                         can::Frame::standard(0x080 + kSurfaceNodeA, {0x00, 0x50, 0x01})}));
+
+  // The master writes node 37's heartbeat period and then starts it: the NMT, the bus's most
+  // urgent identifier, still reaches the module bus after the request sent ahead of it.
+  const can::Frame request =
+      can::Frame::standard(0x600 + kSurfaceNodeA, {0x2B, 0x17, 0x10, 0x00, 0xE8, 0x03, 0x00, 0x00});
+  ASSERT_TRUE(master.send(request));
+  ASSERT_TRUE(master.send(can::Frame::standard(0x000, {0x01, kSurfaceNodeA})));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().frames.size() >= 2; }));
+  EXPECT_EQ(a->node().frames,
+            (std::vector{can::Frame::standard(0x600 + kLocal,
+                                              {0x2B, 0x17, 0x10, 0x00, 0xE8, 0x03, 0x00, 0x00}),
+                         can::Frame::standard(0x000, {0x01, kLocal})}));
 }
 
 }  // namespace
