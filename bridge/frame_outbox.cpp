@@ -18,11 +18,9 @@ std::size_t frame_bytes(const can::Frame& f) {
 }
 }  // namespace
 
-namespace {
 bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
-}  // namespace
 
 std::size_t withdraw_sdo_requests(std::string& payload) {
   v1::Payload parsed;
@@ -50,7 +48,7 @@ FrameOutbox::FrameOutbox(Options options)
     : options_(options), queue_({options.max_reliable_frames, options.max_process_frames}) {}
 
 bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
-                       bool packet_fragment) {
+                       bool packet_fragment, Clock::time_point now) {
   using Push = backbone::PriorityScheduler<Entry>::Push;
   packet_fragment = packet_fragment && !frame.is_extended() && !frame.is_remote();
   can::Frame first_fragment_id;
@@ -59,11 +57,12 @@ bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame, bool co
     conflate = false;
   }
   const std::uint32_t priority = arbitration_priority(packet_fragment ? first_fragment_id : frame);
-  const Push result = is_process_data(frame)
-                          ? queue_.push_process(priority, conflation_key(module_id, frame),
-                                                conflate || is_heartbeat_state(frame),
-                                                Entry{module_id, frame, next_ordinal_})
-                          : queue_.push_reliable(priority, Entry{module_id, frame, next_ordinal_});
+  const Push result =
+      is_process_data(frame)
+          ? queue_.push_process(priority, conflation_key(module_id, frame),
+                                conflate || is_heartbeat_state(frame),
+                                Entry{module_id, frame, next_ordinal_, now})
+          : queue_.push_reliable(priority, Entry{module_id, frame, next_ordinal_, now});
   ++next_ordinal_;
   return result != Push::refused;
 }
@@ -73,15 +72,39 @@ bool FrameOutbox::withdrawn(const Entry& entry) const {
   return entry.ordinal < withdraw_before_ && is_sdo_request(f);
 }
 
+bool FrameOutbox::drop_front_if_stale(Clock::time_point now) {
+  const auto front = queue_.front();
+  if (!front) return false;
+  if (withdrawn(*front->item)) {
+    queue_.pop();
+    ++counters_.sdo_requests_withdrawn;
+    return true;
+  }
+  if (front->reliable && options_.reliable_max_age.count() > 0 &&
+      now - front->item->born > options_.reliable_max_age) {
+    const Entry old = queue_.pop()->item;
+    ++counters_.reliable_too_old;
+    if (on_discard_) on_discard_(old.module_id, old.frame, Discard::too_old);
+    return true;
+  }
+  return false;
+}
+
+void FrameOutbox::discard_queued() {
+  while (auto popped = queue_.pop()) {
+    ++counters_.discarded_peer_restart;
+    if (popped->reliable && on_discard_ && !withdrawn(popped->item)) {
+      on_discard_(popped->item.module_id, popped->item.frame, Discard::peer_restart);
+    }
+  }
+}
+
 void FrameOutbox::produce(backbone::PayloadSink& sink) {
+  const Clock::time_point now = sink.now();
   while (sink.room() > kBatchOverhead + kMaxFrameBytes) {
+    if (drop_front_if_stale(now)) continue;
     const auto front = queue_.front();
     if (!front) return;
-    if (withdrawn(*front->item)) {
-      queue_.pop();
-      ++counters_.sdo_requests_withdrawn;
-      continue;
-    }
     const std::uint32_t module_id = front->item->module_id;
     const bool reliable = front->reliable;
     std::size_t budget = std::min(sink.room(), options_.max_batch_bytes) - kBatchOverhead;
@@ -97,15 +120,13 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     builder_.start(batch, module_id);
     std::size_t used = 0;
     std::size_t frames = 0;
+    Clock::time_point born = now;
     for (auto next = queue_.front(); next; next = queue_.front()) {
-      if (withdrawn(*next->item)) {
-        queue_.pop();
-        ++counters_.sdo_requests_withdrawn;
-        continue;
-      }
+      if (drop_front_if_stale(now)) continue;
       if (next->reliable != reliable || next->item->module_id != module_id) break;
       const std::size_t bytes = frame_bytes(next->item->frame);
       if (used + bytes > budget) break;
+      born = std::min(born, next->item->born);
       builder_.append(batch, queue_.pop()->item.frame);
       used += bytes;
       ++frames;
@@ -114,7 +135,7 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     serialized_.clear();
     payload_.AppendToString(&serialized_);
     if (reliable) {
-      sink.send_reliable(serialized_);
+      sink.send_reliable_since(serialized_, born);
     } else {
       sink.send_unreliable(
           {reinterpret_cast<const std::uint8_t*>(serialized_.data()), serialized_.size()});

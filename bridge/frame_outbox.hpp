@@ -2,7 +2,9 @@
 // conflated per COB-ID), and packed into FrameBatch payloads when the session has room.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include "backbone/priority_scheduler.hpp"
@@ -21,7 +23,12 @@ struct OutboxCounters {
   std::uint64_t frames_sent = 0;
   std::uint64_t batches_sent = 0;
   std::uint64_t sdo_requests_withdrawn = 0;  // dropped by withdraw_queued_sdo_requests()
+  std::uint64_t reliable_too_old = 0;        // reliable frames older than reliable_max_age
+  std::uint64_t discarded_peer_restart = 0;  // frames queued for a peer process that is gone
 };
+
+// True for an SDO request on a default server channel (0x601-0x67F).
+bool is_sdo_request(const can::Frame& frame);
 
 // SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
 // unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
@@ -36,7 +43,16 @@ class FrameOutbox {
     // Upper bound of one FrameBatch payload: smaller batches lose less to one corrupted serial
     // frame; larger ones amortise the envelope.
     std::size_t max_batch_bytes = 4096;
+    // A reliable frame queued longer than this is never sent (backbone::SessionOptions has the
+    // same bound for what was sent and not yet acknowledged). Zero: no limit.
+    std::chrono::milliseconds reliable_max_age{0};
   };
+  using Clock = std::chrono::steady_clock;
+  enum class Discard { too_old, peer_restart };
+  // Sees every reliable frame the outbox gives up on (so its sender can answer the requests
+  // among them).
+  using DiscardObserver =
+      std::function<void(std::uint32_t module_id, const can::Frame& frame, Discard why)>;
 
   explicit FrameOutbox(Options options);
 
@@ -48,7 +64,7 @@ class FrameOutbox {
   // clear), so a packet's fragments leave in bus order. Never conflated (fragment k and k + 2
   // share a COB-ID).
   bool push(std::uint32_t module_id, const can::Frame& frame, bool conflate,
-            bool packet_fragment = false);
+            bool packet_fragment = false, Clock::time_point now = Clock::now());
 
   // Moves queued frames into the session's write, lowest arbitration priority first, as
   // FrameBatch payloads: a run of frames of one module and one class per payload.
@@ -59,6 +75,10 @@ class FrameOutbox {
   // master was told failed. Frames queued afterwards are not affected.
   void withdraw_queued_sdo_requests() { withdraw_before_ = next_ordinal_; }
 
+  // The peer this outbox feeds is a new process: everything queued was meant for the old one.
+  void discard_queued();
+  void on_discard(DiscardObserver observer) { on_discard_ = std::move(observer); }
+
   bool empty() const { return queue_.empty(); }
   std::size_t size() const { return queue_.size(); }
   OutboxCounters counters() const;
@@ -68,8 +88,11 @@ class FrameOutbox {
     std::uint32_t module_id;
     can::Frame frame;
     std::uint64_t ordinal;  // push order, for withdraw_queued_sdo_requests()
+    Clock::time_point born;
   };
   bool withdrawn(const Entry& entry) const;
+  // Pops the front entry if it must not go (withdrawn, too old); true if it did.
+  bool drop_front_if_stale(Clock::time_point now);
 
   Options options_;
   backbone::PriorityScheduler<Entry> queue_;
@@ -79,6 +102,7 @@ class FrameOutbox {
   OutboxCounters counters_;
   std::uint64_t next_ordinal_ = 0;
   std::uint64_t withdraw_before_ = 0;
+  DiscardObserver on_discard_;
 };
 
 }  // namespace canbridge::bridge
