@@ -599,7 +599,7 @@ void SessionLink::arm_watchdog() {
 }
 
 void SessionLink::on_watchdog() {
-  if (closed_) return;
+  if (closed_ || !link_->is_open()) return;  // closing already (its handler may come later)
   const Clock::time_point now = this->now();
   if (now - last_rx_ <= options_.dead_after && now - last_run_ > peer_patience()) {
     return close_stale("this side did not run for longer than the peer waits", now);
