@@ -15,6 +15,8 @@ inline BackboneTuning make_tuning(const config::SessionTuning& t) {
   out.session.keepalive_interval = t.keepalive;
   out.session.dead_after = t.dead_after;
   out.session.retransmit_timeout = t.retransmit;
+  out.session.reliable_max_age = t.reliable_max_age;
+  out.outbox.reliable_max_age = t.reliable_max_age;
   out.session.resend_buffer_messages = t.resend_buffer_messages;
   out.session.resend_buffer_bytes = t.resend_buffer_bytes;
   out.session.max_write_bytes = t.max_write_bytes;

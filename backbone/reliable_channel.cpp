@@ -43,7 +43,7 @@ bool ReliableSender::can_accept(std::size_t bytes) const {
          unacked_bytes_ <= options_.max_bytes - bytes;
 }
 
-std::optional<std::uint64_t> ReliableSender::push(std::string payload) {
+std::optional<std::uint64_t> ReliableSender::push(std::string payload, TimePoint born) {
   if (!can_accept(payload.size())) {
     ++counters_.overflow;
     return std::nullopt;
@@ -54,6 +54,8 @@ std::optional<std::uint64_t> ReliableSender::push(std::string payload) {
   Entry& stored = entry(seq);
   stored.payload = std::move(payload);
   stored.last_sent = TimePoint{};
+  stored.born = born;
+  oldest_born_ = std::min(oldest_born_, born);
   ++counters_.pushed;
   return seq;
 }

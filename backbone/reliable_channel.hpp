@@ -73,8 +73,9 @@ class ReliableSender {
 
   // Assigns the next seq and keeps the payload until it is acknowledged. nullopt (and counts
   // `overflow`) when max_messages or max_bytes would be exceeded; the caller must report that or
-  // retry later. A payload larger than max_bytes is never accepted.
-  std::optional<std::uint64_t> push(std::string payload);
+  // retry later. A payload larger than max_bytes is never accepted. `born`: when the oldest
+  // content of the payload came into being (for drop_older_than(); the default never expires).
+  std::optional<std::uint64_t> push(std::string payload, TimePoint born = TimePoint::max());
 
   // Single retransmissions scheduled by on_resend_request(), on_nack() or on_retransmit_timeout()
   // first, lowest seq first;
@@ -143,6 +144,44 @@ class ReliableSender {
     }
   }
 
+  // Turns every unacknowledged payload born before `cutoff` into a tombstone: the payload is
+  // emptied, its seq stays (the peer's receiver may be waiting for it, so the stream stays
+  // contiguous) and an empty reliable payload is never delivered. `dropped(const std::string&)`
+  // sees each payload before it is emptied. Returns how many were dropped.
+  template <typename Dropped>
+  std::size_t drop_older_than(TimePoint cutoff, Dropped&& dropped) {
+    if (oldest_born_ >= cutoff) return 0;  // the common case: nothing that old is held
+    std::size_t count = 0;
+    TimePoint oldest = TimePoint::max();
+    for (std::uint64_t seq = send_base_; seq < next_seq_; ++seq) {
+      Entry& held = entry(seq);
+      if (held.payload.empty()) continue;
+      if (held.born >= cutoff) {
+        oldest = std::min(oldest, held.born);
+        continue;
+      }
+      dropped(static_cast<const std::string&>(held.payload));
+      tombstone(held);
+      ++count;
+    }
+    oldest_born_ = oldest;
+    return count;
+  }
+  // Tombstones every unacknowledged payload (the peer they were meant for is gone).
+  template <typename Dropped>
+  std::size_t drop_all(Dropped&& dropped) {
+    std::size_t count = 0;
+    for (std::uint64_t seq = send_base_; seq < next_seq_; ++seq) {
+      Entry& held = entry(seq);
+      if (held.payload.empty()) continue;
+      dropped(static_cast<const std::string&>(held.payload));
+      tombstone(held);
+      ++count;
+    }
+    oldest_born_ = TimePoint::max();
+    return count;
+  }
+
   std::uint64_t send_base() const { return send_base_; }  // oldest unacked, or next_seq() if none
   std::uint64_t next_seq() const { return next_seq_; }    // seq the next push() gets
   std::size_t unacked_count() const { return static_cast<std::size_t>(next_seq_ - send_base_); }
@@ -156,7 +195,12 @@ class ReliableSender {
   struct Entry {
     std::string payload;
     TimePoint last_sent{};
+    TimePoint born{};
   };
+  void tombstone(Entry& held) {
+    unacked_bytes_ -= held.payload.size();
+    std::string().swap(held.payload);
+  }
 
   Entry& entry(std::uint64_t seq);
   const Entry& entry(std::uint64_t seq) const;
@@ -174,6 +218,8 @@ class ReliableSender {
   std::size_t unacked_bytes_ = 0;
   bool link_up_ = false;
   TimePoint last_ack_progress_{};
+  // No unacked payload was born before this (a lower bound), so drop_older_than() is cheap.
+  TimePoint oldest_born_ = TimePoint::max();
   // Single retransmissions to hand out before anything else, lowest first. Only unacked seqs that
   // were handed out on this link (on_ack, rewind and link changes prune it), so it is bounded by
   // max_messages.

@@ -111,9 +111,22 @@ class SessionLink::Writer final : public PayloadSink {
     return session_.stream_->sender_.can_accept(bytes);
   }
   void send_reliable(std::string payload) override {
-    if (!session_.stream_->sender_.push(std::move(payload))) return;  // counted by the sender
+    send_reliable_since(std::move(payload), now_);
+  }
+  void send_reliable_since(std::string payload, Clock::time_point born) override {
+    const auto max_age = session_.options_.reliable_max_age;
+    if (max_age.count() > 0 && now_ - born > max_age) {
+      // Too old already: never sequenced, never sent.
+      ++session_.counters_.reliable_dropped_too_old;
+      auto& dropped = session_.stream_->handlers_.on_reliable_dropped;
+      if (dropped) dropped(payload, ReliableDrop::too_old);
+      return;
+    }
+    // Counted by the sender when refused.
+    if (!session_.stream_->sender_.push(std::move(payload), std::min(born, now_))) return;
     drain_reliable();
   }
+  Clock::time_point now() const override { return now_; }
   void send_unreliable(std::span<const std::uint8_t> payload) override {
     session_.append_envelope(out_, 0, payload, false);
     ++session_.counters_.unreliable_sent;
@@ -167,7 +180,7 @@ SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& iden
 SessionLink::~SessionLink() = default;
 
 void SessionLink::start() {
-  last_rx_ = last_tx_ = Clock::now();
+  last_rx_ = last_tx_ = last_run_ = now();
   std::weak_ptr<SessionLink> weak = weak_from_this();
   link_->start(
       [weak](std::span<const std::uint8_t> bytes) {
@@ -248,7 +261,8 @@ void SessionLink::fill(std::string& out) {
     closing_after_flush_ = true;
     return;
   }
-  const Clock::time_point now = Clock::now();
+  const Clock::time_point now = this->now();
+  last_run_ = now;
   if (hello_please_owed_) {
     scratch_.Clear();
     scratch_.mutable_keepalive()->set_hello_please(true);
@@ -276,6 +290,7 @@ void SessionLink::fill(std::string& out) {
   if (hello_sent_ && peer_hello_ok_ && !ready_) become_ready();
   if (closed_) return;
   if (!ready_) return;
+  drop_too_old(now);
   Writer writer(*this, out, now);
   writer.drain_reliable();
   if (writer.room() > 0 && stream_->handlers_.produce) stream_->handlers_.produce(writer);
@@ -306,8 +321,63 @@ void SessionLink::become_ready() {
   if (stream_->handlers_.on_up) stream_->handlers_.on_up(stream_->peer_hello_);
 }
 
+Clock::time_point SessionLink::now() const {
+  return options_.clock ? options_.clock() : Clock::now();
+}
+
+// The watchdog closes a link silent for dead_after within one tick, and this side sends at least
+// every keepalive interval. Input that finds either broken arrives after the watchdog could not
+// run (the process was stopped, or not scheduled): the peer may meanwhile have declared the link
+// dead and told its users that what it sent failed, so none of it may be acted on now.
+const char* SessionLink::stale_reason(Clock::time_point now) const {
+  if (now - last_rx_ > options_.dead_after) return "nothing received for longer than dead_after";
+  if (now - last_run_ > peer_patience())
+    return "this side did not run for longer than the peer waits";
+  return nullptr;
+}
+
+// The peer last heard from us up to a keepalive interval before we stopped running, and declares
+// the link dead dead_after after that: a pause this long may already have cost us the link.
+std::chrono::steady_clock::duration SessionLink::peer_patience() const {
+  return std::max<Clock::duration>(options_.dead_after - options_.keepalive_interval,
+                                   2 * watchdog_tick());
+}
+
+void SessionLink::close_stale(const char* why, Clock::time_point now) {
+  ++counters_.stale_links_closed;
+  spdlog::warn(
+      "backbone: link to {} stale ({}: {} ms since the last input, {} ms since this side last "
+      "ran): what arrived is not delivered, closing the link; the stream resumes on the next one",
+      link_->peer_name(), why,
+      std::chrono::duration_cast<std::chrono::milliseconds>(now - last_rx_).count(),
+      std::chrono::duration_cast<std::chrono::milliseconds>(now - last_run_).count());
+  link_->close();
+}
+
+// A reliable payload in order: an empty one is a tombstone (the sender gave it up), not data.
+void SessionLink::deliver_reliable(std::span<const std::uint8_t> payload) {
+  if (payload.empty()) {
+    ++counters_.tombstones_received;
+    return;
+  }
+  ++counters_.reliable_delivered;
+  if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(payload, true);
+}
+
+void SessionLink::drop_too_old(Clock::time_point now) {
+  if (options_.reliable_max_age.count() <= 0) return;
+  auto& dropped = stream_->handlers_.on_reliable_dropped;
+  counters_.reliable_dropped_too_old +=
+      stream_->sender_.drop_older_than(now - options_.reliable_max_age, [&](const std::string& p) {
+        if (dropped) dropped(p, ReliableDrop::too_old);
+      });
+}
+
 void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
   if (closed_ || closing_after_flush_ || !refusal_.empty()) return;
+  const Clock::time_point now = this->now();
+  if (const char* why = stale_reason(now)) return close_stale(why, now);
+  last_run_ = now;
   if (!inbound_.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) {
     ++counters_.malformed;
     if (!warned_malformed.exchange(true)) {
@@ -318,7 +388,6 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
     }
     return;
   }
-  const Clock::time_point now = Clock::now();
   last_rx_ = now;
   switch (inbound_.body_case()) {
     case v1::Envelope::kHello:
@@ -380,17 +449,12 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
       ReliableReceiver& receiver = stream_->receiver_;
       switch (receiver.accept(inbound_.seq(), payload)) {
         case ReliableReceiver::Verdict::deliver: {
-          ++counters_.reliable_delivered;
           ack_owed_ = true;
-          auto& deliver = stream_->handlers_.on_payload;
-          if (deliver) deliver(view, true);
+          deliver_reliable(view);
           // What arrived after a gap that this payload closed follows, in order.
           receiver.drain([&](std::string&& buffered) {
-            ++counters_.reliable_delivered;
-            if (deliver) {
-              deliver({reinterpret_cast<const std::uint8_t*>(buffered.data()), buffered.size()},
-                      true);
-            }
+            deliver_reliable(
+                {reinterpret_cast<const std::uint8_t*>(buffered.data()), buffered.size()});
           });
           break;
         }
@@ -421,7 +485,7 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
     // The same peer started its handshake again: our hello was lost, or it reopened its end of
     // a serial line. Settle what it acknowledges, resend the rest, and (as the responder)
     // answer with our hello.
-    const Clock::time_point now = Clock::now();
+    const Clock::time_point now = this->now();
     if (h.resume_session_id() == identity_.session_id && envelope.ack() != 0) {
       stream_->sender_.on_ack(envelope.ack(), now);
     }
@@ -450,13 +514,23 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
   if (h.session_id() != stream.peer_session_id_) {
     if (stream.peer_session_id_ != 0) {
       ++counters_.peer_restarts;
-      spdlog::warn("backbone: {} restarted (new session): its reliable stream starts afresh",
-                   describe_peer(h));
+      // What the old process was sent and did not acknowledge is not replayed to the new one:
+      // tombstones keep our sequence contiguous for its fresh receiver.
+      auto& dropped = stream.handlers_.on_reliable_dropped;
+      const std::size_t gone = stream.sender_.drop_all([&](const std::string& p) {
+        if (dropped) dropped(p, ReliableDrop::peer_restart);
+      });
+      counters_.reliable_dropped_peer_restart += gone;
+      spdlog::warn(
+          "backbone: {} restarted (new session): its reliable stream starts afresh; {} "
+          "payload(s) unacknowledged by the old process dropped",
+          describe_peer(h), gone);
+      if (stream.handlers_.on_peer_restart) stream.handlers_.on_peer_restart(h);
     }
     stream.receiver_.reset(h.send_base());
     stream.peer_session_id_ = h.session_id();
   }
-  const Clock::time_point now = Clock::now();
+  const Clock::time_point now = this->now();
   // The peer's ack counts only if it refers to this process's stream.
   if (h.resume_session_id() == identity_.session_id && envelope.ack() != 0) {
     stream.sender_.on_ack(envelope.ack(), now);
@@ -509,13 +583,15 @@ std::chrono::steady_clock::duration SessionLink::resend_interval() const {
                                                        std::chrono::milliseconds{1});
 }
 
-void SessionLink::arm_watchdog() {
-  // One deadline per link covers dead-link detection, keepalives and retransmission.
+std::chrono::steady_clock::duration SessionLink::watchdog_tick() const {
   const auto shortest =
       std::min({options_.keepalive_interval, options_.dead_after, options_.retransmit_timeout});
-  const auto tick =
-      std::clamp(shortest / 4, std::chrono::milliseconds{5}, std::chrono::milliseconds{250});
-  watchdog_.expires_after(tick);
+  return std::clamp(shortest / 4, std::chrono::milliseconds{5}, std::chrono::milliseconds{250});
+}
+
+void SessionLink::arm_watchdog() {
+  // One deadline per link covers dead-link detection, keepalives and retransmission.
+  watchdog_.expires_after(watchdog_tick());
   watchdog_.async_wait([weak = weak_from_this()](boost::system::error_code ec) {
     auto self = weak.lock();
     if (!ec && self) self->on_watchdog();
@@ -523,8 +599,12 @@ void SessionLink::arm_watchdog() {
 }
 
 void SessionLink::on_watchdog() {
-  if (closed_) return;
-  const Clock::time_point now = Clock::now();
+  if (closed_ || !link_->is_open()) return;  // closing already (its handler may come later)
+  const Clock::time_point now = this->now();
+  if (now - last_rx_ <= options_.dead_after && now - last_run_ > peer_patience()) {
+    return close_stale("this side did not run for longer than the peer waits", now);
+  }
+  last_run_ = now;
   if (now - last_rx_ > options_.dead_after) {
     ++counters_.dead_links;
     spdlog::warn("backbone: nothing from {} for {} ms: link dead, closing it", link_->peer_name(),

@@ -37,6 +37,13 @@ struct SessionOptions {
   std::size_t resend_buffer_bytes = 4u << 20;
   // Upper bound of one write: what is urgent does not wait behind a long write on a slow line.
   std::size_t max_write_bytes = 16 * 1024;
+  // A reliable payload older than this (from its birth upstream, see PayloadSink) is never sent
+  // again: it becomes a tombstone (PeerStream::Handlers::on_reliable_dropped). A command that
+  // arrives seconds late does harm (an NMT stop for a node its master has since restarted).
+  // Zero: no limit.
+  std::chrono::milliseconds reliable_max_age{0};
+  // The session's clock; empty: std::chrono::steady_clock::now. Tests inject their own.
+  std::function<std::chrono::steady_clock::time_point()> clock;
 };
 
 // Counters of one side, summed over all its peers and links.
@@ -57,6 +64,19 @@ struct SessionCounters {
   std::uint64_t reliable_duplicates = 0;  // dropped: already delivered
   std::uint64_t unreliable_sent = 0;
   std::uint64_t unreliable_delivered = 0;
+  // Input arrived after the link had been silent past dead_after, or after this side had not run
+  // for longer than the peer's patience (frozen, not scheduled): the peer may have declared the
+  // link dead and withdrawn what it sent, so that input was not delivered and the link closed.
+  std::uint64_t stale_links_closed = 0;
+  std::uint64_t reliable_dropped_too_old = 0;       // tombstoned: older than reliable_max_age
+  std::uint64_t reliable_dropped_peer_restart = 0;  // tombstoned: meant for the peer's old process
+  std::uint64_t tombstones_received = 0;            // empty reliable payloads, not delivered
+};
+
+// Why a reliable payload was dropped before its peer acknowledged it.
+enum class ReliableDrop {
+  too_old,       // older than SessionOptions::reliable_max_age
+  peer_restart,  // the peer is a new process: it never asked for what the old one was sent
 };
 
 class SessionLink;
@@ -69,8 +89,20 @@ class PayloadSink {
   virtual std::size_t room() const = 0;
   // Whether the resend buffer can hold a reliable payload of `bytes` (else: keep it upstream).
   virtual bool reliable_room(std::size_t bytes) const = 0;
+  // Born now: its age (SessionOptions::reliable_max_age) counts from this call.
   virtual void send_reliable(std::string payload) = 0;
+  // Born at `born`: content that waited upstream (a queue while the link was down) is as old as
+  // its oldest part.
+  virtual void send_reliable_since(std::string payload,
+                                   std::chrono::steady_clock::time_point born) {
+    (void)born;
+    send_reliable(std::move(payload));
+  }
   virtual void send_unreliable(std::span<const std::uint8_t> payload) = 0;
+  // The session's clock, for producers that age what they queue.
+  virtual std::chrono::steady_clock::time_point now() const {
+    return std::chrono::steady_clock::now();
+  }
 };
 
 // Reliable state toward one peer; outlives the links that carry it.
@@ -83,6 +115,11 @@ class PeerStream {
     std::function<void(std::span<const std::uint8_t> payload, bool reliable)> on_payload;
     std::function<void(const v1::Hello& peer)> on_up;  // a link to the peer is ready
     std::function<void()> on_down;                     // that link ended
+    // The peer's hello names a new process (not the first one seen): whatever the application
+    // still queues for the old one must go. Called before the new link carries anything.
+    std::function<void(const v1::Hello& peer)> on_peer_restart = nullptr;
+    // A reliable payload given up before its peer acknowledged it (then emptied: a tombstone).
+    std::function<void(const std::string& payload, ReliableDrop why)> on_reliable_dropped = nullptr;
   };
 
   PeerStream(const SessionOptions& options, Handlers handlers);
@@ -152,6 +189,14 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   class Writer;
 
   void on_message(std::span<const std::uint8_t> bytes);
+  std::chrono::steady_clock::time_point now() const;
+  // Why input arriving now must not be trusted, or null.
+  const char* stale_reason(std::chrono::steady_clock::time_point now) const;
+  void close_stale(const char* why, std::chrono::steady_clock::time_point now);
+  void drop_too_old(std::chrono::steady_clock::time_point now);
+  void deliver_reliable(std::span<const std::uint8_t> payload);
+  std::chrono::steady_clock::duration watchdog_tick() const;
+  std::chrono::steady_clock::duration peer_patience() const;
   void on_hello(const v1::Envelope& envelope);
   void become_ready();
   std::chrono::steady_clock::duration resend_interval() const;
@@ -174,6 +219,9 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   boost::asio::steady_timer watchdog_;
   std::chrono::steady_clock::time_point last_rx_;
   std::chrono::steady_clock::time_point last_tx_;
+  // Last time this side ran at all for the link (watchdog, input, writer): a long gap means it
+  // was frozen or not scheduled, and the watchdog could not close the link in time.
+  std::chrono::steady_clock::time_point last_run_;
   std::string refusal_;  // serialized Refusal envelope waiting to go out
   v1::Envelope inbound_;
   v1::Envelope scratch_;

@@ -18,10 +18,11 @@ std::size_t frame_bytes(const can::Frame& f) {
   return 2 + (f.is_remote() ? 0 : f.len) + (escaped ? 5 : 0);
 }
 
+}  // namespace
+
 bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
-}  // namespace
 
 std::size_t withdraw_sdo_requests(std::string& payload) {
   v1::Payload parsed;
@@ -86,14 +87,14 @@ std::uint32_t priority_of(const Lane& lane, const can::Frame& frame) {
 FrameOutbox::FrameOutbox(Options options) : options_(options), queue_(scheduler_lanes(options)) {}
 
 bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
-                       const DeliveryOptions& options) {
+                       const DeliveryOptions& options, Clock::time_point now) {
   const DeliveryClass delivery = classify(frame, options);
   const Lane& lane = lane_of(delivery);
   const bool replace = lane.conflation == Conflation::always ||
                        (lane.conflation == Conflation::module_option && options.conflate_pdos);
   const auto result =
       queue_.push(static_cast<std::size_t>(delivery), fifo_key(lane, module_id, frame),
-                  priority_of(lane, frame), replace, Entry{module_id, frame});
+                  priority_of(lane, frame), replace, Entry{module_id, frame, now});
   return result != backbone::SchedulerPush::refused;
 }
 
@@ -102,8 +103,31 @@ void FrameOutbox::withdraw_queued_sdo_requests() {
       queue_.erase_if([](const Entry& entry) { return is_sdo_request(entry.frame); });
 }
 
+bool FrameOutbox::drop_front_if_too_old(Clock::time_point now) {
+  const auto front = queue_.front();
+  if (!front || !kLanes[front->lane].reliable || options_.reliable_max_age.count() <= 0 ||
+      now - front->item->born <= options_.reliable_max_age) {
+    return false;
+  }
+  const Entry old = queue_.pop()->item;
+  ++counters_.reliable_too_old;
+  if (on_discard_) on_discard_(old.module_id, old.frame, Discard::too_old);
+  return true;
+}
+
+void FrameOutbox::discard_queued() {
+  while (auto popped = queue_.pop()) {
+    ++counters_.discarded_peer_restart;
+    if (kLanes[popped->lane].reliable && on_discard_) {
+      on_discard_(popped->item.module_id, popped->item.frame, Discard::peer_restart);
+    }
+  }
+}
+
 void FrameOutbox::produce(backbone::PayloadSink& sink) {
+  const Clock::time_point now = sink.now();
   while (sink.room() > kBatchOverhead + kMaxFrameBytes) {
+    if (drop_front_if_too_old(now)) continue;
     const auto front = queue_.front();
     if (!front) return;
     const std::uint32_t module_id = front->item->module_id;
@@ -121,10 +145,13 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     builder_.start(batch, module_id);
     std::size_t used = 0;
     std::size_t frames = 0;
+    Clock::time_point born = now;
     for (auto next = queue_.front(); next; next = queue_.front()) {
+      if (drop_front_if_too_old(now)) continue;
       if (kLanes[next->lane].reliable != reliable || next->item->module_id != module_id) break;
       const std::size_t bytes = frame_bytes(next->item->frame);
       if (used + bytes > budget) break;
+      born = std::min(born, next->item->born);
       builder_.append(batch, queue_.pop()->item.frame);
       used += bytes;
       ++frames;
@@ -133,7 +160,7 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     serialized_.clear();
     payload_.AppendToString(&serialized_);
     if (reliable) {
-      sink.send_reliable(serialized_);
+      sink.send_reliable_since(serialized_, born);
     } else {
       sink.send_unreliable(
           {reinterpret_cast<const std::uint8_t*>(serialized_.data()), serialized_.size()});
@@ -165,6 +192,8 @@ OutboxCounters& OutboxCounters::operator+=(const OutboxCounters& other) {
   frames_sent += other.frames_sent;
   batches_sent += other.batches_sent;
   sdo_requests_withdrawn += other.sdo_requests_withdrawn;
+  reliable_too_old += other.reliable_too_old;
+  discarded_peer_restart += other.discarded_peer_restart;
   for (std::size_t i = 0; i < lanes.size(); ++i) {
     lanes[i].queued += other.lanes[i].queued;
     lanes[i].conflated += other.lanes[i].conflated;

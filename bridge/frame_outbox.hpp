@@ -4,7 +4,9 @@
 #pragma once
 
 #include <array>
+#include <chrono>
 #include <cstdint>
+#include <functional>
 #include <string>
 
 #include "backbone/priority_scheduler.hpp"
@@ -34,6 +36,8 @@ struct OutboxCounters {
   std::uint64_t frames_sent = 0;
   std::uint64_t batches_sent = 0;
   std::uint64_t sdo_requests_withdrawn = 0;       // dropped by withdraw_queued_sdo_requests()
+  std::uint64_t reliable_too_old = 0;        // reliable frames older than reliable_max_age
+  std::uint64_t discarded_peer_restart = 0;  // frames queued for a peer process that is gone
   std::array<LaneCounters, kFrameLanes> lanes{};  // indexed by DeliveryClass
 
   OutboxCounters& operator+=(const OutboxCounters& other);
@@ -42,6 +46,9 @@ struct OutboxCounters {
 // "lane reliable queued 3 conflated 0 dropped-oldest 0 refused 0, lane latest-value ...": every
 // frame lane's counts, for a stats line.
 std::string lanes_summary(const OutboxCounters& counters);
+
+// True for an SDO request on a default server channel (0x601-0x67F).
+bool is_sdo_request(const can::Frame& frame);
 
 // SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
 // unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
@@ -54,14 +61,25 @@ class FrameOutbox {
     // Upper bound of one FrameBatch payload: smaller batches lose less to one corrupted serial
     // frame; larger ones amortise the envelope.
     std::size_t max_batch_bytes = 4096;
+    // A reliable frame queued longer than this is never sent (backbone::SessionOptions has the
+    // same bound for what was sent and not yet acknowledged). Zero: no limit.
+    std::chrono::milliseconds reliable_max_age{0};
   };
+  using Clock = std::chrono::steady_clock;
+  enum class Discard { too_old, peer_restart };
+  // Sees every reliable frame the outbox gives up on (so its sender can answer the requests
+  // among them).
+  using DiscardObserver =
+      std::function<void(std::uint32_t module_id, const can::Frame& frame, Discard why)>;
 
   explicit FrameOutbox(Options options);
 
   // Queues one frame of `module_id` in the lane of its delivery class (classify(frame,
   // options)). False when the frame was refused (counted): a reliable frame that will not be sent,
   // or a fragment. A frame that displaced an older value is queued (the drop is counted).
-  bool push(std::uint32_t module_id, const can::Frame& frame, const DeliveryOptions& options);
+  // `now`: when the frame was read off its bus, for reliable_max_age.
+  bool push(std::uint32_t module_id, const can::Frame& frame, const DeliveryOptions& options,
+            Clock::time_point now = Clock::now());
 
   // Moves queued frames into the session's write, lowest arbitration priority first, as
   // FrameBatch payloads: a run of frames of one module and one reliability per payload.
@@ -71,6 +89,10 @@ class FrameOutbox {
   // abort because the peer's link went down, and a node must not execute later a request its
   // master was told failed. Frames queued afterwards are not affected.
   void withdraw_queued_sdo_requests();
+
+  // The peer this outbox feeds is a new process: everything queued was meant for the old one.
+  void discard_queued();
+  void on_discard(DiscardObserver observer) { on_discard_ = std::move(observer); }
 
   bool empty() const { return queue_.empty(); }
   std::size_t size() const { return queue_.size(); }
@@ -83,7 +105,10 @@ class FrameOutbox {
   struct Entry {
     std::uint32_t module_id;
     can::Frame frame;
+    Clock::time_point born;  // read off its bus
   };
+  // Pops the front entry if it is a reliable frame older than reliable_max_age; true if it did.
+  bool drop_front_if_too_old(Clock::time_point now);
 
   Options options_;
   backbone::PriorityScheduler<Entry> queue_;
@@ -91,6 +116,7 @@ class FrameOutbox {
   v1::Payload payload_;
   std::string serialized_;
   OutboxCounters counters_;
+  DiscardObserver on_discard_;
 };
 
 }  // namespace canbridge::bridge

@@ -190,7 +190,10 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                     for (auto& module : sdo_trackers_) {
                       for (auto& tracker : module) tracker.reset();
                     }
-                  }}) {
+                    withdraw_sdo_requests_to_buses();
+                  },
+                  // A new surface process: what was queued for the old one is not replayed.
+                  [this](const v1::Hello&) { outbox_.discard_queued(); }}) {
   identity_.role = v1::Hello::ROLE_GATEWAY;
   identity_.expected_peer = v1::Hello::ROLE_SURFACE;
   identity_.name = name_;
@@ -659,7 +662,8 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
       if (!outbox_.push(
               module.id, *surface,
-              {.conflate_pdos = module.conflate_pdos, .pdop_fragments = fragments_as_frames})) {
+              {.conflate_pdos = module.conflate_pdos, .pdop_fragments = fragments_as_frames},
+              now)) {
         warn_.warn(Warn::kRefused,
                    "gateway: backbone queue full: frames refused (counted per lane; reliable "
                    "ones as reliable-refused; the link is too slow or down too long)");
@@ -668,6 +672,15 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
     after_node_input();
     after_pdop_input();
     stream_.wake();
+  }
+}
+
+// The surface aborts every SDO request in flight when it declares the link dead: one still
+// waiting here for its bus must never reach the node.
+void Gateway::withdraw_sdo_requests_to_buses() {
+  for (GatewayModule& module : modules_) {
+    counters_.sdo_requests_withdrawn +=
+        module.bus->withdraw_queued([](const can::Frame& f) { return is_sdo_request(f); });
   }
 }
 
@@ -747,13 +760,17 @@ std::string Gateway::stats_line() const {
       "gateway {}: link {}, bus->backbone {} frames ({} batches), backbone->bus {}, "
       "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
       "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
-      "bus-refused {}, echoes-dropped {}, sdo-values rewritten {} unmapped {}",
+      "bus-refused {}, echoes-dropped {}, sdo-values rewritten {} unmapped {}, stale-links {}, "
+      "reliable dropped too-old {} surface-restart {}, sdo-requests-withdrawn {}",
       name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
       dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
       c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
-      c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped);
+      c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped, c.session.stale_links_closed,
+      c.outbox.reliable_too_old + c.session.reliable_dropped_too_old,
+      c.outbox.discarded_peer_restart + c.session.reliable_dropped_peer_restart,
+      c.sdo_requests_withdrawn);
   s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
                    to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
                    c.backbone_tx_bytes, lanes_summary(c.outbox));

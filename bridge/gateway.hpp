@@ -55,6 +55,9 @@ struct GatewayCounters {
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
   std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
+  // SDO requests from the surface still waiting for a bus when the link died (the master was
+  // told they failed): never written.
+  std::uint64_t sdo_requests_withdrawn = 0;
   // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h, 1028h)
   // rewritten between bus and surface ids, and those whose id has no counterpart (forwarded
   // unchanged).
@@ -101,6 +104,7 @@ class Gateway {
  private:
   boost::asio::awaitable<void> read_bus(std::size_t module_index);
   void on_payload(std::span<const std::uint8_t> payload);
+  void withdraw_sdo_requests_to_buses();
   // Default SDO channel of a node of `module_index`: the node id if `frame` is its request
   // (0x600 + n) or response (0x580 + n) under the module's profile, else 0.
   canopen::NodeId sdo_node(std::size_t module_index, const can::Frame& frame,

@@ -54,6 +54,25 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
   return aborts;
 }
 
+std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& request) {
+  const canopen::NodeId node = request_node(request);
+  if (node == 0) return std::nullopt;
+  const std::uint8_t command = request.data[0] >> 5;
+  if (command == 4) return std::nullopt;  // the master's own abort needs no answer
+  Node& n = nodes_[node];
+  if (n.owned && !n.pending) return std::nullopt;  // answered already
+  Node answer = n;
+  if (!n.owned && (command == 1 || command == 2 || command == 5 || command == 6)) {
+    answer.mux[0] = request.data[1];
+    answer.mux[1] = request.data[2];
+    answer.mux[2] = request.data[3];
+  }
+  n.pending = false;
+  n.aborted = n.owned;
+  ++counters_.aborted_discarded;
+  return abort_for(node, answer);
+}
+
 std::optional<SdoLinkGuard::GatewayId> SdoLinkGuard::owner_of(canopen::NodeId node) const {
   if (node == 0 || node > canopen::kMaxNodeId || !nodes_[node].owned) return std::nullopt;
   return nodes_[node].gateway;

@@ -25,6 +25,7 @@ class SdoLinkGuard {
     std::uint64_t aborted_at_once = 0;         // requests to a node whose gateway was down
     std::uint64_t aborted_in_flight = 0;       // requests pending when their gateway went down
     std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
+    std::uint64_t aborted_discarded = 0;  // requests the backbone gave up (too old, old process)
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
@@ -49,6 +50,12 @@ class SdoLinkGuard {
 
   // The gateway's link went down: the aborts for every SDO request in flight to its nodes.
   std::vector<can::Frame> on_gateway_down(GatewayId gateway);
+
+  // A request forwarded earlier will never reach its node (the backbone gave it up: too old, or
+  // queued for a gateway process that is gone): the abort for its master, unless the master has
+  // its answer already (a response, an abort, its own abort). Requests to nodes no gateway has
+  // claimed yet are not followed, so each of them gets an abort.
+  std::optional<can::Frame> on_request_discarded(const can::Frame& request);
 
   std::optional<GatewayId> owner_of(canopen::NodeId node) const;
   const Counters& counters() const { return counters_; }

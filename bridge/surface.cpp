@@ -23,12 +23,21 @@ struct Surface::Gateway {
       : name(std::move(gateway_name)),
         id(gateway_id),
         outbox(tuning.outbox),
-        stream(tuning.session, backbone::PeerStream::Handlers{
-                                   [this](backbone::PayloadSink& sink) { produce(sink); },
-                                   [this, &surface](std::span<const std::uint8_t> payload, bool) {
-                                     surface.on_payload(*this, payload);
-                                   },
-                                   nullptr, [this, &surface] { surface.on_gateway_down(*this); }}) {
+        stream(tuning.session,
+               backbone::PeerStream::Handlers{
+                   [this](backbone::PayloadSink& sink) { produce(sink); },
+                   [this, &surface](std::span<const std::uint8_t> payload, bool) {
+                     surface.on_payload(*this, payload);
+                   },
+                   nullptr, [this, &surface] { surface.on_gateway_down(*this); },
+                   // A new gateway process: nothing queued for the old one goes.
+                   [this](const v1::Hello&) { outbox.discard_queued(); },
+                   [&surface](const std::string& payload, backbone::ReliableDrop why) {
+                     surface.on_payload_dropped(payload, why);
+                   }}) {
+    outbox.on_discard([&surface](std::uint32_t, const can::Frame& frame, FrameOutbox::Discard why) {
+      surface.on_frame_dropped(frame, why == FrameOutbox::Discard::too_old);
+    });
   }
 
   // RPDOP packets first (the master waits on each), then frames.
@@ -227,7 +236,7 @@ asio::awaitable<void> Surface::read_bus() {
         const DeliveryOptions delivery{
             .conflate_pdos = conflate_pdos_,
             .pdop_fragments = fragments_as_frames_[frame.id & canopen::pdop::kMaxNode]};
-        if (!gateway->outbox.push(kAnyModule, frame, delivery)) {
+        if (!gateway->outbox.push(kAnyModule, frame, delivery, now)) {
           warn_.warn(Warn::kRefused,
                      "surface: backbone queue to gateway '{}' full: frames refused (counted per "
                      "lane; reliable ones as reliable-refused)",
@@ -491,6 +500,25 @@ void Surface::on_gateway_down(Gateway& gateway) {
   for (const can::Frame& abort : guard_.on_gateway_down(gateway.id)) send_to_bus(abort);
 }
 
+void Surface::on_frame_dropped(const can::Frame& frame, bool too_old) {
+  ++(too_old ? counters_.reliable_dropped_too_old : counters_.reliable_dropped_gateway_restart);
+  if (!is_sdo_request(frame)) return;
+  if (auto abort = guard_.on_request_discarded(frame)) {
+    ++counters_.sdo_aborted_dropped;
+    send_to_bus(*abort);
+  }
+}
+
+void Surface::on_payload_dropped(const std::string& payload, backbone::ReliableDrop why) {
+  v1::Payload parsed;
+  std::vector<can::Frame> frames;
+  if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
+      decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
+    return;  // RPDOP packets: the relay times them out and answers the master
+  }
+  for (const can::Frame& f : frames) on_frame_dropped(f, why == backbone::ReliableDrop::too_old);
+}
+
 SurfaceCounters Surface::counters() const {
   SurfaceCounters c = counters_;
   c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight;
@@ -510,6 +538,7 @@ std::string Surface::stats_line() const {
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}), "
+      "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
       "bus-refused {}, "
       "malformed {}, unknown-module {}, node-events {}; "
@@ -522,7 +551,8 @@ std::string Surface::stats_line() const {
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted,
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
-      c.sdo_late_responses_dropped, c.echoes_dropped, c.bus_refused,
+      c.sdo_late_responses_dropped, c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart,
+      c.sdo_aborted_dropped, c.session.stale_links_closed, c.echoes_dropped, c.bus_refused,
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
       c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
       c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(),

@@ -42,6 +42,11 @@ struct SurfaceCounters {
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
   std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
+  // Reliable frames for a gateway given up before it acknowledged them, by reason (queued ones
+  // and sent ones); SDO requests among them were answered with an abort if still open.
+  std::uint64_t reliable_dropped_too_old = 0;
+  std::uint64_t reliable_dropped_gateway_restart = 0;
+  std::uint64_t sdo_aborted_dropped = 0;
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
   std::uint64_t pdop_packet_bytes = 0;
@@ -100,6 +105,9 @@ class Surface {
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
+  // A frame meant for `gateway` that will never be sent: counted, an open SDO request aborted.
+  void on_frame_dropped(const can::Frame& frame, bool too_old);
+  void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   void send_to_bus(const can::Frame& frame);
   void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
   void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);

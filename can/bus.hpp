@@ -50,6 +50,14 @@ class Bus {
   // size_t for a bus without a bound). For writers of frame sequences that must go whole or not
   // at all (PDO Packet fragments): a sequence with a gap in it can pass as intact.
   virtual std::size_t send_room() const = 0;
+  // Removes the frames accepted by send() but not yet handed to the driver for which
+  // `withdrawn(frame)` is true (the others keep their order), and returns how many it removed:
+  // for a writer whose user was told meanwhile that those frames failed. A bus that queues
+  // nothing of its own has nothing to withdraw.
+  virtual std::size_t withdraw_queued(const std::function<bool(const Frame&)>& withdrawn) {
+    (void)withdrawn;
+    return 0;
+  }
 
   virtual BusCounters counters() const = 0;
 

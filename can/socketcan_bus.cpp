@@ -103,6 +103,18 @@ class FrameRing {
     size_ -= n;
   }
   void clear() { head_ = size_ = 0; }
+  // Keeps, in order, the frames `drop` says no to; returns how many it dropped.
+  template <typename Drop>
+  std::size_t remove_if(Drop&& drop) {
+    std::size_t kept = 0;
+    for (std::size_t i = 0; i < size_; ++i) {
+      const Frame f = at(i);
+      if (!drop(f)) slots_[(head_ + kept++) % slots_.size()] = f;
+    }
+    const std::size_t removed = size_ - kept;
+    size_ = kept;
+    return removed;
+  }
 
  private:
   std::vector<Frame> slots_;
@@ -518,6 +530,12 @@ void SocketCanBus::on_state_change(std::function<void(BusState)> handler) {
 
 void SocketCanBus::close() {
   impl_->close();
+}
+
+// The writer takes frames from the head of the queue on each pass and holds none across a wait,
+// so the queue may be filtered between passes.
+std::size_t SocketCanBus::withdraw_queued(const std::function<bool(const Frame&)>& withdrawn) {
+  return impl_->tx_queue.remove_if(withdrawn);
 }
 
 std::size_t SocketCanBus::queued() const {

@@ -59,6 +59,7 @@ class SocketCanBus final : public Bus {
   boost::asio::awaitable<std::error_code> receive_batch(std::vector<Frame>& out) override;
   bool send(const Frame& frame) override;
   std::size_t send_room() const override;
+  std::size_t withdraw_queued(const std::function<bool(const Frame&)>& withdrawn) override;
   BusCounters counters() const override;
   void on_state_change(std::function<void(BusState)> handler) override;
   void close() override;

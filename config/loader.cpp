@@ -136,7 +136,25 @@ class Reader : public YamlReader {
                     "): give dead_after_ms, a few keepalives longer");
       }
     }
-    if (auto v = ms("retransmit_ms", 10, 600000)) out.retransmit = *v;
+    const auto retransmit = ms("retransmit_ms", 10, 600000);
+    if (retransmit) out.retransmit = *retransmit;
+    // A frame lost once must still be young enough to be resent. Checked like dead_after_ms.
+    const auto max_age = ms("reliable_max_age_ms", 100, 3600000);
+    if (max_age) out.reliable_max_age = *max_age;
+    if ((max_age || !backbone["reliable_max_age_ms"]) &&
+        (retransmit || !backbone["retransmit_ms"]) && out.reliable_max_age <= out.retransmit) {
+      const std::string age = std::to_string(out.reliable_max_age.count());
+      const std::string rto = std::to_string(out.retransmit.count());
+      if (max_age) {
+        problem(backbone["reliable_max_age_ms"], "backbone.reliable_max_age_ms",
+                age + " must exceed retransmit_ms (" + rto +
+                    "), or a frame lost once could never be resent");
+      } else {
+        problem(backbone["retransmit_ms"], "backbone.reliable_max_age_ms",
+                "the default " + age + " does not exceed retransmit_ms (" + rto +
+                    "): give reliable_max_age_ms, longer than retransmit_ms");
+      }
+    }
     count("resend_buffer_messages", 1, 1LL << 20, out.resend_buffer_messages);
     count("resend_buffer_bytes", 1024, 1LL << 30, out.resend_buffer_bytes);
     count("max_write_bytes", 64, 1LL << 20, out.max_write_bytes);
@@ -444,11 +462,11 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
     in.problem(backbone, "backbone",
                "must be a mapping with 'connect: host:port' (TCP) or 'serial:' (a serial line)");
   } else {
-    in.only_keys(
-        backbone, "backbone",
-        {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
-         "dead_after_ms", "retransmit_ms", "resend_buffer_messages", "resend_buffer_bytes",
-         "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+    in.only_keys(backbone, "backbone",
+                 {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
+                  "dead_after_ms", "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages",
+                  "resend_buffer_bytes", "max_write_bytes", "queue_reliable_frames",
+                  "queue_process_frames", "tcp_framing"});
     // Exactly one transport: with both, which one the operator meant is anyone's guess.
     const YAML::Node connect_key = key_of(backbone, "connect");
     const YAML::Node serial_key = key_of(backbone, "serial");
@@ -541,7 +559,7 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
     in.only_keys(
         backbone, "backbone",
         {"listen", "serial", "conflate_pdos", "keepalive_ms", "dead_after_ms", "retransmit_ms",
-         "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
+         "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
          "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
     // An empty list ("serial: []") reaches no gateway either.
     const YAML::Node lines = backbone["serial"];

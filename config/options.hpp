@@ -60,6 +60,10 @@ struct SessionTuning {
   std::chrono::milliseconds keepalive{500};
   std::chrono::milliseconds dead_after{2000};  // must exceed keepalive
   std::chrono::milliseconds retransmit{1000};
+  // No reliable frame older than this (from when it was read off its bus) is sent or resent:
+  // it is dropped, counted, and an SDO request among them answered with an abort at the surface.
+  // Must exceed retransmit.
+  std::chrono::milliseconds reliable_max_age{4000};
   std::size_t resend_buffer_messages = 4096;
   std::size_t resend_buffer_bytes = 4u << 20;
   std::size_t max_write_bytes = 16 * 1024;

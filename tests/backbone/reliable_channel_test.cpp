@@ -513,6 +513,33 @@ TEST(ReliableSender, RingWrapsAroundWithoutMixingUpPayloads) {
   EXPECT_GT(sender.counters().acked, 300u);
 }
 
+// Old payloads become tombstones: emptied, their seqs kept, so a receiver waiting for them is
+// not left with a hole; acks release them like any other.
+TEST(ReliableSender, DropOlderThanTombstonesOnlyWhatIsOlderAndKeepsTheSequence) {
+  ReliableSender sender = connected_sender();
+  ASSERT_EQ(sender.push("old", kT0), 1u);
+  ASSERT_EQ(sender.push("new", kT0 + 2s), 2u);
+  ASSERT_EQ(sender.push("older", kT0 - 1s), 3u);
+  ASSERT_EQ(sender.push("ageless"), 4u);
+  std::vector<std::string> dropped;
+  const auto keep = [&](const std::string& p) { dropped.push_back(p); };
+  EXPECT_EQ(sender.drop_older_than(kT0 - 1s, keep), 0u);  // none is older than its birth
+  EXPECT_EQ(sender.drop_older_than(kT0 + 1s, keep), 2u);
+  EXPECT_EQ(dropped, (std::vector<std::string>{"old", "older"}));
+  EXPECT_EQ(sender.unacked_count(), 4u);
+  EXPECT_EQ(sender.unacked_bytes(), 3u + 7u);
+  std::vector<std::pair<std::uint64_t, std::string>> out;
+  while (auto m = sender.next_to_send(kT0)) out.emplace_back(m->seq, std::string(m->payload));
+  EXPECT_EQ(out, (std::vector<std::pair<std::uint64_t, std::string>>{
+                     {1, ""}, {2, "new"}, {3, ""}, {4, "ageless"}}));
+  EXPECT_EQ(sender.drop_older_than(kT0 + 1s, keep), 0u);  // tombstones are not dropped twice
+  EXPECT_EQ(sender.drop_all(keep), 2u);
+  EXPECT_EQ(dropped.back(), "ageless");
+  EXPECT_EQ(sender.unacked_bytes(), 0u);
+  sender.on_ack(4, kT0);
+  EXPECT_EQ(sender.unacked_count(), 0u);
+}
+
 // ---------------------------------------------------------------------------------------------
 // ReliableReceiver
 

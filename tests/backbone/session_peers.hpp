@@ -6,6 +6,7 @@
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -26,7 +27,11 @@ class SessionEnd {
                                      [this](std::span<const std::uint8_t> p, bool reliable) {
                                        receive(p, reliable);
                                      },
-                                     [this](const v1::Hello&) { ++ups; }, [this] { ++downs; }}) {
+                                     [this](const v1::Hello&) { ++ups; }, [this] { ++downs; },
+                                     [this](const v1::Hello&) { ++peer_restarts; },
+                                     [this](const std::string& p, ReliableDrop why) {
+                                       dropped.push_back({number(bytes_of(p)), why});
+                                     }}) {
     identity_.role = role;
     identity_.expected_peer =
         role == v1::Hello::ROLE_GATEWAY ? v1::Hello::ROLE_SURFACE : v1::Hello::ROLE_GATEWAY;
@@ -56,6 +61,9 @@ class SessionEnd {
     stream_.wake();
   }
 
+  static std::span<const std::uint8_t> bytes_of(const std::string& s) {
+    return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
+  }
   static std::uint64_t number(std::span<const std::uint8_t> p) {
     std::uint64_t v = 0;
     for (std::size_t i = 0; i < p.size() && i < 8; ++i) v |= std::uint64_t{p[i]} << (8 * i);
@@ -71,6 +79,15 @@ class SessionEnd {
   std::uint64_t corrupt = 0;  // payloads of the wrong size
   int ups = 0;
   int downs = 0;
+  int peer_restarts = 0;
+  // Reliable payloads this end gave up (PeerStream::Handlers::on_reliable_dropped): their numbers.
+  struct Dropped {
+    std::uint64_t number;
+    ReliableDrop why;
+  };
+  std::vector<Dropped> dropped;
+  // Called after each reliable payload this end received (its number), e.g. to cut right there.
+  std::function<void(std::uint64_t)> after_receive;
   std::size_t payload_size = 8;
   std::vector<std::shared_ptr<SessionLink>> links;
 
@@ -104,6 +121,7 @@ class SessionEnd {
       }
     }
     received.push_back(n);
+    if (after_receive) after_receive(n);
   }
 
   SessionOptions options_;

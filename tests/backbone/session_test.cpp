@@ -387,5 +387,160 @@ TEST_F(SessionTest, GatewayReopeningItsSerialPortIsAnsweredOnTheSurfacesOldLink)
   EXPECT_EQ(surface.counters.dead_links, 0u);
 }
 
+// A clock for one end that can jump ahead: time that end did not see pass (it was stopped).
+struct JumpingClock {
+  std::shared_ptr<std::function<bool()>> jumped = std::make_shared<std::function<bool()>>();
+  std::chrono::steady_clock::duration by = 1s;
+  std::function<std::chrono::steady_clock::time_point()> clock() const {
+    return [jumped = jumped, by = by] {
+      const auto now = std::chrono::steady_clock::now();
+      return *jumped && (*jumped)() ? now + by : now;
+    };
+  }
+};
+
+void connect(asio::io_context& io, SessionEnd& gateway, SessionEnd& surface) {
+  auto [client, server] = connected_sockets(io);
+  gateway.attach(MessageLink::create(std::move(client)));
+  surface.attach(MessageLink::create(std::move(server)));
+}
+
+void close_links(SessionEnd& end) {
+  for (auto& l : end.links) l->close();
+  end.links.clear();
+}
+
+// The gateway process was stopped (SIGSTOP) while the surface wrote to it: when it runs again,
+// its clock has jumped past dead_after and the surface's bytes wait in its socket. The surface
+// may have declared the link dead meanwhile and told its users those payloads failed, so the
+// gateway delivers none of them, closes the link, and gets them again on the next link only if
+// the surface still holds them.
+TEST_F(SessionTest, InputFoundAfterASilencePastDeadAfterIsNotDelivered) {
+  JumpingClock frozen;
+  SessionOptions options = fast_options();
+  options.clock = frozen.clock();
+  SessionEnd gw{"gw", v1::Hello::ROLE_GATEWAY, options, {1}};
+  SessionEnd sf{"surface", v1::Hello::ROLE_SURFACE, fast_options()};
+  connect(io, gw, sf);
+  sf.send_up_to(5);
+  ASSERT_TRUE(run_until(io, [&] { return gw.received.size() == 5; }));
+  // From the moment the surface sends payload 6 on, the gateway finds a second gone by.
+  *frozen.jumped = [&] { return sf.counters.reliable_sent >= 6; };
+  sf.send_up_to(10);
+  ASSERT_TRUE(run_until(io, [&] { return !gw.stream().up(); }));
+  EXPECT_EQ(gw.received.size(), 5u) << "payloads read after the freeze were delivered";
+  // Which of the two notices first (the read or the watchdog) is up to the event loop; on
+  // input it is the stale check.
+  EXPECT_EQ(gw.counters.stale_links_closed + gw.counters.dead_links, 1u);
+  ASSERT_TRUE(run_until(io, [&] { return !sf.stream().up(); }));
+  close_links(gw);
+  close_links(sf);
+  // The stream resumes on the next link: what the surface still holds arrives once, in order.
+  connect(io, gw, sf);
+  ASSERT_TRUE(run_until(io, [&] { return gw.received.size() == 10; }));
+  EXPECT_TRUE(exactly_once_in_order(gw.received, 10));
+  close_links(gw);
+  close_links(sf);
+  io.run_for(20ms);
+}
+
+// A side that did not run for longer than the peer waits (dead_after less a keepalive) may have
+// lost the link without its own receive silence reaching dead_after: the peer heard from it
+// last up to a keepalive earlier than it heard from the peer.
+TEST_F(SessionTest, ASideThatDidNotRunLongerThanThePeerWaitsClosesTheLinkAsStale) {
+  JumpingClock paused;
+  paused.by = 270ms;  // past 300 - 50 ms, short of dead_after (300 ms) even after a keepalive
+  SessionOptions options = fast_options();
+  options.clock = paused.clock();
+  SessionEnd gw{"gw", v1::Hello::ROLE_GATEWAY, options, {1}};
+  SessionEnd sf{"surface", v1::Hello::ROLE_SURFACE, fast_options()};
+  connect(io, gw, sf);
+  sf.send_up_to(5);
+  ASSERT_TRUE(run_until(io, [&] { return gw.received.size() == 5; }));
+  *paused.jumped = [&] { return sf.counters.reliable_sent >= 6; };
+  sf.send_up_to(10);
+  ASSERT_TRUE(run_until(io, [&] { return !gw.stream().up(); }));
+  EXPECT_EQ(gw.received.size(), 5u);
+  EXPECT_EQ(gw.counters.stale_links_closed, 1u);
+  EXPECT_EQ(gw.counters.dead_links, 0u);
+  close_links(gw);
+  close_links(sf);
+  io.run_for(20ms);
+}
+
+// What the surface sent a gateway process and that process never acknowledged is not replayed
+// to the gateway's next process: tombstones keep the sequence, the new process gets only what
+// was sent after it said hello.
+TEST_F(SessionTest, APeerRestartDropsWhatTheOldProcessWasSentAndNotAcknowledged) {
+  SessionEnd gw{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1}};
+  connect(io, gw, surface);
+  // Cut as payload 100 is delivered, before the gateway acknowledges it.
+  gw.after_receive = [&](std::uint64_t n) {
+    if (n != 100) return;
+    close_links(gw);
+    close_links(surface);
+  };
+  surface.send_up_to(20000);
+  ASSERT_TRUE(run_until(io, [&] {
+    return gw.received.size() == 100 && !surface.stream().up() && !gw.stream().up();
+  }));
+  const std::size_t held = surface.stream().sender().unacked_count();
+  const std::uint64_t last_sent_to_old = surface.stream().sender().next_seq() - 1;
+  ASSERT_GT(held, 0u);
+  SessionEnd restarted{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1}};
+  connect(io, restarted, surface);
+  ASSERT_TRUE(run_until(io, [&] { return restarted.received.size() == 20000 - last_sent_to_old; }));
+  EXPECT_EQ(restarted.received.front(), last_sent_to_old + 1) << "the old process's payloads came";
+  EXPECT_EQ(restarted.received.back(), 20000u);
+  EXPECT_EQ(surface.counters.reliable_dropped_peer_restart, held);
+  EXPECT_EQ(surface.peer_restarts, 1);
+  ASSERT_EQ(surface.dropped.size(), held);
+  EXPECT_EQ(surface.dropped.back().number, last_sent_to_old);
+  EXPECT_EQ(surface.dropped.back().why, ReliableDrop::peer_restart);
+  EXPECT_EQ(restarted.counters.tombstones_received, held);
+  close_links(restarted);
+  close_links(surface);
+  io.run_for(20ms);
+}
+
+// A payload unacknowledged longer than reliable_max_age is never sent again, even to the same
+// peer process: the link was down for longer than anything should wait.
+TEST_F(SessionTest, PayloadsOlderThanTheMaxAgeAreNeverResent) {
+  JumpingClock later;
+  bool down_long = false;
+  *later.jumped = [&] { return down_long; };
+  SessionOptions options = fast_options();
+  options.clock = later.clock();
+  options.reliable_max_age = 500ms;
+  SessionEnd sf{"surface", v1::Hello::ROLE_SURFACE, options};
+  SessionEnd gw{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1}};
+  connect(io, gw, sf);
+  gw.after_receive = [&](std::uint64_t n) {
+    if (n != 100) return;
+    close_links(gw);
+    close_links(sf);
+  };
+  sf.send_up_to(20000);
+  ASSERT_TRUE(run_until(
+      io, [&] { return gw.received.size() == 100 && !sf.stream().up() && !gw.stream().up(); }));
+  const std::size_t held = sf.stream().sender().unacked_count();
+  const std::uint64_t delivered = gw.received.size();
+  const std::uint64_t last_sent = sf.stream().sender().next_seq() - 1;
+  ASSERT_GT(held, delivered) << "the cut came after everything was acknowledged";
+  down_long = true;  // a second passes on the surface's clock while the link is down
+  connect(io, gw, sf);
+  ASSERT_TRUE(run_until(io, [&] { return gw.received.back() == 20000u; }));
+  // The new hello acknowledges what the gateway received before the cut; the rest of what was
+  // held is dropped and reaches the gateway as tombstones.
+  EXPECT_EQ(sf.counters.reliable_dropped_too_old, last_sent - delivered);
+  EXPECT_EQ(gw.counters.tombstones_received, last_sent - delivered);
+  EXPECT_EQ(gw.received.size(), delivered + (20000 - last_sent));
+  EXPECT_EQ(gw.received[delivered], last_sent + 1);
+  for (const auto& d : sf.dropped) EXPECT_EQ(d.why, ReliableDrop::too_old);
+  close_links(gw);
+  close_links(sf);
+  io.run_for(20ms);
+}
+
 }  // namespace
 }  // namespace canbridge::backbone

@@ -26,6 +26,7 @@ constexpr std::size_t kEnvelopeBytes = 12;
 // `room_per_write` bytes; records every payload in the order it was handed over.
 class FakeSink final : public backbone::PayloadSink {
  public:
+  using Clock = std::chrono::steady_clock;
   struct Sent {
     std::string bytes;
     bool reliable;
@@ -45,11 +46,18 @@ class FakeSink final : public backbone::PayloadSink {
     if (!reliable_room_) ++reliable_calls_while_full_;  // the outbox should have asked first
     record(std::move(payload), true);
   }
+  void send_reliable_since(std::string payload, Clock::time_point born) override {
+    borns.push_back(born);
+    send_reliable(std::move(payload));
+  }
+  Clock::time_point now() const override { return now_; }
   void send_unreliable(std::span<const std::uint8_t> payload) override {
     record({reinterpret_cast<const char*>(payload.data()), payload.size()}, false);
   }
 
   std::vector<Sent> sent;
+  std::vector<Clock::time_point> borns;  // of the reliable payloads, in order
+  Clock::time_point now_ = Clock::time_point{} + std::chrono::hours(1);
   bool reliable_room_ = true;
   std::size_t reliable_calls_while_full_ = 0;
 
@@ -288,6 +296,60 @@ TEST(FrameOutbox, WithdrawnSdoRequestsAreNeverSentAndLaterOnesAre) {
   ASSERT_TRUE(drain(outbox, sink));
   EXPECT_EQ(all_frames(decode(sink)), (std::vector{nmt, response, new_request}));
   EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 2u);
+}
+
+// Nothing reliable that waited longer than reliable_max_age leaves; the owner sees each frame so
+// that the surface can answer an SDO request with an abort. A batch is as old as its oldest frame.
+TEST(FrameOutbox, ReliableFramesOlderThanTheMaxAgeAreDroppedAndReported) {
+  using namespace std::chrono_literals;
+  FrameOutbox::Options options;
+  options.reliable_max_age = 4000ms;
+  FrameOutbox outbox(options);
+  std::vector<std::pair<can::Frame, FrameOutbox::Discard>> reported;
+  outbox.on_discard([&](std::uint32_t, const can::Frame& f, FrameOutbox::Discard why) {
+    reported.emplace_back(f, why);
+  });
+  FakeSink sink;
+  const auto t0 = sink.now_;
+  const can::Frame stop = can::Frame::standard(0x000, {0x02, 0x25});
+  const can::Frame request = can::Frame::standard(0x625, {0x23, 0x17, 0x10, 0x00, 0xE8, 3, 0, 0});
+  const can::Frame pdo = can::Frame::standard(0x225, {1, 2});
+  const can::Frame fresh = can::Frame::standard(0x0A5, {1, 2});
+  ASSERT_TRUE(outbox.push(1, stop, kConflate, t0));
+  ASSERT_TRUE(outbox.push(1, request, kConflate, t0 + 1ms));
+  ASSERT_TRUE(outbox.push(1, pdo, kConflate, t0));  // process data: latest value, not aged
+  ASSERT_TRUE(outbox.push(1, fresh, kConflate, t0 + 3000ms));
+  sink.now_ = t0 + 4002ms;  // the request is 4001 ms old, the NMT stop 4002 ms
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)), (std::vector{fresh, pdo}));
+  ASSERT_EQ(reported.size(), 2u);
+  EXPECT_EQ(reported[0].first, stop);
+  EXPECT_EQ(reported[1].first, request);
+  EXPECT_EQ(reported[1].second, FrameOutbox::Discard::too_old);
+  EXPECT_EQ(outbox.counters().reliable_too_old, 2u);
+  ASSERT_EQ(sink.borns.size(), 1u);
+  EXPECT_EQ(sink.borns[0], t0 + 3000ms);
+}
+
+// A new peer process: nothing queued for the old one is sent to it.
+TEST(FrameOutbox, DiscardQueuedDropsEverythingAndReportsTheReliableFrames) {
+  FrameOutbox outbox({});
+  std::vector<can::Frame> reported;
+  outbox.on_discard([&](std::uint32_t, const can::Frame& f, FrameOutbox::Discard why) {
+    EXPECT_EQ(why, FrameOutbox::Discard::peer_restart);
+    reported.push_back(f);
+  });
+  const can::Frame reset = can::Frame::standard(0x000, {0x81, 0x25});
+  const can::Frame pdo = can::Frame::standard(0x225, {1, 2});
+  ASSERT_TRUE(outbox.push(1, reset, kConflate));
+  ASSERT_TRUE(outbox.push(1, pdo, kConflate));
+  outbox.discard_queued();
+  EXPECT_TRUE(outbox.empty());
+  EXPECT_EQ(reported, (std::vector{reset}));
+  EXPECT_EQ(outbox.counters().discarded_peer_restart, 2u);
+  FakeSink sink;
+  EXPECT_TRUE(drain(outbox, sink));
+  EXPECT_TRUE(sink.sent.empty());
 }
 
 TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {

@@ -112,5 +112,36 @@ TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
   EXPECT_EQ(guard.counters().aborted_at_once, 0u);
 }
 
+// The backbone gave up a request (too old, or queued for a gateway process that is gone): its
+// master gets one abort if it still waits, none if it has its answer.
+TEST(SdoLinkGuard, ADiscardedRequestIsAbortedOnlyWhileItsMasterStillWaits) {
+  SdoLinkGuard guard;
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  auto up = [](auto) { return true; };
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  const auto abort = guard.on_request_discarded(kRead1018);
+  ASSERT_TRUE(abort);
+  EXPECT_EQ(*abort, abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_FALSE(guard.on_request_discarded(kRead1018)) << "aborted twice";
+  // A late answer to the aborted request is not passed on.
+  EXPECT_FALSE(
+      guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4})));
+  // Answered: nothing to abort.
+  EXPECT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  (void)guard.on_gateway_frame(1,
+                               can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4}));
+  EXPECT_FALSE(guard.on_request_discarded(kRead1018));
+  // A node no gateway has claimed is not followed: its request is aborted, naming its object.
+  const can::Frame write_unknown =
+      can::Frame::standard(0x650, {0x2B, 0x17, 0x10, 0x00, 0xC8, 0x00, 0, 0});
+  const auto unknown = guard.on_request_discarded(write_unknown);
+  ASSERT_TRUE(unknown);
+  EXPECT_EQ(*unknown, abort_of(0x5D0, 0x1017, 0x00));
+  EXPECT_EQ(guard.counters().aborted_discarded, 2u);
+  // Not a request, or the master's own abort: nothing.
+  EXPECT_FALSE(guard.on_request_discarded(kHeartbeat34));
+  EXPECT_FALSE(guard.on_request_discarded(abort_of(0x622, 0x1018, 0x01)));
+}
+
 }  // namespace
 }  // namespace canbridge::bridge

@@ -25,6 +25,7 @@ void expect_default_session(const SessionTuning& s) {
   EXPECT_EQ(s.keepalive, d.keepalive);
   EXPECT_EQ(s.dead_after, d.dead_after);
   EXPECT_EQ(s.retransmit, d.retransmit);
+  EXPECT_EQ(s.reliable_max_age, d.reliable_max_age);
   EXPECT_EQ(s.resend_buffer_messages, d.resend_buffer_messages);
   EXPECT_EQ(s.resend_buffer_bytes, d.resend_buffer_bytes);
   EXPECT_EQ(s.max_write_bytes, d.max_write_bytes);
@@ -188,6 +189,7 @@ TEST(Config, SerialGatewayLoads) {
   EXPECT_EQ(g.session.keepalive, std::chrono::milliseconds(1000));
   EXPECT_EQ(g.session.dead_after, std::chrono::milliseconds(5000));
   EXPECT_EQ(g.session.retransmit, std::chrono::milliseconds(3000));
+  EXPECT_EQ(g.session.reliable_max_age, std::chrono::milliseconds(6000));
   EXPECT_EQ(g.session.resend_buffer_messages, 256u);
   EXPECT_EQ(g.session.resend_buffer_bytes, 65536u);
   EXPECT_EQ(g.session.max_write_bytes, 512u);
@@ -267,6 +269,11 @@ INSTANTIATE_TEST_SUITE_P(
                 "100000 is not a standard serial rate (e.g. 9600"},
         BadCase{"gateway_dead_after.yaml", 5, "backbone.dead_after_ms",
                 "2000 must exceed keepalive_ms (2000)"},
+        BadCase{"gateway_reliable_max_age.yaml", 5, "backbone.reliable_max_age_ms",
+                "800 must exceed retransmit_ms (1000), or a frame lost once could never be "
+                "resent"},
+        BadCase{"surface_reliable_max_age_default.yaml", 5, "backbone.reliable_max_age_ms",
+                "the default 4000 does not exceed retransmit_ms (5000)"},
         BadCase{"surface_duplicate_device.yaml", 7, "backbone.serial[2].device",
                 "'/dev/ttyS1' is also the device of backbone.serial[0]"},
         BadCase{"gateway_serial_unknown_key.yaml", 5, "backbone.serial.parity", "unknown key"},

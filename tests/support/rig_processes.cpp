@@ -62,14 +62,8 @@ void RigProcesses::start() {
   const auto at = config.find(placeholder);
   ASSERT_NE(at, std::string::npos) << "gateway.yaml lost its " << placeholder;
   config.replace(at, placeholder.size(), "127.0.0.1:" + gateway_port);
-  const std::string gateway_config = dir_ + "/gateway.yaml";
-  std::ofstream(gateway_config) << config;
-  gateway = std::make_unique<ChildProcess>(
-      std::vector<std::string>{o.canbridge, "gateway", "--config", gateway_config});
-  ASSERT_TRUE(gateway->wait_for_line("surface '" + o.surface_name + "' ready", o.event_timeout))
-      << gateway->output() << surface->output() << (emulator ? emulator->output() : "");
-  ASSERT_TRUE(surface->wait_for_line("gateway '" + o.gateway_name + "' ready", o.event_timeout))
-      << surface->output();
+  std::ofstream(dir_ + "/gateway.yaml") << config;
+  ASSERT_NO_FATAL_FAILURE(start_gateway());
 
   sim = std::make_unique<ChildProcess>(
       std::vector<std::string>{o.sim, o.config_dir + "rig.yaml", "--stats-seconds", "0"});
@@ -81,6 +75,21 @@ void RigProcesses::start() {
               << std::chrono::duration_cast<std::chrono::milliseconds>(since).count()
               << " ms after the emulator\n";
   }
+}
+
+void RigProcesses::start_gateway() {
+  const RigOptions& o = options_;
+  gateway = std::make_unique<ChildProcess>(
+      std::vector<std::string>{o.canbridge, "gateway", "--config", dir_ + "/gateway.yaml"});
+  ASSERT_TRUE(gateway->wait_for_line("surface '" + o.surface_name + "' ready", o.event_timeout))
+      << gateway->output() << surface->output() << (emulator ? emulator->output() : "");
+  ASSERT_TRUE(surface->wait_for_line("gateway '" + o.gateway_name + "' ready", o.event_timeout))
+      << surface->output();
+}
+
+void RigProcesses::restart_gateway() {
+  if (gateway) logs_ += "--- gateway (before its restart)\n" + gateway->output();
+  ASSERT_NO_FATAL_FAILURE(start_gateway());
 }
 
 void RigProcesses::expect_running() const {

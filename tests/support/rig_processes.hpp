@@ -42,6 +42,10 @@ class RigProcesses {
   // the session ready, the simulated nodes, so that their boot-ups cross too. Reports failures
   // with gtest assertions: call under ASSERT_NO_FATAL_FAILURE.
   void start();
+  // A new gateway process in place of the one that was killed (reaped already), with the same
+  // configuration; returns once both ends report the session ready. Gtest assertions, like
+  // start().
+  void restart_gateway();
   // Every process started and still running (a fatal failure otherwise).
   void expect_running() const;
   // SIGTERM to each (sim, gateway, surface, emulator), each must exit 0; keeps their output and
@@ -55,6 +59,7 @@ class RigProcesses {
   std::string gateway_final, surface_final;              // last lines, set by stop()
 
  private:
+  void start_gateway();
   RigOptions options_;
   std::string dir_;  // the gateway's config with the port filled in
   std::string logs_;

@@ -24,6 +24,7 @@
 #include <thread>
 #include <utility>
 
+#include "tests/support/bus_log.hpp"
 #include "tests/support/raw_can.hpp"
 #include "tests/support/rig_processes.hpp"
 #include "tests/support/sdo_master.hpp"
@@ -33,6 +34,7 @@ namespace {
 
 using namespace std::chrono_literals;
 using can::Frame;
+using test::BusLog;
 using test::RawCanSocket;
 using test::RigProcesses;
 using test::SdoMaster;
@@ -95,70 +97,6 @@ long long counter(const std::string& line, const std::string& label) {
   if (!std::regex_search(line, m, std::regex(label + " ([0-9]+)"))) return -1;
   return std::stoll(m[1].str());
 }
-
-// Every frame on one bus with its arrival time, read by a thread of its own. Waits are woken by
-// each arriving frame.
-class BusLog {
- public:
-  struct Entry {
-    Clock::time_point at;
-    Frame frame;
-  };
-  struct Found {
-    Entry entry;
-    std::size_t index;  // position in the log; search on from index + 1
-  };
-
-  explicit BusLog(const std::string& interface)
-      : socket_(interface), reader_([this](std::stop_token stop) { read(stop); }) {}
-
-  std::size_t mark() const {
-    std::lock_guard lock(mutex_);
-    return entries_.size();
-  }
-  // The first frame at or after position `from` that matches, waiting up to `timeout` for it.
-  std::optional<Found> wait_for(std::size_t from, const std::function<bool(const Frame&)>& match,
-                                std::chrono::milliseconds timeout) {
-    std::unique_lock lock(mutex_);
-    std::optional<Found> found;
-    std::size_t next = from;
-    changed_.wait_for(lock, timeout, [&] {
-      for (; next < entries_.size(); ++next) {
-        if (match(entries_[next].frame)) {
-          found = Found{entries_[next], next};
-          return true;
-        }
-      }
-      return false;
-    });
-    return found;
-  }
-  std::vector<Entry> entries(std::size_t from = 0) const {
-    std::lock_guard lock(mutex_);
-    return {entries_.begin() + static_cast<std::ptrdiff_t>(std::min(from, entries_.size())),
-            entries_.end()};
-  }
-
- private:
-  void read(const std::stop_token& stop) {
-    // The timeout only bounds how late the stop request is seen; frames wake it at once.
-    while (!stop.stop_requested()) {
-      auto f = socket_.receive(50ms);
-      if (!f) continue;
-      {
-        std::lock_guard lock(mutex_);
-        entries_.push_back({Clock::now(), *f});
-      }
-      changed_.notify_all();
-    }
-  }
-
-  RawCanSocket socket_;
-  mutable std::mutex mutex_;
-  std::condition_variable changed_;
-  std::vector<Entry> entries_;
-  std::jthread reader_;  // last: stopped and joined before the members it uses go
-};
 
 // The processes of one test suite: surface, link emulator (with `emulator_args`, e.g. a cut),
 // gateway, simulated nodes.
