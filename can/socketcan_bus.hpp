@@ -59,6 +59,7 @@ class SocketCanBus final : public Bus {
   boost::asio::awaitable<std::error_code> receive_batch(std::vector<Frame>& out) override;
   bool send(const Frame& frame) override;
   std::size_t send_room() const override;
+  boost::asio::awaitable<std::error_code> wait_send_room(std::size_t frames) override;
   BusCounters counters() const override;
   void on_state_change(std::function<void(BusState)> handler) override;
   void close() override;
