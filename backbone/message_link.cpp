@@ -65,7 +65,8 @@ MessageLink::MessageLink(Stream stream, std::string peer_name, LinkOptions optio
       read_buffer_(std::max<std::size_t>(options.read_buffer_size, 1)),
       wake_(std::visit([](auto& s) { return s.get_executor(); }, stream_),
             asio::steady_timer::time_point::max()),
-      closed_(wake_.get_executor(), asio::steady_timer::time_point::max()) {
+      closed_(wake_.get_executor(), asio::steady_timer::time_point::max()),
+      resume_(wake_.get_executor(), asio::steady_timer::time_point::max()) {
   crc_framed_ = options.framing == LinkFraming::cobs_crc32c ||
                 (options.framing == LinkFraming::automatic && is_serial());
   boost::system::error_code ec;
@@ -204,6 +205,12 @@ void MessageLink::close() {
   end(make_error_code(errc::closed));
 }
 
+void MessageLink::pause_reading(bool paused) {
+  if (reading_paused_ == paused) return;
+  reading_paused_ = paused;
+  if (!paused) resume_.cancel();
+}
+
 asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
   auto self = shared_from_this();
   while (!finished_) {
@@ -220,6 +227,18 @@ asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
 
 asio::awaitable<void> MessageLink::read_loop() {
   while (!closing_) {
+    if (reading_paused_) {
+      co_await resume_.async_wait(kNoError);  // cancel(): resumed or closing
+      continue;
+    }
+    if (!unread_.empty()) {  // paused in the middle of the last read
+      deliver();
+      if (!closing_ && !crc_framed_ && decoder_.error()) {
+        report_decode_error(decoder_.error());
+        end(decoder_.error());
+      }
+      continue;
+    }
     auto [ec, n] = co_await std::visit(
         [this](auto& s) { return s.async_read_some(asio::buffer(read_buffer_), kNoError); },
         stream_);
@@ -236,7 +255,8 @@ asio::awaitable<void> MessageLink::read_loop() {
       break;
     }
     counters_.rx_bytes += n;
-    deliver({read_buffer_.data(), n});
+    unread_ = {read_buffer_.data(), n};
+    deliver();
     if (!closing_ && !crc_framed_ && decoder_.error()) {
       report_decode_error(decoder_.error());
       end(decoder_.error());
@@ -245,10 +265,13 @@ asio::awaitable<void> MessageLink::read_loop() {
 }
 
 // Pulls one message at a time so that a handler calling close() stops delivery at once.
-void MessageLink::deliver(std::span<const std::uint8_t> input) {
-  while (!closing_) {
-    auto message = crc_framed_ ? deframer_.next(input) : decoder_.next(input);
-    if (!message) break;
+void MessageLink::deliver() {
+  while (!closing_ && !reading_paused_) {
+    auto message = crc_framed_ ? deframer_.next(unread_) : decoder_.next(unread_);
+    if (!message) {
+      unread_ = {};  // all taken (a partial message is kept by the decoder) or a decode error
+      break;
+    }
     ++counters_.rx_messages;
     if (on_message_) on_message_(*message);
   }
@@ -315,6 +338,7 @@ void MessageLink::end(std::error_code reason) {
   std::visit([&](auto& s) { s.close(ignored); }, stream_);  // aborts a pending read or write
   writer_sleeping_ = false;
   wake_.cancel();
+  resume_.cancel();
   if (loops_running_ == 0) finish();  // never started
 }
 

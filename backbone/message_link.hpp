@@ -82,6 +82,12 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   // further wakes coalesce until that write has "completed" on a later turn of the loop.
   void wake_writer();
 
+  // While paused, no message reaches on_message and the transport is not read, so the peer's
+  // writes back up into its own buffers: for a receiver that cannot take more for a while.
+  // Messages already read wait and come first on resume. The writer goes on as before.
+  void pause_reading(bool paused);
+  bool reading_paused() const noexcept { return reading_paused_; }
+
   // Ends the link (reason errc::closed unless it already ended); both loops stop promptly and
   // unsent data is discarded. Idempotent; safe from inside any handler.
   void close();
@@ -113,7 +119,8 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   // Turns the delimited messages the source appended to staging_ into serial frames.
   void frame_staged_for_serial();
   bool fill_write_buffer();
-  void deliver(std::span<const std::uint8_t> input);
+  // Hands the messages in unread_ to on_message until it is empty, paused or closing.
+  void deliver();
 
   boost::asio::awaitable<void> read_loop();
   boost::asio::awaitable<void> write_loop();
@@ -135,10 +142,12 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   bool crc_framed_ = false;
   bool leading_delimiter_sent_ = false;
   std::vector<std::uint8_t> read_buffer_;
+  std::span<const std::uint8_t> unread_;  // read but not yet decoded (paused mid-buffer)
   std::string write_buffer_;
   std::size_t write_offset_ = 0;      // bytes of write_buffer_ already sent by an inline send
   boost::asio::steady_timer wake_;    // condition variable for the idle writer
   boost::asio::steady_timer closed_;  // condition variable for async_wait_closed()
+  boost::asio::steady_timer resume_;  // condition variable for the paused reader
   MessageHandler on_message_;
   Source source_;
   ClosedHandler on_closed_;
@@ -149,6 +158,7 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   bool finished_ = false;         // loops stopped and on_closed ran
   bool writer_sleeping_ = false;  // the writer waits on wake_
   bool wake_requested_ = false;   // wake_writer() since the source was last called
+  bool reading_paused_ = false;
 };
 
 }  // namespace canbridge::backbone

@@ -96,6 +96,11 @@ void PeerStream::close_link() {
   if (link_) link_->close();
 }
 
+void PeerStream::pause_input(bool paused) {
+  input_paused_ = paused;
+  if (link_) link_->message_link()->pause_reading(paused);
+}
+
 // ---------------------------------------------------------------------------------------------
 // The producer's view of one write: what fits, and where payloads go.
 class SessionLink::Writer final : public PayloadSink {
@@ -311,6 +316,7 @@ void SessionLink::become_ready() {
   ++counters_.links;
   if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
   stream_->link_ = shared_from_this();
+  if (stream_->input_paused_) link_->pause_reading(true);
   const v1::Hello& peer = stream_->peer_hello_;
   spdlog::info(
       "backbone: {} '{}' ready over {} (protocol {}.{}; resuming: {} unacked to resend, next "
@@ -605,6 +611,9 @@ void SessionLink::on_watchdog() {
     return close_stale("this side did not run for longer than the peer waits", now);
   }
   last_run_ = now;
+  // Not reading (PeerStream::pause_input): the silence is ours, and so are the missing acks.
+  const bool deaf = link_->reading_paused();
+  if (deaf) last_rx_ = now;
   if (now - last_rx_ > options_.dead_after) {
     ++counters_.dead_links;
     spdlog::warn("backbone: nothing from {} for {} ms: link dead, closing it", link_->peer_name(),
@@ -618,7 +627,7 @@ void SessionLink::on_watchdog() {
   }
   if (ready_) {
     bool wake = false;
-    if (stream_->sender_.retransmit_due(now, options_.retransmit_timeout)) {
+    if (!deaf && stream_->sender_.retransmit_due(now, options_.retransmit_timeout)) {
       stream_->sender_.on_retransmit_timeout();  // the oldest alone, or go back N
       wake = true;
     }

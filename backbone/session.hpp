@@ -137,6 +137,11 @@ class PeerStream {
   const ReliableReceiver& receiver() const { return receiver_; }
   // Closes the current link, if any.
   void close_link();
+  // While paused, payloads from the peer stay unread on its links (this one and later ones), so
+  // the peer's resend window bounds what the application must hold: for an application whose
+  // output is backed up. Keepalives still go out, and the silence is not held against the peer.
+  void pause_input(bool paused);
+  bool input_paused() const { return input_paused_; }
 
  private:
   friend class SessionLink;
@@ -146,6 +151,7 @@ class PeerStream {
   v1::Hello peer_hello_;
   Handlers handlers_;
   std::shared_ptr<SessionLink> link_;  // set while a link to the peer is ready
+  bool input_paused_ = false;
 };
 
 // Decides, on the peer's hello, which stream a link carries (the surface has one per gateway).

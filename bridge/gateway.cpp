@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/detached.hpp>
@@ -210,6 +211,10 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       pdop_[m].segmenter = std::make_unique<PdopSegmenter>(modules_[m].pdop_segmentation);
     }
     node_table_.add_module(map_.modules()[m].profile, modules_[m].heartbeat_lost_after);
+    writers_.push_back(std::make_unique<BusWriter>(
+        executor_, *modules_[m].bus, BusWriteQueue::Options{},
+        [this, m](std::span<const can::Frame> frames) { on_written(m, frames); },
+        [this](bool) { on_backlog_changed(); }));
     identity_.module_ids.push_back(modules_[m].id);
     if (modules_[m].lss) translator_.route_lss_to(m);
     // A value may only name this module's own ids: a COB-ID or node of another bus is not
@@ -256,6 +261,7 @@ Gateway::~Gateway() = default;
 void Gateway::start() {
   for (std::size_t m = 0; m < modules_.size(); ++m) {
     asio::co_spawn(executor_, read_bus(m), asio::detached);
+    writers_[m]->start();
   }
   asio::co_spawn(executor_, watch_nodes(), asio::detached);
   if (!pdop_.empty()) asio::co_spawn(executor_, watch_pdop(), asio::detached);
@@ -283,7 +289,7 @@ asio::awaitable<void> Gateway::watch_pdop() {
       PdopSink sink(*this, m, steady_to_unix_offset());
       pdop_[m].reassembler->tick(now, sink);
       pdop_[m].segmenter->tick(now, segmenter_out_);
-      flush_segmenter(m, now);
+      flush_segmenter(m);
     }
     stream_.wake();
   }
@@ -335,26 +341,13 @@ void Gateway::queue_pdop_nodes() {
   pdop_out_.push_front({std::move(payload), 0});
 }
 
-void Gateway::flush_segmenter(std::size_t m, PdopSegmenter::TimePoint now) {
+void Gateway::flush_segmenter(std::size_t m) {
   if (segmenter_out_.frames.empty() && segmenter_out_.outcomes.empty()) return;
-  if (modules_[m].bus->send_room() < segmenter_out_.frames.size()) {
-    // All or none: the node sees a refused tail as fragments lost in transit and the segmenter
-    // recovers by asking it (docs/pdop.md 4.3); a gap inside a window it might not see at all.
-    counters_.bus_refused += segmenter_out_.frames.size();
-    warn_.warn(Warn::kBusRefused, "gateway: bus {} refused a frame (transmit queue full; counted)",
-               modules_[m].bus->name());
-    segmenter_out_.frames.clear();
-  }
-  for (const can::Frame& frame : segmenter_out_.frames) {
-    if (modules_[m].bus->send(frame)) {
-      loop_guards_[m].wrote(frame, now);
-      ++counters_.to_buses;
-    } else {
-      ++counters_.bus_refused;
-      warn_.warn(Warn::kBusRefused,
-                 "gateway: bus {} refused a frame (transmit queue full; counted)",
-                 modules_[m].bus->name());
-    }
+  // Whole, behind what waits for the bus: a gap inside a window the node might not see at all.
+  if (!writers_[m]->write(segmenter_out_.frames, BusWriteQueue::Lane::reliable)) {
+    warn_.warn(Warn::kBusRefused,
+               "gateway: bus {} cannot take {} RPDOP fragments at once: dropped (counted)",
+               modules_[m].bus->name(), segmenter_out_.frames.size());
   }
   segmenter_out_.frames.clear();
   for (const PdopOutcome& o : segmenter_out_.outcomes) {
@@ -395,7 +388,7 @@ void Gateway::on_node_restart(const NodeEvent& e, PdopReassembler::TimePoint now
     p.reassembler->on_node_restart(node, now, sink);
     p.segmenter->cancel_node(node, now, segmenter_out_);
   }
-  flush_segmenter(e.module_index, now);
+  flush_segmenter(e.module_index);
 }
 
 void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
@@ -427,7 +420,7 @@ void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
     pdop_[m].segmenter->submit(owner->local, p.pdo(),
                                std::vector<std::uint8_t>(data.begin(), data.end()), p.request_id(),
                                now, segmenter_out_);
-    flush_segmenter(m, now);
+    flush_segmenter(m);
   }
   stream_.wake();
 }
@@ -587,6 +580,7 @@ void Gateway::stop() {
   pdop_timer_.cancel();
   if (link_) link_->close();
   stream_.close_link();
+  for (auto& w : writers_) w->stop();
   for (auto& m : modules_) m.bus->close();
 }
 
@@ -638,7 +632,7 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
         if (map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0 &&
             (reassembler->on_frame(frame, at, *pdop_sink) ||
              segmenter->on_frame(frame, now, segmenter_out_))) {
-          flush_segmenter(module_index, now);
+          flush_segmenter(module_index);
           continue;
         }
       }
@@ -678,9 +672,9 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
 // The surface aborts every SDO request in flight when it declares the link dead: one still
 // waiting here for its bus must never reach the node.
 void Gateway::withdraw_sdo_requests_to_buses() {
-  for (GatewayModule& module : modules_) {
+  for (auto& writer : writers_) {
     counters_.sdo_requests_withdrawn +=
-        module.bus->withdraw_queued([](const can::Frame& f) { return is_sdo_request(f); });
+        writer->withdraw([](const can::Frame& f) { return is_sdo_request(f); });
   }
 }
 
@@ -708,7 +702,6 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
       return;
     }
   }
-  const auto now = LoopGuard::Clock::now();
   for (const can::Frame& frame : decoded_) {
     const std::uint64_t renames_refused = translator_.dropped(DropReason::rename_refused);
     translator_.to_modules(frame, [&](std::size_t m, can::Frame local) {
@@ -716,19 +709,11 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
       if (const canopen::NodeId node = sdo_node(m, local, canopen::cob::sdo_rx)) {
         count(sdo_trackers_[m][node].on_request(local, to_local_[m]));
       }
-      if (modules_[m].bus->send(local)) {
-        loop_guards_[m].wrote(local, now);
-        ++counters_.to_buses;
-        if (local.id == canopen::cob::nmt && !local.is_extended()) {
-          node_table_.on_nmt_to_bus(m, local, now, node_events_);
-        }
-      } else {
-        ++counters_.bus_refused;
+      // In order behind what waits for the bus; only process data may be dropped (counted).
+      if (!writers_[m]->write(local, bus_lane_of(local))) {
         warn_.warn(Warn::kBusRefused,
-                   "gateway: bus {} refused a frame (transmit queue full; counted)",
+                   "gateway: bus {} is backed up: process data dropped (counted as bus-refused)",
                    modules_[m].bus->name());
-        // A node-id command that never reached the bus moves nobody.
-        if (canopen::nmt_node_id::decode_change(local)) map_.cancel_move(m, local.data[1]);
       }
     });
     if (translator_.dropped(DropReason::rename_refused) != renames_refused) {
@@ -738,8 +723,38 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
   after_node_input();
 }
 
+void Gateway::on_written(std::size_t m, std::span<const can::Frame> frames) {
+  const auto now = LoopGuard::Clock::now();
+  bool nmt = false;
+  for (const can::Frame& frame : frames) {
+    loop_guards_[m].wrote(frame, now);
+    if (frame.id == canopen::cob::nmt && !frame.is_extended()) {
+      node_table_.on_nmt_to_bus(m, frame, now, node_events_);
+      nmt = true;
+    }
+  }
+  counters_.to_buses += frames.size();
+  // Only then: the bus reader may be in the middle of node_events_ (a segmenter flush).
+  if (nmt) after_node_input();
+}
+
+void Gateway::on_backlog_changed() {
+  const bool backlogged = std::any_of(writers_.begin(), writers_.end(),
+                                      [](const auto& w) { return w->queue().backlogged(); });
+  if (backlogged == stream_.input_paused()) return;
+  if (backlogged) ++counters_.backbone_pauses;
+  stream_.pause_input(backlogged);
+}
+
 GatewayCounters Gateway::counters() const {
   GatewayCounters c = counters_;
+  for (const auto& w : writers_) {
+    const BusWriteQueue::Counters& q = w->queue().counters();
+    c.bus_waited += q.frames_waited;
+    c.bus_waiting_peak = std::max(c.bus_waiting_peak, q.peak_waiting);
+    for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) c.bus_drops[r] += q.dropped[r];
+    c.bus_refused += w->queue().dropped() + w->refused();
+  }
   c.translation = translator_.drops();
   c.outbox = outbox_.counters();
   c.framing = old_links_framing_;
@@ -774,6 +789,14 @@ std::string Gateway::stats_line() const {
   s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
                    to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
                    c.backbone_tx_bytes, lanes_summary(c.outbox));
+  s += fmt::format("; bus-waited {} (peak {}, backbone-pauses {})", c.bus_waited,
+                   c.bus_waiting_peak, c.backbone_pauses);
+  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
+    if (c.bus_drops[r] != 0) {
+      s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
+                       c.bus_drops[r]);
+    }
+  }
   if (!pdop_.empty()) {
     std::uint64_t dropped_frames = 0;
     for (const PdopModule& p : pdop_) {

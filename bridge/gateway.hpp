@@ -16,6 +16,7 @@
 
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
+#include "bridge/bus_writer.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/warn_once.hpp"
@@ -47,10 +48,16 @@ struct GatewayCounters {
   backbone::SessionCounters session;
   OutboxCounters outbox;
   DropCounters translation{};
-  std::uint64_t from_buses = 0;          // frames read on module buses
-  std::uint64_t to_buses = 0;            // frames handed to module buses
-  std::uint64_t frames_received = 0;     // frames decoded from the backbone
-  std::uint64_t bus_refused = 0;         // a module bus's transmit queue was full
+  std::uint64_t from_buses = 0;       // frames read on module buses
+  std::uint64_t to_buses = 0;         // frames handed to module buses
+  std::uint64_t frames_received = 0;  // frames decoded from the backbone
+  std::uint64_t bus_refused = 0;      // frames for module buses dropped (bus_drops says why)
+  // Frames that waited for room in a module bus's transmit queue, and drops by reason
+  // (BusWriteQueue::Drop), all module buses together.
+  std::uint64_t bus_waited = 0;
+  std::uint64_t bus_waiting_peak = 0;
+  std::array<std::uint64_t, BusWriteQueue::kDropReasons> bus_drops{};
+  std::uint64_t backbone_pauses = 0;     // the surface's payloads went unread: a bus was backed up
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
@@ -103,6 +110,10 @@ class Gateway {
 
  private:
   boost::asio::awaitable<void> read_bus(std::size_t module_index);
+  // Frames one module's BusWriter put on its bus.
+  void on_written(std::size_t module_index, std::span<const can::Frame> frames);
+  // Input from the surface waits while any module bus is backed up (BusWriteQueue::backlogged).
+  void on_backlog_changed();
   void on_payload(std::span<const std::uint8_t> payload);
   void withdraw_sdo_requests_to_buses();
   // Default SDO channel of a node of `module_index`: the node id if `frame` is its request
@@ -131,7 +142,8 @@ class Gateway {
   boost::asio::awaitable<void> watch_pdop();
   void after_pdop_input();
   void on_rpdop_packets(const v1::PdopPackets& packets);
-  void flush_segmenter(std::size_t module_index, PdopSegmenter::TimePoint now);
+  // Hands the segmenter's frames to the module's BusWriter, whole, and reports its outcomes.
+  void flush_segmenter(std::size_t module_index);
   // The earliest deadline of every reassembler and segmenter (max when none).
   PdopReassembler::TimePoint pdop_deadline() const;
   // A new RPDOP outcome in the report queue; nullptr when the queue is full (counted).
@@ -160,7 +172,8 @@ class Gateway {
   NodeMap map_;
   CobIdTranslator translator_{map_};
   std::vector<GatewayModule> modules_;
-  std::vector<LoopGuard> loop_guards_;  // one per module bus, same order
+  std::vector<LoopGuard> loop_guards_;               // one per module bus, same order
+  std::vector<std::unique_ptr<BusWriter>> writers_;  // one per module bus, same order
   // Per module (same order): the id mappings SDO values are rewritten with, and one tracker per
   // node's default SDO channel, which knows the object of every frame of a transfer.
   std::vector<canopen::sdo::IdMapping> to_local_, to_surface_;

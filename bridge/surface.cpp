@@ -67,7 +67,14 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       conflate_pdos_(conflate_pdos),
       relay_(rpdop_relay),
       relay_timer_(executor_),
-      bus_retry_timer_(executor_) {
+      writer_(
+          executor_, *bus_, BusWriteQueue::Options{},
+          [this](std::span<const can::Frame> frames) {
+            const auto now = LoopGuard::Clock::now();
+            for (const can::Frame& frame : frames) loop_guard_.wrote(frame, now);
+            counters_.to_bus += frames.size();
+          },
+          [this](bool backlogged) { on_bus_backlog(backlogged); }) {
   identity_.role = v1::Hello::ROLE_SURFACE;
   identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
   identity_.name = name_;
@@ -79,6 +86,7 @@ Surface::~Surface() = default;
 void Surface::start() {
   asio::co_spawn(executor_, read_bus(), asio::detached);
   asio::co_spawn(executor_, watch_relay(), asio::detached);
+  writer_.start();
 }
 
 asio::awaitable<void> Surface::watch_relay() {
@@ -170,6 +178,7 @@ backbone::BindResult Surface::bind(const v1::Hello& hello) {
     slot = std::make_unique<Gateway>(
         hello.name(), static_cast<SdoLinkGuard::GatewayId>(by_id_.size()), tuning_, *this);
     by_id_.push_back(slot.get());
+    if (writer_.queue().backlogged()) slot->stream.pause_input(true);
   }
   if (slot->stream.up() && slot->stream.peer_hello().session_id() != hello.session_id()) {
     refused.detail = "a gateway named '" + hello.name() +
@@ -185,7 +194,7 @@ void Surface::stop() {
   for (auto& l : std::vector(links_)) l->close();
   for (auto& [name, g] : gateways_) g->stream.close_link();
   relay_timer_.cancel();
-  bus_retry_timer_.cancel();
+  writer_.stop();
   bus_->close();
 }
 
@@ -261,8 +270,7 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
     case v1::Payload::kNodeEvents:
       return on_node_events(from, inbound_.node_events());
     case v1::Payload::kPdopPackets:
-      on_pdop_packets(from, inbound_.pdop_packets());
-      return write_pending_packets();
+      return on_pdop_packets(from, inbound_.pdop_packets());
     case v1::Payload::kPdopReports:
       return on_pdop_reports(from, inbound_.pdop_reports());
     case v1::Payload::kPdopNodes:
@@ -387,13 +395,12 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
     }
     // Whole or not at all (a packet with fragments missing can pass a master's toggle check),
     // and in order: a packet waits while the bus's transmit queue cannot take all of it.
-    if (pending_frames_ + fragments.size() > kMaxPendingPacketFrames) {
+    if (!writer_.write(fragments, BusWriteQueue::Lane::reliable)) {
       ++counters_.pdop_bus_refused;
-      counters_.bus_refused += fragments.size();
       warn_.warn(Warn::kBusRefused,
-                 "surface: bus {} cannot take PDO Packets as fast as they come: packets refused "
-                 "(counted as pdop bus-refused)",
-                 bus_->name());
+                 "surface: bus {} cannot hold a PDO Packet of {} fragments: refused (counted as "
+                 "pdop bus-refused)",
+                 bus_->name(), fragments.size());
       continue;
     }
     ++counters_.pdop_packets;
@@ -406,30 +413,12 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  "delivered all the same (counted as probable-repeats)",
                  from.name, p.surface_node(), p.pdo());
     }
-    pending_frames_ += fragments.size();
-    pending_packets_.push_back(std::move(fragments));
     if (pdop_observer_) {
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
                       static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
                       p.first_fragment_us(), p.duration_us(), p.probable_repeat()});
     }
   }
-}
-
-void Surface::write_pending_packets() {
-  while (!pending_packets_.empty() && bus_->send_room() >= pending_packets_.front().size()) {
-    for (const can::Frame& f : pending_packets_.front()) send_to_bus(f);
-    pending_frames_ -= pending_packets_.front().size();
-    pending_packets_.pop_front();
-  }
-  if (pending_packets_.empty() || stopped_ || bus_retry_armed_) return;
-  // The bus says nothing when its queue drains: look again shortly (only while packets wait).
-  bus_retry_armed_ = true;
-  bus_retry_timer_.expires_after(std::chrono::milliseconds(1));
-  bus_retry_timer_.async_wait([this](boost::system::error_code ec) {
-    bus_retry_armed_ = false;
-    if (!ec && !stopped_) write_pending_packets();
-  });
 }
 
 void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
@@ -478,14 +467,17 @@ void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
 }
 
 void Surface::send_to_bus(const can::Frame& frame) {
-  if (bus_->send(frame)) {
-    loop_guard_.wrote(frame, LoopGuard::Clock::now());
-    ++counters_.to_bus;
-  } else {
-    ++counters_.bus_refused;
-    warn_.warn(Warn::kBusRefused, "surface: bus {} refused a frame (transmit queue full; counted)",
+  // In order behind what waits for the bus; only process data may be dropped (counted).
+  if (!writer_.write(frame, bus_lane_of(frame))) {
+    warn_.warn(Warn::kBusRefused,
+               "surface: bus {} is backed up: process data dropped (counted as bus-refused)",
                bus_->name());
   }
+}
+
+void Surface::on_bus_backlog(bool backlogged) {
+  if (backlogged) ++counters_.backbone_pauses;
+  for (auto& [name, gateway] : gateways_) gateway->stream.pause_input(backlogged);
 }
 
 // A master waiting on one of the gateway's nodes must not wait for a timeout of its own.
@@ -521,6 +513,11 @@ void Surface::on_payload_dropped(const std::string& payload, backbone::ReliableD
 
 SurfaceCounters Surface::counters() const {
   SurfaceCounters c = counters_;
+  const BusWriteQueue::Counters& q = writer_.queue().counters();
+  c.bus_waited = q.frames_waited;
+  c.bus_waiting_peak = q.peak_waiting;
+  c.bus_drops = q.dropped;
+  c.bus_refused += writer_.queue().dropped() + writer_.refused();
   c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.framing = closed_links_framing_;
@@ -545,7 +542,7 @@ std::string Surface::stats_line() const {
       "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {} bus-refused {}, "
       "rpdop forwarded {} complete {} failed {}; "
       "{} rx {} tx {} "
-      "kernel-drops {} {}",
+      "kernel-drops {} {}; bus-waited {} (peak {}, backbone-pauses {})",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
@@ -556,7 +553,14 @@ std::string Surface::stats_line() const {
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
       c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
       c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(),
-      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state));
+      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state), c.bus_waited,
+      c.bus_waiting_peak, c.backbone_pauses);
+  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
+    if (c.bus_drops[r] != 0) {
+      s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
+                       c.bus_drops[r]);
+    }
+  }
   s += "; " + lanes_summary(c.outbox);
   return s;
 }

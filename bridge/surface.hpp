@@ -15,6 +15,7 @@
 
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
+#include "bridge/bus_writer.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/sdo_link_guard.hpp"
@@ -31,7 +32,11 @@ struct SurfaceCounters {
   std::uint64_t to_bus = 0;              // frames written to the surface bus
   std::uint64_t frames_received = 0;     // frames decoded from the backbone
   std::uint64_t dropped_no_gateway = 0;  // surface frames while no gateway was ever known
-  std::uint64_t bus_refused = 0;         // surface bus transmit queue full
+  std::uint64_t bus_refused = 0;         // frames for the surface bus dropped (bus_drops: why)
+  std::uint64_t bus_waited = 0;          // frames that waited for room in its transmit queue
+  std::uint64_t bus_waiting_peak = 0;
+  std::array<std::uint64_t, BusWriteQueue::kDropReasons> bus_drops{};  // by BusWriteQueue::Drop
+  std::uint64_t backbone_pauses = 0;  // the gateways' payloads went unread: the bus was backed up
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
   backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
@@ -50,7 +55,7 @@ struct SurfaceCounters {
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
   std::uint64_t pdop_packet_bytes = 0;
-  std::uint64_t pdop_bus_refused = 0;       // packets refused: too many waiting for the bus
+  std::uint64_t pdop_bus_refused = 0;       // packets refused: more fragments than the bus holds
   std::uint64_t pdop_malformed = 0;         // packets with a bad node, TPDO or size (dropped)
   std::uint64_t pdop_probable_repeats = 0;  // flagged as a probable double reception
   std::uint64_t pdop_discards = 0;          // broken packets the gateways reported
@@ -108,15 +113,15 @@ class Surface {
   // A frame meant for `gateway` that will never be sent: counted, an open SDO request aborted.
   void on_frame_dropped(const can::Frame& frame, bool too_old);
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
+  // Every frame for the surface bus goes here, in order (BusWriter).
   void send_to_bus(const can::Frame& frame);
+  // Input from every gateway waits while the bus is backed up (BusWriteQueue::backlogged).
+  void on_bus_backlog(bool backlogged);
   void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
   void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);
   void on_pdop_reports(Gateway& from, const v1::PdopReports& reports);
   // Sends the relay's acknowledgements to the bus and its packets to their gateways.
   void flush_relay();
-  // Writes waiting packets whose fragments all fit the bus's transmit queue, in order; retries
-  // after 1 ms while some wait.
-  void write_pending_packets();
   boost::asio::awaitable<void> watch_relay();
   void after_relay_input();
 
@@ -154,14 +159,9 @@ class Surface {
   // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
   std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
-  // TPDOP packets (their fragments) waiting for room in the bus's transmit queue: bursts from the
-  // backbone outrun the bus. Bounded; beyond, packets are refused (counted).
-  static constexpr std::size_t kMaxPendingPacketFrames = std::size_t{1} << 17;
-  std::deque<std::vector<can::Frame>> pending_packets_;
-  std::size_t pending_frames_ = 0;
-  boost::asio::steady_timer bus_retry_timer_;
-  bool bus_retry_armed_ = false;
   LoopGuard loop_guard_;
+  // Frames (TPDOP packets whole) waiting for room on the bus: bursts from the backbone outrun it.
+  BusWriter writer_;
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_

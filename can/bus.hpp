@@ -58,6 +58,12 @@ class Bus {
     (void)withdrawn;
     return 0;
   }
+  // Completes once send_room() >= `frames` (at once if it already is), with an error once the
+  // bus is closed or the wait is cancelled. For writers that keep frames waiting upstream while
+  // the transmit queue is full: they learn of room without polling. `frames` must not exceed
+  // what the idle bus takes (its send_room() before anything was sent), or the wait never ends.
+  // Only one wait may be outstanding.
+  virtual boost::asio::awaitable<std::error_code> wait_send_room(std::size_t frames) = 0;
 
   virtual BusCounters counters() const = 0;
 

@@ -135,6 +135,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         socket(ex),
         reader_wake(ex),
         writer_wake(ex),
+        room_wake(ex),
         writer_backoff(ex),
         reopen_timer(ex),
         tx_queue(options.transmit_queue_frames),
@@ -149,6 +150,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     // expiry is set once here; resetting it per wait would cancel the other waiter.
     reader_wake.expires_at(asio::steady_timer::time_point::max());
     writer_wake.expires_at(asio::steady_timer::time_point::max());
+    room_wake.expires_at(asio::steady_timer::time_point::max());
     // The message headers point at member buffers once; only lengths are reset per call.
     for (std::size_t i = 0; i < options.batch_size; ++i) {
       rx_iov[i] = {&rx_frames[i], sizeof(can_frame)};
@@ -395,6 +397,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         // Only the head leaves the queue, so order is kept whatever happens to the rest.
         s.tx_queue.pop_front(static_cast<std::size_t>(sent));
         s.counters.tx_frames += static_cast<std::uint64_t>(sent);
+        s.notify_room();
         backoff = kTxBackoffMin;
         // Let the loop breathe between batches of a long queue.
         if (!s.tx_queue.empty()) co_await asio::post(s.executor, asio::use_awaitable);
@@ -419,8 +422,34 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         // The kernel refused the head frame itself (EINVAL, EPERM, ...): retrying cannot help.
         s.tx_queue.pop_front(1);
         ++s.counters.tx_dropped_error;
+        s.notify_room();
       }
     }
+  }
+
+  std::size_t room() const {
+    if (closed || tx_queue.size() >= tx_capacity()) return 0;
+    return tx_capacity() - tx_queue.size();
+  }
+
+  // The writer freed slots: wake a writer upstream once as many as it waits for are free.
+  void notify_room() {
+    if (room_wanted != 0 && room() >= room_wanted) room_wake.cancel();
+  }
+
+  asio::awaitable<std::error_code> wait_room(std::size_t frames) {
+    const auto canceled = std::make_error_code(std::errc::operation_canceled);
+    while (!closed && room() < frames) {
+      room_wanted = frames;
+      co_await room_wake.async_wait(asio::as_tuple(asio::use_awaitable));
+      room_wanted = 0;
+      // The timer is a condition variable: cancel() means "room" (or "closed"). A cancellation
+      // requested by our caller must still end the wait.
+      auto state = co_await asio::this_coro::cancellation_state;
+      if (state.cancelled() != asio::cancellation_type::none) co_return canceled;
+    }
+    if (closed) co_return canceled;
+    co_return std::error_code{};
   }
 
   void close() {
@@ -432,6 +461,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     socket.close(ignored);
     reader_wake.cancel();
     writer_wake.cancel();
+    room_wake.cancel();
     writer_backoff.cancel();
     reopen_timer.cancel();
   }
@@ -441,6 +471,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   asio::posix::stream_descriptor socket;  // closed while the interface is lost
   asio::steady_timer reader_wake;         // notified when the socket is reopened or closed
   asio::steady_timer writer_wake;         // notified on send(), reopen and close
+  asio::steady_timer room_wake;           // notified when room_wanted slots are free, and close
   asio::steady_timer writer_backoff;
   asio::steady_timer reopen_timer;
   FrameRing tx_queue;
@@ -452,6 +483,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   bool closed = false;
   bool reopening = false;
   bool writer_idle = false;
+  std::size_t room_wanted = 0;     // free slots a wait_send_room() waits for; 0: none waits
   bool rx_drained = false;         // the last recvmmsg returned fewer frames than asked for
   bool rx_batch_was_full = false;  // the last recvmmsg filled the whole batch
 
@@ -514,10 +546,12 @@ bool SocketCanBus::send(const Frame& frame) {
 }
 
 std::size_t SocketCanBus::send_room() const {
-  if (impl_->closed) return 0;
-  return impl_->tx_queue.size() >= impl_->tx_capacity()
-             ? 0
-             : impl_->tx_capacity() - impl_->tx_queue.size();
+  return impl_->room();
+}
+
+asio::awaitable<std::error_code> SocketCanBus::wait_send_room(std::size_t frames) {
+  auto impl = impl_;  // the bus may be destroyed while this waits
+  co_return co_await impl->wait_room(frames);
 }
 
 BusCounters SocketCanBus::counters() const {

@@ -60,6 +60,7 @@ class SocketCanBus final : public Bus {
   bool send(const Frame& frame) override;
   std::size_t send_room() const override;
   std::size_t withdraw_queued(const std::function<bool(const Frame&)>& withdrawn) override;
+  boost::asio::awaitable<std::error_code> wait_send_room(std::size_t frames) override;
   BusCounters counters() const override;
   void on_state_change(std::function<void(BusState)> handler) override;
   void close() override;

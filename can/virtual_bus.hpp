@@ -4,6 +4,7 @@
 
 #include <boost/asio/any_io_executor.hpp>
 #include <deque>
+#include <limits>
 #include <memory>
 #include <string>
 #include <vector>
@@ -21,8 +22,17 @@ class VirtualBus {
   VirtualBus(const VirtualBus&) = delete;
   VirtualBus& operator=(const VirtualBus&) = delete;
 
-  // A new station on this medium; it may outlive the VirtualBus object.
-  std::unique_ptr<Bus> connect(std::string endpoint_name);
+  // A new station on this medium; it may outlive the VirtualBus object. `tx_capacity` bounds its
+  // transmit queue, which fills only while the medium is held (send() refuses beyond it).
+  std::unique_ptr<Bus> connect(std::string endpoint_name,
+                               std::size_t tx_capacity = std::numeric_limits<std::size_t>::max());
+
+  // A bus too busy to take frames, for tests of writers that wait for room: while held, sent
+  // frames stay in their sender's transmit queue. release_held() lets up to `frames` of them
+  // through (per sender in order, senders in connection order) and keeps the medium held;
+  // hold(false) lets all of them through and makes sends immediate again.
+  void hold(bool held);
+  void release_held(std::size_t frames);
 
   const std::string& name() const;
 

@@ -243,6 +243,35 @@ TEST_F(MessageLinkTest, CloseFromInsideTheMessageHandlerStopsDelivery) {
   EXPECT_EQ(b_in.reason, errc::closed);
 }
 
+// A receiver that cannot take more (its bus is backed up) pauses: what was already read waits,
+// nothing more is read, and its own writes go on; on resume everything follows in order.
+TEST_F(MessageLinkTest, PauseFromInsideTheHandlerHoldsTheRestUntilResumed) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  b->start(
+      [&](std::span<const std::uint8_t> m) {
+        b_in.messages.push_back(to_string(m));
+        if (b_in.messages.size() == 1) b->pause_reading(true);
+      },
+      b_out.source(), b_in.on_closed());
+  a_out.pending = {"1", "2", "3"};  // one write: b reads them together
+  a->wake_writer();
+  b_out.pending = {"x"};
+  b->wake_writer();  // the paused side still writes
+  ASSERT_TRUE(
+      run_until(io, [&] { return a_in.messages.size() == 1 && b_in.messages.size() == 1; }));
+  a_out.pending = {"4"};
+  a->wake_writer();
+  ASSERT_TRUE(run_until(io, [&] { return a->counters().tx_writes == 2; }));
+  io.poll();
+  EXPECT_TRUE(b->reading_paused());
+  EXPECT_EQ(b_in.messages, std::vector<std::string>{"1"});
+  b->pause_reading(false);
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 4; }));
+  EXPECT_EQ(b_in.messages, (std::vector<std::string>{"1", "2", "3", "4"}));
+  EXPECT_EQ(a_in.messages, std::vector<std::string>{"x"});
+  EXPECT_TRUE(b->is_open());
+}
+
 TEST_F(MessageLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   b->close();

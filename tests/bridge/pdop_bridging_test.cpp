@@ -5,7 +5,10 @@
 // acknowledgements, and the master's final acknowledgement follows the node's.
 #include <gtest/gtest.h>
 
+#include <boost/asio/as_tuple.hpp>
 #include <boost/asio/io_context.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/asio/use_awaitable.hpp>
 #include <cstdint>
 #include <limits>
 #include <memory>
@@ -49,8 +52,20 @@ std::vector<std::uint8_t> pattern(std::size_t size, std::uint8_t seed) {
 class RoomLimitedBus final : public can::Bus {
  public:
   static constexpr std::size_t kUnbounded = std::numeric_limits<std::size_t>::max();
-  explicit RoomLimitedBus(std::unique_ptr<can::Bus> inner) : inner_(std::move(inner)) {}
+  RoomLimitedBus(asio::any_io_executor executor, std::unique_ptr<can::Bus> inner)
+      : inner_(std::move(inner)), room_changed_(executor, asio::steady_timer::time_point::max()) {}
   std::size_t room = kUnbounded;
+  void set_room(std::size_t frames) {
+    room = frames;
+    room_changed_.cancel();
+  }
+  asio::awaitable<std::error_code> wait_send_room(std::size_t frames) override {
+    while (!closed_ && send_room() < frames) {
+      co_await room_changed_.async_wait(asio::as_tuple(asio::use_awaitable));
+    }
+    if (closed_) co_return std::make_error_code(std::errc::operation_canceled);
+    co_return std::error_code{};
+  }
 
   const std::string& name() const override { return inner_->name(); }
   asio::awaitable<std::error_code> receive_batch(std::vector<can::Frame>& out) override {
@@ -66,10 +81,16 @@ class RoomLimitedBus final : public can::Bus {
   void on_state_change(std::function<void(can::BusState)> handler) override {
     inner_->on_state_change(std::move(handler));
   }
-  void close() override { inner_->close(); }
+  void close() override {
+    closed_ = true;
+    room_changed_.cancel();
+    inner_->close();
+  }
 
  private:
   std::unique_ptr<can::Bus> inner_;
+  asio::steady_timer room_changed_;  // condition variable: set_room(), close()
+  bool closed_ = false;
 };
 
 struct SeenPacket {
@@ -149,7 +170,8 @@ class PdopBridging : public ::testing::Test {
   BusRecorder master{io, surface_bus.connect("master")};
   RoomLimitedBus* surface_port = nullptr;
   Surface surface{io.get_executor(), "surface", [this] {
-                    auto bus = std::make_unique<RoomLimitedBus>(surface_bus.connect("surface"));
+                    auto bus = std::make_unique<RoomLimitedBus>(io.get_executor(),
+                                                                surface_bus.connect("surface"));
                     surface_port = bus.get();
                     return bus;
                   }()};
@@ -214,13 +236,13 @@ TEST_F(PdopBridging, TpdopPacketsCrossWholeAndReappearUnderTheSurfaceId) {
 
 TEST_F(PdopBridging, PacketsWaitWholeAndInOrderWhileTheSurfaceBusIsFull) {
   start();
-  surface_port->room = 10;  // less than one packet's 13 fragments
+  surface_port->set_room(10);  // less than one packet's 13 fragments
   const auto a = pattern(100, 1), b = pattern(100, 2);
   send_packet(kLocalA, 1, a);
   send_packet(kLocalA, 1, b);
   ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop_packets == 2; }));
   EXPECT_TRUE(tpdo_frames_on_surface(kSurfaceA).empty());  // no partial packet on the bus
-  surface_port->room = RoomLimitedBus::kUnbounded;         // the queue drains
+  surface_port->set_room(RoomLimitedBus::kUnbounded);      // the queue drains
   ASSERT_TRUE(run_until(io, [&] { return tpdo_frames_on_surface(kSurfaceA).size() == 26; }));
   auto expected = pdop::fragment(pdop::tpdo_base(1), kSurfaceA, a);
   const auto then = pdop::fragment(pdop::tpdo_base(1), kSurfaceA, b);

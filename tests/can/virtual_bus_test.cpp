@@ -7,6 +7,7 @@
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <limits>
+#include <optional>
 
 namespace canbridge::can {
 namespace {
@@ -106,6 +107,72 @@ TEST(Frame, FormatsLikeCansend) {
   rtr.id = 0x7FF;
   rtr.flags = FrameFlags::remote;
   EXPECT_EQ(to_string(rtr), "7FF#R");
+}
+
+// A held medium: sends wait in the sender's bounded transmit queue, as on a bus too busy to take
+// them; a writer awaiting room learns of it when frames leave, without polling.
+TEST(VirtualBus, HeldSendsQueueAndRoomWaitEndsWhenTheyLeave) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a", 3);
+  auto b = medium.connect("b");
+  EXPECT_EQ(a->send_room(), 3u);
+  medium.hold(true);
+  for (std::uint8_t i = 0; i < 3; ++i) ASSERT_TRUE(a->send(Frame::standard(0x601, {i})));
+  EXPECT_EQ(a->send_room(), 0u);
+  EXPECT_FALSE(a->send(Frame::standard(0x601, {9})));  // full: refused and counted
+  EXPECT_EQ(a->counters().tx_dropped_queue, 1u);
+  EXPECT_EQ(a->counters().tx_frames, 0u);
+
+  std::optional<std::error_code> waited;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { waited = co_await a->wait_send_room(2); },
+      asio::detached);
+  io.poll();
+  EXPECT_FALSE(waited);
+  medium.release_held(1);  // one slot free: not yet the two the writer waits for
+  io.poll();
+  EXPECT_FALSE(waited);
+  EXPECT_EQ(a->send_room(), 1u);
+  medium.release_held(1);
+  io.poll();
+  ASSERT_TRUE(waited);
+  EXPECT_FALSE(*waited) << waited->message();
+  EXPECT_EQ(a->send_room(), 2u);
+
+  medium.hold(false);  // the rest goes, and later sends are immediate again
+  ASSERT_TRUE(a->send(Frame::standard(0x601, {3})));
+  io.restart();  // the loop ran out of work when the wait ended
+  const auto at_b = receive_all(io, *b);
+  ASSERT_EQ(at_b.size(), 4u);
+  for (std::uint8_t i = 0; i < 4; ++i) EXPECT_EQ(at_b[i], Frame::standard(0x601, {i})) << int{i};
+  EXPECT_EQ(a->counters().tx_frames, 4u);
+}
+
+TEST(VirtualBus, RoomWaitIsImmediateWithRoomAndFailsOnClose) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a", 1);
+  std::optional<std::error_code> first, second;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { first = co_await a->wait_send_room(1); },
+      asio::detached);
+  io.poll();
+  ASSERT_TRUE(first);
+  EXPECT_FALSE(*first);
+  io.restart();  // the loop ran out of work when the wait ended
+  medium.hold(true);
+  ASSERT_TRUE(a->send(Frame::standard(0x80, {})));
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { second = co_await a->wait_send_room(1); },
+      asio::detached);
+  io.poll();
+  EXPECT_FALSE(second);
+  a->close();  // the held frame is lost with the station, and counted
+  io.poll();
+  ASSERT_TRUE(second);
+  EXPECT_TRUE(*second);
+  EXPECT_EQ(a->counters().tx_dropped_error, 1u);
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <boost/asio/use_awaitable.hpp>
 #include <cstdio>
 #include <cstdlib>
+#include <optional>
 #include <sstream>
 
 #include "can/candump_log.hpp"
@@ -430,6 +431,48 @@ TEST(SocketCanSystem, SurvivesInterfaceDownAndUp) {
   EXPECT_EQ(rx.frames.back(), Frame::make(0x333, 0, {0xCA, 0xFE}));
   EXPECT_FALSE(rx.ended);
   std::printf("[down/up] reopens=%llu\n", static_cast<unsigned long long>(bus->counters().reopens));
+}
+
+// A writer upstream of a full transmit queue awaits room instead of polling: the wait ends once
+// the bus's own writer has handed the frames to the kernel, and fails when the bus closes.
+TEST(SocketCanSystem, WaitSendRoomEndsWhenTheWriterHasFreedTheSlots) {
+  asio::io_context io(1);
+  SocketCanOptions o = options_for("vcan1");
+  o.transmit_queue_frames = 4;
+  auto bus = SocketCanBus::open(io.get_executor(), o);
+  // Down before the loop runs: the writer's first attempt finds the interface lost.
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
+  for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(bus->send(Frame::make(0x123, 0, {i})));
+  std::optional<std::error_code> waited;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { waited = co_await bus->wait_send_room(3); },
+      asio::detached);
+  ASSERT_TRUE(run_until(
+      io, [&] { return !bus->interface_up(); }, 5s));
+  EXPECT_FALSE(waited);  // nothing can leave while the interface is down
+  EXPECT_EQ(bus->send_room(), 0u);
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
+  ASSERT_TRUE(run_until(
+      io, [&] { return waited.has_value(); }, 5s));
+  EXPECT_FALSE(*waited) << waited->message();
+  EXPECT_GE(bus->send_room(), 3u);
+
+  ASSERT_TRUE(run_until(
+      io, [&] { return bus->send_room() == 4; }, 5s));
+  for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(bus->send(Frame::make(0x124, 0, {i})));
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
+  std::optional<std::error_code> on_close;
+  asio::co_spawn(
+      io, [&]() -> asio::awaitable<void> { on_close = co_await bus->wait_send_room(1); },
+      asio::detached);
+  ASSERT_TRUE(run_until(
+      io, [&] { return !bus->interface_up(); }, 5s));
+  EXPECT_FALSE(on_close);
+  bus->close();
+  ASSERT_TRUE(run_until(
+      io, [&] { return on_close.has_value(); }, 5s));
+  EXPECT_TRUE(*on_close);  // closed: an error, not room
+  ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "up"}).status, 0);
 }
 
 TEST(SocketCanSystem, OpensAnInterfaceThatIsDownAndUsesItOnceUp) {

@@ -1,0 +1,111 @@
+#include "bridge/bus_writer.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/co_spawn.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <exception>
+
+namespace canbridge::bridge {
+
+namespace asio = boost::asio;
+
+namespace {
+BusWriteQueue::Options with_capacity(BusWriteQueue::Options options, const can::Bus& bus) {
+  options.bus_capacity = bus.send_room();
+  return options;
+}
+}  // namespace
+
+BusWriter::BusWriter(asio::any_io_executor executor, can::Bus& bus, BusWriteQueue::Options options,
+                     Written on_written, BacklogChanged on_backlog_changed)
+    : bus_(bus),
+      queue_(with_capacity(options, bus)),
+      on_written_(std::move(on_written)),
+      on_backlog_changed_(std::move(on_backlog_changed)),
+      wake_(std::move(executor), asio::steady_timer::time_point::max()) {}
+
+void BusWriter::start() {
+  asio::co_spawn(wake_.get_executor(), run(), [name = bus_.name()](std::exception_ptr error) {
+    if (!error) return;
+    try {
+      std::rethrow_exception(error);
+    } catch (const std::exception& e) {
+      spdlog::error("bus {}: the writer stopped: {}", name, e.what());
+    }
+  });
+}
+
+void BusWriter::stop() {
+  stopped_ = true;
+  wake_.cancel();
+}
+
+bool BusWriter::write(const can::Frame& frame, BusWriteQueue::Lane lane) {
+  return write(std::span<const can::Frame>(&frame, 1), lane);
+}
+
+bool BusWriter::write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane) {
+  const bool was_backlogged = queue_.backlogged();
+  out_.clear();
+  const bool accepted = queue_.offer(unit, lane, bus_.send_room(), out_);
+  send(out_);
+  if (!queue_.empty() && idle_) {
+    idle_ = false;
+    wake_.cancel();
+  }
+  after_change(was_backlogged);
+  return accepted;
+}
+
+asio::awaitable<void> BusWriter::run() {
+  while (!stopped_) {
+    if (queue_.empty()) {
+      idle_ = true;
+      co_await wake_.async_wait(asio::as_tuple(asio::use_awaitable));
+      idle_ = false;
+      continue;
+    }
+    if (std::error_code ec = co_await bus_.wait_send_room(queue_.head_frames())) {
+      if (stopped_) co_return;
+      const bool was_backlogged = queue_.backlogged();
+      queue_.clear();  // the bus closed: nothing waiting can go any more (counted)
+      after_change(was_backlogged);
+      co_return;
+    }
+    if (stopped_) co_return;
+    const bool was_backlogged = queue_.backlogged();
+    out_.clear();
+    queue_.take(bus_.send_room(), out_);
+    send(out_);
+    after_change(was_backlogged);
+  }
+}
+
+void BusWriter::send(const std::vector<can::Frame>& frames) {
+  if (frames.empty()) return;
+  std::size_t sent = 0;
+  for (const can::Frame& frame : frames) {
+    // The queue handed out only what the bus said it had room for.
+    if (!bus_.send(frame)) break;
+    ++sent;
+  }
+  refused_ += frames.size() - sent;
+  if (sent != 0 && on_written_) on_written_(std::span<const can::Frame>(frames.data(), sent));
+}
+
+std::size_t BusWriter::withdraw(const std::function<bool(const can::Frame&)>& withdrawn) {
+  const bool was_backlogged = queue_.backlogged();
+  const std::size_t removed = queue_.withdraw_single_frames(withdrawn);
+  after_change(was_backlogged);
+  return removed + bus_.withdraw_queued(withdrawn);
+}
+
+void BusWriter::after_change(bool was_backlogged) {
+  if (queue_.backlogged() != was_backlogged && on_backlog_changed_) {
+    on_backlog_changed_(queue_.backlogged());
+  }
+}
+
+}  // namespace canbridge::bridge
