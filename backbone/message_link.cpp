@@ -204,6 +204,10 @@ void MessageLink::close() {
   end(make_error_code(errc::closed));
 }
 
+void MessageLink::close(std::error_code reason) {
+  end(reason);
+}
+
 asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
   auto self = shared_from_this();
   while (!finished_) {
