@@ -10,6 +10,7 @@
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
+#include "bridge/gateway_claims.hpp"
 
 namespace canbridge::bridge {
 
@@ -231,6 +232,8 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                              return surface;
                            }});
   }
+  // The surface checks these against every other gateway's and routes its frames by them.
+  identity_.application = encode_claims(claims_of(map_));
 }
 
 canopen::NodeId Gateway::sdo_node(std::size_t module_index, const can::Frame& frame,

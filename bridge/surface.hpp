@@ -16,6 +16,7 @@
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/gateway_table.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/rpdop_relay.hpp"
 #include "bridge/sdo_link_guard.hpp"
@@ -31,6 +32,7 @@ struct SurfaceCounters {
   std::uint64_t to_bus = 0;              // frames written to the surface bus
   std::uint64_t frames_received = 0;     // frames decoded from the backbone
   std::uint64_t dropped_no_gateway = 0;  // surface frames while no gateway was ever known
+  std::uint64_t dropped_unclaimed = 0;   // surface frames to a node no gateway claims
   std::uint64_t bus_refused = 0;         // surface bus transmit queue full
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
@@ -76,8 +78,8 @@ class Surface {
 
   void start();
   // Takes a new gateway link (accepted TCP connection or opened serial line). Its hello decides
-  // which gateway it belongs to; a gateway announcing a module another connected gateway serves
-  // is refused, with the reason sent to it.
+  // which gateway it belongs to; a gateway announcing a module, surface node id or COB-ID another
+  // connected gateway claims is refused, with the reason sent to it (GatewayTable).
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
 
@@ -100,6 +102,8 @@ class Surface {
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
+  // Queues a surface frame for one gateway; an SDO request it cannot take is aborted.
+  void forward_to(Gateway& gateway, const can::Frame& frame);
   void send_to_bus(const can::Frame& frame);
   void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
   void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);
@@ -122,6 +126,7 @@ class Surface {
     kPdopDiscard,
     kRpdopFailed,
     kPdopRepeat,
+    kUnclaimed,
     kWarnKinds
   };
 
@@ -132,7 +137,8 @@ class Surface {
   bool conflate_pdos_;
   backbone::SessionLink::Identity identity_;
   std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
-  std::vector<Gateway*> by_id_;                               // the same, by SdoLinkGuard id
+  std::vector<Gateway*> by_id_;  // the same, by id (GatewayTable's, SdoLinkGuard's)
+  GatewayTable table_;           // who may bind, who owns which surface ids
   SdoLinkGuard guard_;
   RpdopRelay relay_;
   RpdopRelay::Output relay_out_;
