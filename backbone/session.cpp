@@ -294,6 +294,7 @@ void SessionLink::fill(std::string& out) {
 // of the two happens, so data that follows the peer's hello in the same read is not dropped.
 void SessionLink::become_ready() {
   ready_ = true;
+  stream_->last_refusal_.clear();  // a refusal after this link is news again
   ++counters_.links;
   if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
   stream_->link_ = shared_from_this();
@@ -329,8 +330,14 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
       const std::string text = fmt::format("{} refused this {}: {} ({})", link_->peer_name(),
                                            role_name(identity_.role), inbound_.refusal().detail(),
                                            v1::Refusal::Reason_Name(inbound_.refusal().reason()));
-      spdlog::log(same_as_last_refusal(text) ? spdlog::level::debug : spdlog::level::err,
-                  "backbone: {}", text);
+      bool repeated = false;
+      if (stream_) {
+        repeated = stream_->last_refusal_ == text;
+        stream_->last_refusal_ = text;
+      } else {
+        repeated = same_as_last_refusal(text);
+      }
+      spdlog::log(repeated ? spdlog::level::debug : spdlog::level::err, "backbone: {}", text);
       // Its client backs off as after a failed attempt: the same hello would be refused again.
       return link_->close(make_error_code(errc::refused_by_peer));
     }

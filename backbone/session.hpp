@@ -107,6 +107,9 @@ class PeerStream {
   ReliableSender sender_;
   ReliableReceiver receiver_;
   std::uint64_t peer_session_id_ = 0;  // 0: never heard of the peer
+  // The latest refusal the peer sent since this stream was last up: a refused peer retries, and
+  // the same refusal again is logged at debug level only.
+  std::string last_refusal_;
   v1::Hello peer_hello_;
   Handlers handlers_;
   std::shared_ptr<SessionLink> link_;  // set while a link to the peer is ready

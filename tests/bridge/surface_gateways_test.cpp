@@ -4,6 +4,8 @@
 // and reliable frames cross link cuts exactly once and in order.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <boost/asio/io_context.hpp>
@@ -11,6 +13,7 @@
 #include <cstdio>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -541,8 +544,15 @@ TEST_F(SurfaceGateways, NoSdoRequestToANeverSeenNodeVanishesWhenItsLinkIsCut) {
 // knocking ten times a second forever.
 TEST_F(SurfaceGateways, ARefusedGatewayBacksOffExponentiallyToItsMaximum) {
   start_a_and_b();
+  // Error lines, to see each side report the refusal once, not once per attempt.
+  std::ostringstream errors;
+  auto sink = std::make_shared<spdlog::sinks::ostream_sink_st>(errors);
+  sink->set_level(spdlog::level::err);
+  spdlog::default_logger()->sinks().push_back(sink);
   GatewayRig& c = add_gateway("gw-c", {1}, {}, 80ms);  // module 1 is A's; waits 10 ms .. 80 ms
-  ASSERT_TRUE(run_until(io, [&] { return c.connects.size() >= 6; }));
+  // A second refused gateway knocking at the same time: each keeps its own "once".
+  GatewayRig& d = add_gateway("gw-d", {2}, {}, 80ms);  // module 2 is B's
+  ASSERT_TRUE(run_until(io, [&] { return c.connects.size() >= 6 && d.connects.size() >= 6; }));
   const std::vector<std::chrono::milliseconds> schedule{10ms, 20ms, 40ms, 80ms, 80ms};
   for (std::size_t i = 0; i < schedule.size(); ++i) {
     EXPECT_GE(c.connects[i + 1] - c.connects[i], schedule[i]) << "attempt " << i + 2;
@@ -550,8 +560,17 @@ TEST_F(SurfaceGateways, ARefusedGatewayBacksOffExponentiallyToItsMaximum) {
   EXPECT_FALSE(c.connected());
   EXPECT_EQ(c.gateway->counters().session.links, 0u);
   EXPECT_TRUE(a->connected());
-  // The same refusal again is not the first: the surface marks it repeated (logged at debug).
-  EXPECT_GE(surface.counters().session.refusals_sent, 5u);
+  EXPECT_GE(surface.counters().session.refusals_sent, 10u);
+  spdlog::default_logger()->sinks().pop_back();
+  auto lines_with = [text = errors.str()](const std::string& what) {
+    std::size_t n = 0;
+    for (auto at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+    return n;
+  };
+  EXPECT_EQ(lines_with("backbone: refusing"), 2u) << errors.str();
+  EXPECT_EQ(lines_with("refused this gateway"), 2u) << errors.str();
+  // The gateway's log says what to change.
+  EXPECT_NE(errors.str().find("give this gateway another name or module"), std::string::npos);
 }
 
 }  // namespace
