@@ -25,6 +25,8 @@ class BackboneCategory final : public std::error_category {
         return "connection closed locally";
       case errc::handler_failed:
         return "message handler or source threw";
+      case errc::refused_by_peer:
+        return "refused by the peer";
     }
     return "unknown backbone error";
   }

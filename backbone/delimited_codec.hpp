@@ -24,6 +24,7 @@ enum class errc {
   peer_closed,           // the peer closed the connection (EOF)
   closed,                // closed locally (close() / stop())
   handler_failed,        // a user handler or source threw; the link was dropped
+  refused_by_peer,       // the peer refused this side (session Refusal): retrying soon is futile
 };
 
 const std::error_category& backbone_category() noexcept;

@@ -211,6 +211,10 @@ void MessageLink::pause_reading(bool paused) {
   if (!paused) resume_.cancel();
 }
 
+void MessageLink::close(std::error_code reason) {
+  end(reason);
+}
+
 asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
   auto self = shared_from_this();
   while (!finished_) {

@@ -91,6 +91,8 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   // Ends the link (reason errc::closed unless it already ended); both loops stop promptly and
   // unsent data is discarded. Idempotent; safe from inside any handler.
   void close();
+  // The same, with the reason the link's client will see (e.g. errc::refused_by_peer).
+  void close(std::error_code reason);
 
   // Completes with the close reason once the link has ended and on_closed has run (at once if it
   // already has). Completes with std::errc::operation_canceled if the caller is cancelled.

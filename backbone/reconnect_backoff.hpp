@@ -20,6 +20,8 @@ class ReconnectBackoff {
     next_ = std::min(next_ * 2, max_);
     return wait;
   }
+  // The wait the next call returns, for logs.
+  std::chrono::milliseconds peek() const { return next_; }
   // A connection succeeded: the next failure waits the minimum again.
   void reset() { next_ = min_; }
   std::chrono::milliseconds max() const { return max_; }

@@ -78,7 +78,6 @@ asio::awaitable<void> SerialClient::run() {
     } else {
       ++counters_.opens;
       failing_ = false;
-      backoff_.reset();
       spdlog::info("backbone: serial line {} open at {} bit/s", options_.device, options_.baud);
       auto link = MessageLink::create(std::move(port), options_.device, options_.link);
       link_ = link;
@@ -87,7 +86,14 @@ asio::awaitable<void> SerialClient::run() {
       const std::error_code reason = co_await link->async_wait_closed();
       link_.reset();
       if (stopped_) break;
-      spdlog::info("backbone: serial link {} ended: {}", options_.device, reason.message());
+      if (reason == make_error_code(errc::refused_by_peer)) {
+        // Refused again until a configuration changes: wait longer each time (TcpClient too).
+        spdlog::debug("backbone: refused over serial line {}: next attempt in {} ms",
+                      options_.device, backoff_.peek().count());
+      } else {
+        spdlog::info("backbone: serial link {} ended: {}", options_.device, reason.message());
+        backoff_.reset();
+      }
     }
     // A line that ends at once (peer gone, device unplugged) must not become a busy loop.
     backoff_timer_.expires_after(backoff_.next());

@@ -21,6 +21,7 @@ struct SerialOptions {
   unsigned baud = 115200;
   // 8N1 always; hardware (RTS/CTS) flow control only when the cable carries it.
   bool hardware_flow_control = false;
+  // Between opens: backoff_min, doubling after failed opens and refused links up to backoff_max.
   std::chrono::milliseconds backoff_min{100};
   std::chrono::milliseconds backoff_max{5000};
   LinkOptions link;

@@ -288,6 +288,7 @@ void SessionLink::fill(std::string& out) {
     h.set_send_base(stream_->sender_.send_base());
     for (const char* c : {"reliable", "conflation", "priority"}) h.add_capabilities(c);
     h.add_capabilities(link_->crc_framed() ? "cobs-crc32c" : "delimited");
+    if (!identity_.application.empty()) h.set_application(identity_.application);
     append_message(out, scratch_);
     hello_sent_ = true;
     last_tx_ = now;
@@ -313,6 +314,7 @@ void SessionLink::fill(std::string& out) {
 // of the two happens, so data that follows the peer's hello in the same read is not dropped.
 void SessionLink::become_ready() {
   ready_ = true;
+  stream_->last_refusal_.clear();  // a refusal after this link is news again
   ++counters_.links;
   if (stream_->link_ && stream_->link_.get() != this) stream_->link_->close();  // stale link
   stream_->link_ = shared_from_this();
@@ -403,9 +405,16 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
       const std::string text = fmt::format("{} refused this {}: {} ({})", link_->peer_name(),
                                            role_name(identity_.role), inbound_.refusal().detail(),
                                            v1::Refusal::Reason_Name(inbound_.refusal().reason()));
-      spdlog::log(same_as_last_refusal(text) ? spdlog::level::debug : spdlog::level::err,
-                  "backbone: {}", text);
-      return link_->close();
+      bool repeated = false;
+      if (stream_) {
+        repeated = stream_->last_refusal_ == text;
+        stream_->last_refusal_ = text;
+      } else {
+        repeated = same_as_last_refusal(text);
+      }
+      spdlog::log(repeated ? spdlog::level::debug : spdlog::level::err, "backbone: {}", text);
+      // Its client backs off as after a failed attempt: the same hello would be refused again.
+      return link_->close(make_error_code(errc::refused_by_peer));
     }
     case v1::Envelope::kKeepalive:
       if (inbound_.keepalive().hello_please()) {
@@ -514,7 +523,7 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
                                                "' expects a " + role_name(identity_.expected_peer));
   }
   const BindResult bound = binder_ ? binder_(h, *this) : BindResult{stream_, {}, {}};
-  if (!bound.stream) return refuse(bound.reason, bound.detail);
+  if (!bound.stream) return refuse(bound.reason, bound.detail, bound.repeated);
   stream_ = bound.stream;
   PeerStream& stream = *stream_;
   if (h.session_id() != stream.peer_session_id_) {
@@ -549,9 +558,10 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
   if (!closed_) link_->wake_writer();  // our hello (if not out yet), then what waited for the link
 }
 
-void SessionLink::refuse(v1::Refusal::Reason reason, const std::string& detail) {
+void SessionLink::refuse(v1::Refusal::Reason reason, const std::string& detail, bool repeated) {
   ++counters_.refusals_sent;
-  spdlog::log(same_as_last_refusal(detail) ? spdlog::level::debug : spdlog::level::err,
+  const bool same = same_as_last_refusal(detail);
+  spdlog::log(repeated || same ? spdlog::level::debug : spdlog::level::err,
               "backbone: refusing {}: {}", link_->peer_name(), detail);
   scratch_.Clear();
   v1::Refusal& r = *scratch_.mutable_refusal();

@@ -20,8 +20,9 @@
 namespace canbridge::backbone {
 
 inline constexpr std::uint32_t kProtocolMajor = 2;
-// 1: a second application payload kind; 2: PDO Packets (three more kinds)
-inline constexpr std::uint32_t kProtocolMinor = 2;
+// 1: a second application payload kind; 2: PDO Packets (three more kinds); 3: Hello.application
+// (a gateway's claims, checked by the surface)
+inline constexpr std::uint32_t kProtocolMinor = 3;
 
 struct SessionOptions {
   // Nothing sent for this long: send a keepalive (it carries the current ack).
@@ -148,6 +149,9 @@ class PeerStream {
   ReliableSender sender_;
   ReliableReceiver receiver_;
   std::uint64_t peer_session_id_ = 0;  // 0: never heard of the peer
+  // The latest refusal the peer sent since this stream was last up: a refused peer retries, and
+  // the same refusal again is logged at debug level only.
+  std::string last_refusal_;
   v1::Hello peer_hello_;
   Handlers handlers_;
   std::shared_ptr<SessionLink> link_;  // set while a link to the peer is ready
@@ -159,6 +163,8 @@ struct BindResult {
   PeerStream* stream = nullptr;  // null: refused
   v1::Refusal::Reason reason = v1::Refusal::PROTOCOL_ERROR;
   std::string detail;  // why, for both sides' logs
+  // The binder refused this peer for this very reason before: log it at debug level only.
+  bool repeated = false;
 };
 
 // One link's session: drives a MessageLink for the stream its peer's hello binds to.
@@ -170,6 +176,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
     std::string name;
     std::vector<std::uint32_t> module_ids;
     std::uint64_t session_id = 0;  // random per process start (random_session_id())
+    std::string application;       // Hello.application, opaque to the session
   };
   // Called once with the peer's hello after version and role were accepted.
   using Binder = std::function<BindResult(const v1::Hello& peer, SessionLink& link)>;
@@ -208,7 +215,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   std::chrono::steady_clock::duration resend_interval() const;
   void on_closed();
   void fill(std::string& out);
-  void refuse(v1::Refusal::Reason reason, const std::string& detail);
+  void refuse(v1::Refusal::Reason reason, const std::string& detail, bool repeated = false);
   void protocol_error(const std::string& why);
   void arm_watchdog();
   void on_watchdog();

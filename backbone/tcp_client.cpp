@@ -81,10 +81,11 @@ asio::awaitable<void> TcpClient::run() {
 
     ++counters_.connects;
     failing_ = false;
-    backoff_.reset();
     auto link = MessageLink::create(std::move(socket_), options_.link);
     socket_ = tcp::socket(executor_);
-    spdlog::info("backbone: connected to {}:{}", host_, port_);
+    // While refused, each attempt connects: the refusal (logged once) is the news, not that.
+    spdlog::log(refused_ ? spdlog::level::debug : spdlog::level::info,
+                "backbone: connected to {}:{}", host_, port_);
     link_ = link;
     if (on_connected_) on_connected_(link);
     if (!link->started()) {
@@ -94,7 +95,16 @@ asio::awaitable<void> TcpClient::run() {
     const std::error_code reason = co_await link->async_wait_closed();
     link_.reset();
     if (stopped_) break;
-    spdlog::info("backbone: link to {}:{} lost: {}", host_, port_, reason.message());
+    refused_ = reason == make_error_code(errc::refused_by_peer);
+    if (refused_) {
+      // The peer will refuse the same hello again until someone fixes a configuration: each
+      // retry waits longer, up to backoff_max. The session logged why (once per reason).
+      spdlog::debug("backbone: refused by {}:{}: next attempt in {} ms", host_, port_,
+                    backoff_.peek().count());
+    } else {
+      spdlog::info("backbone: link to {}:{} lost: {}", host_, port_, reason.message());
+      backoff_.reset();
+    }
     // Even after a good connection, wait backoff_min: a peer that accepts and drops at once must
     // not turn this into a busy loop.
     co_await back_off();

@@ -19,7 +19,8 @@ namespace canbridge::backbone {
 
 struct ClientOptions {
   // Wait before the next attempt: starts at backoff_min, doubles after every failed attempt or
-  // lost link up to backoff_max, and returns to backoff_min after a successful connect.
+  // link the peer refused (errc::refused_by_peer) up to backoff_max, and returns to backoff_min
+  // after any other link ends.
   std::chrono::milliseconds backoff_min{100};
   std::chrono::milliseconds backoff_max{5000};
   // Bounds resolve + connect, so a silently dropped SYN does not stall reconnection for minutes.
@@ -81,6 +82,7 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
   bool started_ = false;
   bool stopped_ = false;
   bool failing_ = false;  // in a run of failed attempts (log the first one only)
+  bool refused_ = false;  // the peer refused the latest link
 };
 
 }  // namespace canbridge::backbone

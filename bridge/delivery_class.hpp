@@ -5,9 +5,9 @@
 
 #include <cstdint>
 
+#include "can/frame.hpp"
 #include "canopen/cob_id.hpp"
 #include "canopen/pdop.hpp"
-#include "can/frame.hpp"
 
 namespace canbridge::bridge {
 

@@ -36,8 +36,8 @@ struct OutboxCounters {
   std::uint64_t frames_sent = 0;
   std::uint64_t batches_sent = 0;
   std::uint64_t sdo_requests_withdrawn = 0;       // dropped by withdraw_queued_sdo_requests()
-  std::uint64_t reliable_too_old = 0;        // reliable frames older than reliable_max_age
-  std::uint64_t discarded_peer_restart = 0;  // frames queued for a peer process that is gone
+  std::uint64_t reliable_too_old = 0;             // reliable frames older than reliable_max_age
+  std::uint64_t discarded_peer_restart = 0;       // frames queued for a peer process that is gone
   std::array<LaneCounters, kFrameLanes> lanes{};  // indexed by DeliveryClass
 
   OutboxCounters& operator+=(const OutboxCounters& other);

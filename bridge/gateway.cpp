@@ -11,6 +11,7 @@
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
+#include "bridge/gateway_claims.hpp"
 #include "routing/rename_follower.hpp"
 
 namespace canbridge::bridge {
@@ -240,6 +241,8 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                              return surface;
                            }});
   }
+  // The surface checks these against every other gateway's and routes its frames by them.
+  identity_.application = encode_claims(claims_of(map_));
 }
 
 canopen::NodeId Gateway::sdo_node(std::size_t module_index, const can::Frame& frame,
@@ -448,6 +451,7 @@ void Gateway::follow_node_events() {
     const RenameFollowed followed = follow_rename(map_, e);
     if (followed.change == RenameFollowed::Change::moved) {
       ++counters_.nodes_moved;
+      claims_changed_ = true;
       spdlog::info("gateway {}: module {} node {} now has surface id {} (was {})", name_,
                    modules_[e.module_index].id, e.local, map_.surface_of(e.module_index, e.local),
                    e.previous_surface);
@@ -487,6 +491,13 @@ void Gateway::queue_node_events() {
   if (node_events_.empty()) return;
   v1::Payload payload;
   v1::NodeEvents& out = *payload.mutable_node_events();
+  if (claims_changed_) {
+    // A node moved in the live map: the surface routes its new surface id here from now on, and
+    // the next hello carries the same claims.
+    identity_.application = encode_claims(claims_of(map_));
+    out.mutable_claims()->ParseFromString(identity_.application);
+    claims_changed_ = false;
+  }
   for (const NodeEvent& e : node_events_) {
     spdlog::info("gateway {}: {}", name_, to_string(e));
     const auto m = e.module_index;

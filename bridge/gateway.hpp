@@ -208,6 +208,7 @@ class Gateway {
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;
   WarnOnce<kWarnKinds> warn_;
+  bool claims_changed_ = false;  // a node moved: the next NodeEvents carries the new claims
   bool stopped_ = false;
 };
 

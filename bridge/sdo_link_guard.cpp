@@ -41,6 +41,22 @@ void SdoLinkGuard::note_owner(GatewayId gateway, canopen::NodeId node) {
   nodes_[node].gateway = gateway;
 }
 
+void SdoLinkGuard::note_claims(GatewayId gateway, const GatewayClaims& claims) {
+  for (const ModuleClaim& m : claims.modules) {
+    for (canopen::NodeId node : m.surface_nodes) note_owner(gateway, node);
+  }
+}
+
+std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame) {
+  const canopen::NodeId node = request_node(frame);
+  if (node == 0 || frame.data[0] >> 5 == 4) return std::nullopt;  // not a request, or an abort
+  Node& n = nodes_[node];
+  n.pending = false;
+  n.aborted = true;
+  ++counters_.aborted_not_forwarded;
+  return abort_for(node, n);
+}
+
 std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {

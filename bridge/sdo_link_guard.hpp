@@ -8,6 +8,7 @@
 #include <optional>
 #include <vector>
 
+#include "bridge/gateway_claims.hpp"
 #include "can/frame.hpp"
 #include "canopen/cob_id.hpp"
 
@@ -26,6 +27,7 @@ class SdoLinkGuard {
     std::uint64_t aborted_in_flight = 0;       // requests pending when their gateway went down
     std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
     std::uint64_t aborted_discarded = 0;  // requests the backbone gave up (too old, old process)
+    std::uint64_t aborted_not_forwarded = 0;  // requests the surface could not queue
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
@@ -37,6 +39,9 @@ class SdoLinkGuard {
   // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
   // even before the node has sent anything through it.
   void note_owner(GatewayId gateway, canopen::NodeId node);
+  // The gateway's hello claims these surface nodes: it owns them before any has sent a frame,
+  // so a request to one is tracked, and aborted if the link drops, even if the node is silent.
+  void note_claims(GatewayId gateway, const GatewayClaims& claims);
 
   // A frame from the surface bus, while `gateway_up(g)` tells which gateways have a live link.
   // An SDO request to a node owned by a gateway that is down gets `reply` (the abort) and must
@@ -47,6 +52,10 @@ class SdoLinkGuard {
   };
   template <typename GatewayUp>
   Verdict on_surface_frame(const can::Frame& frame, GatewayUp&& gateway_up);
+
+  // A frame on_surface_frame let through that the surface could not queue for its gateway: for
+  // an SDO request, the abort the master gets instead of silence.
+  std::optional<can::Frame> on_not_forwarded(const can::Frame& frame);
 
   // The gateway's link went down: the aborts for every SDO request in flight to its nodes.
   std::vector<can::Frame> on_gateway_down(GatewayId gateway);

@@ -11,6 +11,7 @@
 
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
+#include "bridge/gateway_claims.hpp"
 
 namespace canbridge::bridge {
 
@@ -29,7 +30,8 @@ struct Surface::Gateway {
                    [this, &surface](std::span<const std::uint8_t> payload, bool) {
                      surface.on_payload(*this, payload);
                    },
-                   nullptr, [this, &surface] { surface.on_gateway_down(*this); },
+                   [this, &surface](const v1::Hello&) { surface.table_.set_connected(id, true); },
+                   [this, &surface] { surface.on_gateway_down(*this); },
                    // A new gateway process: nothing queued for the old one goes.
                    [this](const v1::Hello&) { outbox.discard_queued(); },
                    [&surface](const std::string& payload, backbone::ReliableDrop why) {
@@ -65,6 +67,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       bus_(std::move(bus)),
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
+      table_(name_),
       relay_(rpdop_relay),
       relay_timer_(executor_),
       writer_(
@@ -152,41 +155,33 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
 }
 
 backbone::BindResult Surface::bind(const v1::Hello& hello) {
-  backbone::BindResult refused;
-  refused.reason = v1::Refusal::DUPLICATE_MODULE;
-  const auto& wanted = hello.module_ids();
-  for (int i = 0; i < wanted.size(); ++i) {
-    if (std::find(wanted.begin(), wanted.begin() + i, wanted[i]) != wanted.begin() + i) {
-      refused.detail =
-          "gateway '" + hello.name() + "' announces module " + std::to_string(wanted[i]) + " twice";
-      return refused;
+  GatewayTable::Hello wanted{hello.name(),
+                             hello.session_id(),
+                             {hello.module_ids().begin(), hello.module_ids().end()},
+                             std::nullopt};
+  if (!hello.application().empty()) {
+    wanted.claims = decode_claims(hello.application());
+    if (!wanted.claims) {
+      return {nullptr, v1::Refusal::PROTOCOL_ERROR,
+              "gateway '" + hello.name() + "' sent claims the surface cannot read", false};
     }
   }
-  for (const auto& [name, other] : gateways_) {
-    if (name == hello.name() || !other->stream.up()) continue;
-    for (std::uint32_t m : wanted) {
-      if (std::find(other->modules.begin(), other->modules.end(), m) != other->modules.end()) {
-        refused.detail = "module " + std::to_string(m) + " is already served by gateway '" + name +
-                         "', connected to surface '" + name_ + "'; gateway '" + hello.name() +
-                         "' refused";
-        return refused;
-      }
-    }
+  const GatewayTable::Admission admission = table_.admit(wanted);
+  if (!admission.id) {
+    return {nullptr, v1::Refusal::DUPLICATE_MODULE, admission.refusal, admission.repeated};
   }
-  auto& slot = gateways_[hello.name()];
-  if (!slot) {
-    slot = std::make_unique<Gateway>(
-        hello.name(), static_cast<SdoLinkGuard::GatewayId>(by_id_.size()), tuning_, *this);
-    by_id_.push_back(slot.get());
-    if (writer_.queue().backlogged()) slot->stream.pause_input(true);
+  if (*admission.id == by_id_.size()) {
+    auto gateway = std::make_unique<Gateway>(hello.name(), *admission.id, tuning_, *this);
+    by_id_.push_back(gateway.get());
+    if (writer_.queue().backlogged()) gateway->stream.pause_input(true);
+    gateways_[hello.name()] = std::move(gateway);
   }
-  if (slot->stream.up() && slot->stream.peer_hello().session_id() != hello.session_id()) {
-    refused.detail = "a gateway named '" + hello.name() +
-                     "' is already connected (another process); names must be unique";
-    return refused;
-  }
-  slot->modules.assign(wanted.begin(), wanted.end());
-  return {&slot->stream, {}, {}};
+  Gateway& gateway = *by_id_[*admission.id];
+  gateway.modules = std::move(wanted.modules);
+  // Its nodes are its from now on, seen or not: an SDO request to one is tracked (and aborted
+  // if the link drops) even before the node has sent anything.
+  if (wanted.claims) guard_.note_claims(gateway.id, *wanted.claims);
+  return {&gateway.stream, {}, {}, false};
 }
 
 void Surface::stop() {
@@ -237,25 +232,48 @@ asio::awaitable<void> Surface::read_bus() {
       if (verdict.reply) send_to_bus(*verdict.reply);
       if (verdict.forward) forward_.push_back(frame);
     }
-    // Every known gateway gets the surface traffic (queued while its link is down, so reliable
-    // frames reach it exactly once); each routes by COB-ID to its own modules.
-    for (auto& [name, gateway] : gateways_) {
-      for (const can::Frame& frame : forward_) {
-        // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
-        const DeliveryOptions delivery{
-            .conflate_pdos = conflate_pdos_,
-            .pdop_fragments = fragments_as_frames_[frame.id & canopen::pdop::kMaxNode]};
-        if (!gateway->outbox.push(kAnyModule, frame, delivery, now)) {
-          warn_.warn(Warn::kRefused,
-                     "surface: backbone queue to gateway '{}' full: frames refused (counted per "
-                     "lane; reliable ones as reliable-refused)",
-                     name);
+    // A frame goes to the gateway claiming its node (queued while that link is down, so reliable
+    // frames reach it exactly once), broadcasts to every known gateway.
+    for (const can::Frame& frame : forward_) {
+      const GatewayTable::Route route = table_.route(frame);
+      if (route.kind == GatewayTable::Route::one) {
+        forward_to(*by_id_[route.gateway], frame, now);
+        continue;
+      }
+      bool sent = false;
+      for (Gateway* gateway : by_id_) {
+        if (route.kind == GatewayTable::Route::all ||
+            !table_.gateways()[gateway->id].claims.has_value()) {
+          forward_to(*gateway, frame, now);
+          sent = true;
         }
       }
-      gateway->stream.wake();
+      if (!sent && route.kind == GatewayTable::Route::unclaimed) {
+        ++counters_.dropped_unclaimed;
+        warn_.warn(Warn::kUnclaimed,
+                   "surface: frame 0x{:03X} addresses a node no gateway claims: not forwarded "
+                   "(counted as unclaimed)",
+                   frame.id);
+      }
     }
+    for (Gateway* gateway : by_id_) gateway->stream.wake();
     flush_relay();
   }
+}
+
+void Surface::forward_to(Gateway& gateway, const can::Frame& frame,
+                         LoopGuard::Clock::time_point now) {
+  // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
+  const DeliveryOptions delivery{
+      .conflate_pdos = conflate_pdos_,
+      .pdop_fragments = fragments_as_frames_[frame.id & canopen::pdop::kMaxNode]};
+  if (gateway.outbox.push(kAnyModule, frame, delivery, now)) return;
+  warn_.warn(Warn::kRefused,
+             "surface: backbone queue to gateway '{}' full: frames refused (counted per lane; "
+             "reliable ones as reliable-refused)",
+             gateway.name);
+  // The master must not wait for an answer that cannot come.
+  if (auto abort = guard_.on_not_forwarded(frame)) send_to_bus(*abort);
 }
 
 void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
@@ -311,6 +329,17 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
 // Node table events are rare (boot-ups, losses, renames): one log line each is what an operator
 // watching a tool string wants to see.
 void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
+  if (events.has_claims()) {
+    // A node moved in the gateway's live map: frames to its new surface id go to that gateway.
+    const std::optional<GatewayClaims> claims = decode_claims(events.claims().SerializeAsString());
+    const std::string why = claims ? table_.update_claims(from.id, *claims) : "unreadable claims";
+    if (why.empty()) {
+      guard_.note_claims(from.id, *claims);
+    } else {
+      spdlog::error("surface: gateway '{}' moved a node, but its new claims are refused: {}",
+                    from.name, why);
+    }
+  }
   for (const v1::NodeEvent& e : events.events()) {
     ++counters_.node_events;
     if (e.surface_node() != 0)
@@ -482,6 +511,7 @@ void Surface::on_bus_backlog(bool backlogged) {
 
 // A master waiting on one of the gateway's nodes must not wait for a timeout of its own.
 void Surface::on_gateway_down(Gateway& gateway) {
+  table_.set_connected(gateway.id, false);
   if (stopped_) return;
   // The master is told below that these requests failed: the node must never execute them
   // later, when the link returns.
@@ -518,7 +548,8 @@ SurfaceCounters Surface::counters() const {
   c.bus_waiting_peak = q.peak_waiting;
   c.bus_drops = q.dropped;
   c.bus_refused += writer_.queue().dropped() + writer_.refused();
-  c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight;
+  c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight +
+                  guard_.counters().aborted_not_forwarded;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
@@ -537,7 +568,7 @@ std::string Surface::stats_line() const {
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
-      "bus-refused {}, "
+      "bus-refused {}, no-gateway {}, unclaimed {}, "
       "malformed {}, unknown-module {}, node-events {}; "
       "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {} bus-refused {}, "
       "rpdop forwarded {} complete {} failed {}; "
@@ -550,11 +581,11 @@ std::string Surface::stats_line() const {
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
       c.sdo_late_responses_dropped, c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart,
       c.sdo_aborted_dropped, c.session.stale_links_closed, c.echoes_dropped, c.bus_refused,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
-      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
-      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, bus_->name(),
-      b.rx_frames, b.tx_frames, b.rx_dropped_kernel, can::to_string(b.state), c.bus_waited,
-      c.bus_waiting_peak, c.backbone_pauses);
+      c.dropped_no_gateway, c.dropped_unclaimed, c.malformed_payloads + c.session.malformed,
+      c.unknown_module, c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards,
+      c.pdop_malformed, c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded,
+      c.rpdop_complete, c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
+      can::to_string(b.state), c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),

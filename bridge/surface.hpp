@@ -17,6 +17,7 @@
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/bus_writer.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/gateway_table.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
@@ -32,6 +33,7 @@ struct SurfaceCounters {
   std::uint64_t to_bus = 0;              // frames written to the surface bus
   std::uint64_t frames_received = 0;     // frames decoded from the backbone
   std::uint64_t dropped_no_gateway = 0;  // surface frames while no gateway was ever known
+  std::uint64_t dropped_unclaimed = 0;   // surface frames to a node no gateway claims
   std::uint64_t bus_refused = 0;         // frames for the surface bus dropped (bus_drops: why)
   std::uint64_t bus_waited = 0;          // frames that waited for room in its transmit queue
   std::uint64_t bus_waiting_peak = 0;
@@ -86,8 +88,8 @@ class Surface {
 
   void start();
   // Takes a new gateway link (accepted TCP connection or opened serial line). Its hello decides
-  // which gateway it belongs to; a gateway announcing a module another connected gateway serves
-  // is refused, with the reason sent to it.
+  // which gateway it belongs to; a gateway announcing a module, surface node id or COB-ID another
+  // connected gateway claims is refused, with the reason sent to it (GatewayTable).
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
 
@@ -114,6 +116,8 @@ class Surface {
   void on_frame_dropped(const can::Frame& frame, bool too_old);
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Every frame for the surface bus goes here, in order (BusWriter).
+  // Queues a surface frame for one gateway; an SDO request it cannot take is aborted.
+  void forward_to(Gateway& gateway, const can::Frame& frame, LoopGuard::Clock::time_point now);
   void send_to_bus(const can::Frame& frame);
   // Input from every gateway waits while the bus is backed up (BusWriteQueue::backlogged).
   void on_bus_backlog(bool backlogged);
@@ -135,6 +139,7 @@ class Surface {
     kPdopDiscard,
     kRpdopFailed,
     kPdopRepeat,
+    kUnclaimed,
     kWarnKinds
   };
 
@@ -145,7 +150,8 @@ class Surface {
   bool conflate_pdos_;
   backbone::SessionLink::Identity identity_;
   std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
-  std::vector<Gateway*> by_id_;                               // the same, by SdoLinkGuard id
+  std::vector<Gateway*> by_id_;  // the same, by id (GatewayTable's, SdoLinkGuard's)
+  GatewayTable table_;           // who may bind, who owns which surface ids
   SdoLinkGuard guard_;
   RpdopRelay relay_;
   RpdopRelay::Output relay_out_;

@@ -20,6 +20,17 @@ TEST(ReconnectBackoff, DoublesUpToTheMaximumAndStartsOverAfterASuccess) {
   EXPECT_EQ(backoff.next(), 100ms);
 }
 
+TEST(ReconnectBackoff, PeekTellsTheNextWaitWithoutTakingIt) {
+  ReconnectBackoff backoff(100ms, 400ms);
+  EXPECT_EQ(backoff.peek(), 100ms);
+  EXPECT_EQ(backoff.peek(), 100ms);
+  EXPECT_EQ(backoff.next(), 100ms);
+  EXPECT_EQ(backoff.peek(), 200ms);
+  EXPECT_EQ(backoff.next(), 200ms);
+  EXPECT_EQ(backoff.next(), 400ms);
+  EXPECT_EQ(backoff.peek(), 400ms);
+}
+
 TEST(ReconnectBackoff, ImpossibleBoundsAreClampedSoItNeverSpins) {
   ReconnectBackoff zero(0ms, 0ms);
   EXPECT_EQ(zero.next(), 1ms);

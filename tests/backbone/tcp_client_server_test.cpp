@@ -139,6 +139,24 @@ TEST_F(ClientServerTest, ClientBacksOffWhileNothingListens) {
   EXPECT_EQ(client->link(), nullptr);
 }
 
+TEST_F(ClientServerTest, AClientThePeerRefusesWaitsTwiceAsLongEachTimeUpToTheMaximum) {
+  // What a session does when the peer's Refusal arrives: close with errc::refused_by_peer. Each
+  // new connection must not count as a success: the same hello is refused again.
+  std::vector<std::chrono::steady_clock::time_point> at;
+  client = TcpClient::create(io.get_executor(), "127.0.0.1", server->port(), fast_client());
+  client->start([&](std::shared_ptr<MessageLink> link) {
+    at.push_back(std::chrono::steady_clock::now());
+    start_recording(link, client_received);
+    link->close(make_error_code(errc::refused_by_peer));
+  });
+  ASSERT_TRUE(run_until(io, [&] { return at.size() >= 6; }));
+  const std::vector<std::chrono::milliseconds> schedule{10ms, 20ms, 40ms, 40ms, 40ms};
+  for (std::size_t i = 0; i < schedule.size(); ++i) {
+    EXPECT_GE(at[i + 1] - at[i], schedule[i]) << "attempt " << i + 2;
+  }
+  EXPECT_EQ(client->counters().connect_failures, 0u);
+}
+
 TEST_F(ClientServerTest, ClientConnectsOnceTheServerAppears) {
   // Starts against a dead port, then a server comes up there: backoff must not give up.
   const std::uint16_t port = testing::unused_port(io);

@@ -12,9 +12,9 @@
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
-#include "routing/node_map.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
+#include "routing/node_map.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 

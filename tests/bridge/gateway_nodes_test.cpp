@@ -12,9 +12,9 @@
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
-#include "routing/node_map.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
+#include "routing/node_map.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
@@ -103,14 +103,11 @@ TEST_F(GatewayNodes, ANodeRenamedToAFreeSurfaceIdMovesInTheLiveMap) {
   ASSERT_TRUE(master.send(Frame::standard(0x600u + kFree, {0x23, 0x00, 0x20, 0x00, 1, 2, 3, 4})));
   ASSERT_TRUE(run_until(io, [&] { return master.count(0x580u + kFree) == 1; }));
   EXPECT_EQ(node.count(0x600u + kLocal), 1u);
-  // The old id is free: nothing reaches the node under it.
-  const auto unknown =
-      gateway->counters().translation[static_cast<std::size_t>(DropReason::unknown_node)];
+  // The old id is free: the gateway's new claims (sent with the rename's node events) no longer
+  // hold it, so the surface forwards nothing under it.
+  const auto unclaimed = surface.counters().dropped_unclaimed;
   ASSERT_TRUE(master.send(Frame::standard(0x600u + kSurface, {0x40, 0x00, 0x10, 0x00})));
-  ASSERT_TRUE(run_until(io, [&] {
-    return gateway->counters().translation[static_cast<std::size_t>(DropReason::unknown_node)] ==
-           unknown + 1;
-  }));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().dropped_unclaimed == unclaimed + 1; }));
   EXPECT_EQ(node.count(0x600u + kLocal), 1u);
   // An id the profile does not allow is refused: counted, the node never sees a command, and the
   // surface hears of it as a RENAME_UNCONFIRMED event.

@@ -145,3 +145,139 @@ TEST(SdoLinkGuard, ADiscardedRequestIsAbortedOnlyWhileItsMasterStillWaits) {
 
 }  // namespace
 }  // namespace canbridge::bridge
+
+#include <deque>
+#include <random>
+
+#include "bridge/gateway_table.hpp"
+
+namespace canbridge::bridge {
+namespace {
+
+// The surface's SDO path in miniature, as Surface wires it: the table admits gateways and their
+// claims make the guard own their nodes; a request passes the guard, then waits in its owner's
+// queue; a link loss withdraws that queue and the guard aborts what was in flight.
+class SurfaceSdoModel {
+ public:
+  explicit SurfaceSdoModel(bool claims_known) : claims_known_(claims_known) {
+    for (ModuleId module : {ModuleId{1}, ModuleId{2}}) {
+      NodeMap map;
+      EXPECT_TRUE(map.add_module(module, NodeMap::default_pairs(module)).empty());
+      hellos_.push_back({"gw-" + std::to_string(module), module, {module}, claims_of(map)});
+      link_up(module - 1);
+    }
+  }
+
+  void link_up(std::size_t g) {
+    const auto admitted = table_.admit(hellos_[g]);
+    ASSERT_TRUE(admitted.id);
+    if (claims_known_) guard_.note_claims(*admitted.id, *hellos_[g].claims);
+    table_.set_connected(*admitted.id, true);
+    up_[g] = true;
+  }
+  void link_down(std::size_t g) {
+    if (!up_[g]) return;
+    up_[g] = false;
+    table_.set_connected(static_cast<GatewayTable::GatewayId>(g), false);
+    queue_[g].clear();  // withdrawn: the master is told below
+    for (const can::Frame& abort : guard_.on_gateway_down(static_cast<SdoLinkGuard::GatewayId>(g)))
+      to_master(abort);
+  }
+  // The master sends a request to surface node `node` (nothing pending for it).
+  void request(NodeId node) {
+    ASSERT_FALSE(waiting_[node]);
+    waiting_[node] = true;
+    ++requests_;
+    const can::Frame frame = can::Frame::standard(0x600 + node, {0x40, 0x00, 0x10, 0, 0, 0, 0, 0});
+    const auto verdict = guard_.on_surface_frame(frame, [&](auto g) { return up_[g]; });
+    if (verdict.reply) to_master(*verdict.reply);
+    if (!verdict.forward) return;
+    const auto route = table_.route(frame);
+    ASSERT_EQ(route.kind, GatewayTable::Route::one);
+    queue_[route.gateway].push_back(frame);
+  }
+  // The gateway puts its oldest request on the bus; the node answers at once.
+  void deliver(std::size_t g) {
+    if (!up_[g] || queue_[g].empty()) return;
+    const NodeId node = static_cast<NodeId>(queue_[g].front().id - 0x600);
+    queue_[g].pop_front();
+    const can::Frame answer = can::Frame::standard(0x580 + node, {0x43, 0x00, 0x10, 0, 1, 0, 0, 0});
+    if (guard_.on_gateway_frame(static_cast<SdoLinkGuard::GatewayId>(g), answer)) to_master(answer);
+  }
+
+  std::uint64_t requests() const { return requests_; }
+  std::uint64_t answers() const { return answers_; }
+  std::uint64_t aborts() const { return aborts_; }
+  std::uint64_t doubles() const { return doubles_; }
+  std::size_t waiting() const {
+    return static_cast<std::size_t>(std::count(waiting_.begin(), waiting_.end(), true));
+  }
+  bool waiting(NodeId node) const { return waiting_[node]; }
+
+ private:
+  void to_master(const can::Frame& frame) {
+    const NodeId node = static_cast<NodeId>(frame.id - 0x580);
+    if (!waiting_[node]) {
+      ++doubles_;
+      return;
+    }
+    waiting_[node] = false;
+    ++(frame.data[0] == 0x80 ? aborts_ : answers_);
+  }
+
+  bool claims_known_;
+  GatewayTable table_{"surface"};
+  SdoLinkGuard guard_;
+  std::vector<GatewayTable::Hello> hellos_;
+  std::vector<bool> up_ = std::vector<bool>(2);
+  std::vector<std::deque<can::Frame>> queue_ = std::vector<std::deque<can::Frame>>(2);
+  std::array<bool, 128> waiting_{};
+  std::uint64_t requests_ = 0, answers_ = 0, aborts_ = 0, doubles_ = 0;
+};
+
+// Random requests to nodes that never sent a frame (heartbeats off), deliveries and link cuts:
+// every request ends in exactly one answer or one abort, none vanishes, none ends twice.
+void run_request_fates(SurfaceSdoModel& model, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  auto pick = [&](std::uint32_t n) {
+    return std::uniform_int_distribution<std::uint32_t>(0, n - 1)(rng);
+  };
+  for (int step = 0; step < 20000; ++step) {
+    const std::uint32_t action = pick(100);
+    const std::size_t g = pick(2);
+    if (action < 50) {
+      const auto node = static_cast<NodeId>(33 + 32 * g + pick(31));
+      if (!model.waiting(node)) model.request(node);
+    } else if (action < 90) {
+      model.deliver(g);
+    } else if (action < 95) {
+      model.link_down(g);
+    } else {
+      model.link_up(g);
+    }
+  }
+  model.link_down(0);  // the end: both links lost with requests still queued or in flight
+  model.link_down(1);
+}
+
+TEST(SdoRequestFate, EveryAcceptedRequestIsAnsweredOrAbortedExactlyOnce) {
+  for (std::uint32_t seed : {1u, 2u, 3u}) {
+    SurfaceSdoModel model(true);
+    run_request_fates(model, seed);
+    EXPECT_GT(model.requests(), 1000u);
+    EXPECT_GT(model.aborts(), 10u) << "the cuts must catch requests in flight";
+    EXPECT_EQ(model.waiting(), 0u) << "requests vanished (seed " << seed << ")";
+    EXPECT_EQ(model.answers() + model.aborts(), model.requests());
+    EXPECT_EQ(model.doubles(), 0u);
+  }
+}
+
+TEST(SdoRequestFate, WithoutClaimsRequestsToSilentNodesVanishAtACut) {
+  // What the claims fix: a guard that only learns owners from traffic never saw these nodes.
+  SurfaceSdoModel model(false);
+  run_request_fates(model, 1);
+  EXPECT_GT(model.waiting(), 0u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge

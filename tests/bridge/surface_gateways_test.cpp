@@ -3,13 +3,18 @@
 // another one serves is refused without disturbing the others, a restarted gateway comes back,
 // reliable frames cross link cuts exactly once and in order, and each sender's frames reach the
 // far bus in the order it sent them.
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
 #include <cstdio>
+#include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -35,14 +40,18 @@ using test::run_until;
 // a Gateway and a TcpClient to the surface.
 class GatewayRig {
  public:
+  // `pairs`: a module's (local, surface) node ids when not the default mapping.
   GatewayRig(asio::io_context& io, const std::string& name, const std::vector<ModuleId>& ids,
-             std::uint16_t port) {
+             std::uint16_t port,
+             const std::map<ModuleId, std::vector<std::pair<NodeId, NodeId>>>& pairs = {},
+             std::chrono::milliseconds backoff_max = 50ms) {
     NodeMap map;
     std::vector<GatewayModule> modules;
     for (ModuleId id : ids) {
       media.push_back(
           std::make_unique<can::VirtualBus>(io.get_executor(), name + "-m" + std::to_string(id)));
-      EXPECT_TRUE(map.add_module(id, NodeMap::default_pairs(id)).empty());
+      EXPECT_TRUE(map.add_module(id, pairs.contains(id) ? pairs.at(id) : NodeMap::default_pairs(id))
+                      .empty());
       // A short lost time, so the node table's timer is seen working within the test.
       modules.push_back({id, media.back()->connect("gateway"), true, false, 150ms});
       nodes.push_back(std::make_unique<BusRecorder>(io, media.back()->connect("node")));
@@ -52,9 +61,12 @@ class GatewayRig {
     gateway->start();
     backbone::ClientOptions options;
     options.backoff_min = 10ms;  // reconnects (after cuts and refusals) within the test's time
-    options.backoff_max = 50ms;
+    options.backoff_max = backoff_max;
     client = backbone::TcpClient::create(io.get_executor(), "127.0.0.1", port, options);
-    client->start([g = gateway.get()](auto link) { g->attach(std::move(link)); });
+    client->start([this](auto link) {
+      connects.push_back(std::chrono::steady_clock::now());
+      gateway->attach(std::move(link));
+    });
   }
 
   // The process "exits": its link closes, its buses stop.
@@ -73,12 +85,17 @@ class GatewayRig {
   std::vector<std::unique_ptr<BusRecorder>> nodes;
   std::unique_ptr<Gateway> gateway;
   std::shared_ptr<backbone::TcpClient> client;
+  std::vector<std::chrono::steady_clock::time_point> connects;  // each TCP connect
 };
 
 // An SDO response (expedited upload) from local node `node` carrying `n`: a reliable frame whose
 // number shows order and duplicates.
 can::Frame sdo_response(std::uint8_t node, std::uint32_t n) {
   return can::Frame::standard(0x580 + node, {0x43, 0x00, 0x20, 0x00, static_cast<std::uint8_t>(n),
+                                             static_cast<std::uint8_t>(n >> 8), 0, 0});
+}
+can::Frame emcy(std::uint8_t node, std::uint32_t n) {
+  return can::Frame::standard(0x080 + node, {0x00, 0x10, 0x01, 0x00, static_cast<std::uint8_t>(n),
                                              static_cast<std::uint8_t>(n >> 8), 0, 0});
 }
 can::Frame sdo_request(std::uint8_t node, std::uint32_t n) {
@@ -136,8 +153,12 @@ class SurfaceGateways : public ::testing::Test {
     EXPECT_TRUE(drains(io));  // nothing left pending: every coroutine saw its bus or link close
   }
 
-  GatewayRig& add_gateway(const std::string& name, const std::vector<ModuleId>& modules) {
-    rigs.push_back(std::make_unique<GatewayRig>(io, name, modules, server->port()));
+  GatewayRig& add_gateway(
+      const std::string& name, const std::vector<ModuleId>& modules,
+      const std::map<ModuleId, std::vector<std::pair<NodeId, NodeId>>>& pairs = {},
+      std::chrono::milliseconds backoff_max = 50ms) {
+    rigs.push_back(
+        std::make_unique<GatewayRig>(io, name, modules, server->port(), pairs, backoff_max));
     return *rigs.back();
   }
   // Gateways A (module 1) and B (module 2), both up.
@@ -174,24 +195,61 @@ TEST_F(SurfaceGateways, TwoGatewaysComeUpAndTrafficIsRoutedByModule) {
   EXPECT_TRUE(master.saw(can::Frame::standard(0x180 + kSurfaceNodeB, {0xB1})));
   EXPECT_TRUE(master.saw(can::Frame::standard(0x700 + kSurfaceNodeB, {0x7F})));
 
-  // Surface -> the one module owning the node: both gateways get the frame, only B delivers it.
+  // Surface -> only the gateway claiming the node; SYNC, a broadcast, follows to both.
+  const can::Frame sync = can::Frame::standard(0x080, {});
   ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, 1)));
-  ASSERT_TRUE(run_until(io, [&] {
-    return !b->node().frames.empty() && a->gateway->counters().frames_received >= 1;
-  }));
-  EXPECT_EQ(b->node().frames, std::vector{sdo_request(kLocal, 1)});
-  EXPECT_TRUE(a->node().frames.empty());
-  EXPECT_EQ(a->gateway->counters().to_buses, 0u);
+  ASSERT_TRUE(master.send(sync));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().saw(sync) && b->node().saw(sync); }));
+  // (The outbox may put the SYNC first within a batch: counts, not order.)
+  EXPECT_EQ(b->node().count(0x600 + kLocal), 1u);
+  EXPECT_TRUE(b->node().saw(sdo_request(kLocal, 1)));
+  EXPECT_EQ(a->node().frames, std::vector{sync});
+  EXPECT_EQ(a->gateway->counters().frames_received, 1u);  // the request never went to A
   EXPECT_EQ(a->gateway->counters().translation[static_cast<std::size_t>(DropReason::unknown_node)],
-            1u);
+            0u);
 
-  // NMT addressed to A's node: the node id in the payload is translated too.
+  // NMT addressed to A's node: to A only, the node id in the payload translated too.
   ASSERT_TRUE(master.send(can::Frame::standard(0x000, {0x01, kSurfaceNodeA})));
+  ASSERT_TRUE(master.send(sync));
+  ASSERT_TRUE(
+      run_until(io, [&] { return a->node().count(0x080) == 2 && b->node().count(0x080) == 2; }));
+  EXPECT_EQ(a->node().frames.size(), 3u);
+  EXPECT_TRUE(a->node().saw(can::Frame::standard(0x000, {0x01, kLocal})));
+  EXPECT_EQ(b->node().frames.size(), 3u);  // the request and two SYNCs: no NMT
+  // NMT to all: every module.
+  ASSERT_TRUE(master.send(can::Frame::standard(0x000, {0x80, 0})));
+  ASSERT_TRUE(
+      run_until(io, [&] { return a->node().count(0x000) == 2 && b->node().count(0x000) == 1; }));
+  EXPECT_EQ(surface.counters().dropped_unclaimed, 0u);
+}
+
+TEST_F(SurfaceGateways, FramesToANodeNoGatewayClaimsAreCountedAndGoNowhere) {
+  start_a_and_b();
+  const can::Frame sync = can::Frame::standard(0x080, {});
+  ASSERT_TRUE(master.send(sdo_request(5, 1)));                         // node 5: nobody's
+  ASSERT_TRUE(master.send(can::Frame::standard(0x000, {0x81, 120})));  // nobody's
+  ASSERT_TRUE(master.send(sync));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().saw(sync) && b->node().saw(sync); }));
+  EXPECT_EQ(surface.counters().dropped_unclaimed, 2u);
+  EXPECT_EQ(a->gateway->counters().frames_received, 1u);
+  EXPECT_EQ(b->gateway->counters().frames_received, 1u);
+  EXPECT_THAT(surface.stats_line(), ::testing::HasSubstr("unclaimed 2"));
+}
+
+TEST_F(SurfaceGateways, AGatewayClaimingSurfaceIdsOfAnotherIsRefusedAndTheOthersKeepWorking) {
+  start_a_and_b();
+  // Module 5 maps its local node 1 onto surface 37, which is gateway A's module 1 node 5.
+  GatewayRig& c = add_gateway("gw-c", {5}, {{5, {{1, kSurfaceNodeA}, {2, 100}}}});
   ASSERT_TRUE(run_until(io, [&] {
-    return !a->node().frames.empty() && b->gateway->counters().frames_received >= 2;
+    return surface.counters().session.refusals_sent >= 1 &&
+           c.gateway->counters().session.refusals_received >= 1;
   }));
-  EXPECT_EQ(a->node().frames, std::vector{can::Frame::standard(0x000, {0x01, kLocal})});
-  EXPECT_EQ(b->node().frames.size(), 1u);
+  EXPECT_FALSE(c.connected());
+  EXPECT_EQ(surface.gateways_ready(), 2u);
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 4)));
+  ASSERT_TRUE(run_until(io, [&] { return !a->node().frames.empty(); }));
+  EXPECT_EQ(a->node().frames, std::vector{sdo_request(kLocal, 4)});
+  EXPECT_TRUE(c.node().frames.empty());
 }
 
 TEST_F(SurfaceGateways, AGatewayAnnouncingAServedModuleIsRefusedAndTheOthersKeepWorking) {
@@ -341,9 +399,10 @@ TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {
   for (std::uint32_t n = 600; n < 3000; ++n) ASSERT_TRUE(a->node().send(sdo_response(kLocal, n)));
   ASSERT_TRUE(run_until(io, [&] { return cut && !a->connected() && !b->connected(); }));
   master.on_frames = nullptr;
-  // While both links are down, both directions queue.
+  // While both links are down, both directions queue (SDO requests would be aborted: the master
+  // must not wait on a dead link; EMCY from the surface bus is reliable and queues).
   for (std::uint32_t n = 0; n < 300; ++n) ASSERT_TRUE(b->node().send(sdo_response(kLocal, n)));
-  for (std::uint32_t n = 0; n < 100; ++n) ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, n)));
+  for (std::uint32_t n = 0; n < 100; ++n) ASSERT_TRUE(master.send(emcy(kSurfaceNodeB, n)));
   ASSERT_TRUE(run_until(io, [&] {
     return a->connected() && b->connected() && master.count(kSdoA) >= 3000 &&
            master.count(kSdoB) >= 300 && b->node().frames.size() >= 100 &&
@@ -352,8 +411,8 @@ TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {
   }));
   EXPECT_TRUE(exactly_once_in_order(master, kSdoA, 3000));
   EXPECT_TRUE(exactly_once_in_order(master, kSdoB, 300));
-  EXPECT_TRUE(exactly_once_in_order(b->node(), 0x600 + kLocal, 100));
-  EXPECT_TRUE(a->node().frames.empty());  // requests to B's node never reach A's module
+  EXPECT_TRUE(exactly_once_in_order(b->node(), 0x080 + kLocal, 100));
+  EXPECT_TRUE(a->node().frames.empty());  // frames for B's node never reach A's module
   EXPECT_TRUE(delivered_once());
   const std::uint64_t resent = a->gateway->counters().session.reliable_resent - resent_before;
   // The surface processed nothing on a link after closing it: anything sent beyond what it had
@@ -481,6 +540,73 @@ TEST_F(SurfaceGateways, EachSendersFramesReachTheFarBusInItsOrder) {
             (std::vector{can::Frame::standard(0x600 + kLocal,
                                               {0x2B, 0x17, 0x10, 0x00, 0xE8, 0x03, 0x00, 0x00}),
                          can::Frame::standard(0x000, {0x01, kLocal})}));
+}
+
+}  // namespace
+}  // namespace canbridge::bridge
+
+namespace canbridge::bridge {
+namespace {
+
+// Nodes with their heartbeat off have never been seen by the surface: the gateways' claims still
+// make every request to them end in an answer or an abort, never in silence.
+TEST_F(SurfaceGateways, NoSdoRequestToANeverSeenNodeVanishesWhenItsLinkIsCut) {
+  start_a_and_b();
+  constexpr std::uint32_t kNodes = 8;
+  // A: delivered to the module bus (the node stays silent), then the link is cut.
+  for (std::uint32_t i = 0; i < kNodes; ++i) ASSERT_TRUE(master.send(sdo_request(33 + i, i)));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().frames.size() == kNodes; }));
+  a->client->stop();
+  // B: cut in the same turn as the requests are sent: queued, in flight or after the cut.
+  for (std::uint32_t i = 0; i < kNodes; ++i) ASSERT_TRUE(master.send(sdo_request(65 + i, i)));
+  b->client->stop();
+  auto aborted = [&](std::uint32_t node) {
+    return master.count(0x580 + node) == 1 && master.saw(link_down_abort(node));
+  };
+  ASSERT_TRUE(run_until(io, [&] {
+    for (std::uint32_t i = 0; i < kNodes; ++i) {
+      if (!aborted(33 + i) || !aborted(65 + i)) return false;
+    }
+    return true;
+  })) << surface.stats_line();
+  EXPECT_EQ(surface.counters().sdo_aborted, 2 * kNodes);
+  for (std::uint32_t i = 0; i < kNodes; ++i) {
+    EXPECT_EQ(master.count(0x580 + 33 + i), 1u);
+    EXPECT_EQ(master.count(0x580 + 65 + i), 1u);
+  }
+}
+
+// A refused gateway waits twice as long before each new attempt, up to its maximum, instead of
+// knocking ten times a second forever.
+TEST_F(SurfaceGateways, ARefusedGatewayBacksOffExponentiallyToItsMaximum) {
+  start_a_and_b();
+  // Error lines, to see each side report the refusal once, not once per attempt.
+  std::ostringstream errors;
+  auto sink = std::make_shared<spdlog::sinks::ostream_sink_st>(errors);
+  sink->set_level(spdlog::level::err);
+  spdlog::default_logger()->sinks().push_back(sink);
+  GatewayRig& c = add_gateway("gw-c", {1}, {}, 80ms);  // module 1 is A's; waits 10 ms .. 80 ms
+  // A second refused gateway knocking at the same time: each keeps its own "once".
+  GatewayRig& d = add_gateway("gw-d", {2}, {}, 80ms);  // module 2 is B's
+  ASSERT_TRUE(run_until(io, [&] { return c.connects.size() >= 6 && d.connects.size() >= 6; }));
+  const std::vector<std::chrono::milliseconds> schedule{10ms, 20ms, 40ms, 80ms, 80ms};
+  for (std::size_t i = 0; i < schedule.size(); ++i) {
+    EXPECT_GE(c.connects[i + 1] - c.connects[i], schedule[i]) << "attempt " << i + 2;
+  }
+  EXPECT_FALSE(c.connected());
+  EXPECT_EQ(c.gateway->counters().session.links, 0u);
+  EXPECT_TRUE(a->connected());
+  EXPECT_GE(surface.counters().session.refusals_sent, 10u);
+  spdlog::default_logger()->sinks().pop_back();
+  auto lines_with = [text = errors.str()](const std::string& what) {
+    std::size_t n = 0;
+    for (auto at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+    return n;
+  };
+  EXPECT_EQ(lines_with("backbone: refusing"), 2u) << errors.str();
+  EXPECT_EQ(lines_with("refused this gateway"), 2u) << errors.str();
+  // The gateway's log says what to change.
+  EXPECT_NE(errors.str().find("give this gateway another name or module"), std::string::npos);
 }
 
 }  // namespace
