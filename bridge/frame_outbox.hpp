@@ -78,6 +78,7 @@ class FrameOutbox {
   std::string serialized_;
   OutboxCounters counters_;
   std::uint64_t next_ordinal_ = 0;
+  std::uint64_t process_frames_sent_ = 0;  // in unreliable batches: FrameBatch.process_frames_sent
   std::uint64_t withdraw_before_ = 0;
 };
 

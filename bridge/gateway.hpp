@@ -9,6 +9,7 @@
 #include <boost/asio/steady_timer.hpp>
 #include <chrono>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -19,6 +20,7 @@
 #include "bridge/canopen/sdo_transaction_tracker.hpp"
 #include "bridge/cob_id_translator.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/node_map.hpp"
 #include "bridge/node_table.hpp"
@@ -47,14 +49,15 @@ struct GatewayCounters {
   backbone::SessionCounters session;
   OutboxCounters outbox;
   DropCounters translation{};
-  std::uint64_t from_buses = 0;          // frames read on module buses
-  std::uint64_t to_buses = 0;            // frames handed to module buses
-  std::uint64_t frames_received = 0;     // frames decoded from the backbone
-  std::uint64_t bus_refused = 0;         // a module bus's transmit queue was full
-  std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
-  std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
-  backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
-  std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
+  std::uint64_t from_buses = 0;            // frames read on module buses
+  std::uint64_t to_buses = 0;              // frames handed to module buses
+  std::uint64_t frames_received = 0;       // frames decoded from the backbone
+  std::uint64_t bus_refused = 0;           // a module bus's transmit queue was full
+  std::uint64_t malformed_payloads = 0;    // payloads that are not a valid, consistent batch
+  std::uint64_t unknown_module = 0;        // batches naming a module this gateway does not serve
+  std::uint64_t process_lost_on_line = 0;  // process frames the surface sent that never arrived
+  backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
+  std::uint64_t echoes_dropped = 0;        // frames this gateway wrote, read back from a bus
   // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h) rewritten
   // between bus and surface ids, and those whose id has no counterpart (forwarded unchanged).
   std::uint64_t sdo_values_rewritten = 0;
@@ -85,6 +88,13 @@ class Gateway {
   // frames not yet acknowledged go again on it, exactly once.
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
+  // Called once when the gateway stops itself because one of its loops ended or threw (a bus
+  // gone for good, a bug): the process shuts down in order and exits non-zero.
+  void on_failure(std::function<void(const std::string& reason)> handler) {
+    on_failure_ = std::move(handler);
+  }
+  // Why the gateway stopped itself; empty while it has not.
+  const std::string& failure() const { return failure_; }
 
   GatewayCounters counters() const;
   const std::vector<GatewayModule>& modules() const { return modules_; }
@@ -94,7 +104,10 @@ class Gateway {
   std::string stats_line() const;
 
  private:
-  boost::asio::awaitable<void> read_bus(std::size_t module_index);
+  // Returns the bus's error when the bus ends (closed, or gone for good).
+  boost::asio::awaitable<std::error_code> read_bus(std::size_t module_index);
+  // Every loop the gateway spawns ends here: one that ends while the gateway runs stops it.
+  void on_task_end(const std::string& task, const std::string& why);
   void on_payload(std::span<const std::uint8_t> payload);
   // Default SDO channel of a node of `module_index`: the node id if `frame` is its request
   // (0x600 + n) or response (0x580 + n) under the module's profile, else 0.
@@ -171,6 +184,8 @@ class Gateway {
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;
   backbone::PeerStream stream_;
+  backbone::SessionLogMemory session_log_;
+  LineLossCounter line_loss_;
   std::shared_ptr<backbone::SessionLink> link_;     // the newest link, ready or not
   backbone::DeframerCounters old_links_framing_{};  // of the links before link_
   std::uint64_t old_links_tx_bytes_ = 0;
@@ -179,6 +194,8 @@ class Gateway {
   std::vector<can::Frame> decoded_;
   WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
+  std::function<void(const std::string&)> on_failure_;
+  std::string failure_;
 };
 
 }  // namespace canbridge::bridge
