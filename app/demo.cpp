@@ -4,8 +4,6 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/use_awaitable.hpp>
@@ -17,6 +15,7 @@
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
 #include "bridge/surface.hpp"
+#include "can/spawn_owned.hpp"
 #include "can/virtual_bus.hpp"
 #include "canopen/sdo_client.hpp"
 #include "sim/node_runner.hpp"
@@ -125,6 +124,34 @@ int run_demo(const DemoOptions& options) {
   };
 
   int status = 1;
+  bool stopping = false;
+  bool failed = false;
+  // Ordered shutdown: the clients of the buses first, then the roles, then the links.
+  auto shut_down = [&] {
+    if (stopping) return;
+    stopping = true;
+    master.stop();
+    for (auto& r : runners) r->stop();
+    client->stop();
+    server->stop();
+    gateway.stop();
+    surface.stop();
+  };
+  // A loop that ends before the scenario is through (a bug, a role that stopped itself) fails the
+  // demo at once rather than let it wait for answers that cannot come.
+  auto fail = [&](const std::string& what) {
+    if (stopping) return;
+    std::printf("FAILED: %s\n", what.c_str());
+    failed = true;
+    shut_down();
+  };
+  auto on_end = [&](std::string loop) {
+    return [&fail, loop = std::move(loop)](const std::string& why) {
+      fail(loop + " stopped: " + (why.empty() ? "it ended" : why));
+    };
+  };
+  gateway.on_failure([&](const std::string& why) { fail("gateway: " + why); });
+  surface.on_failure([&](const std::string& why) { fail("surface: " + why); });
   std::vector<double> round_trips_ms;
   std::string final_counters;
   auto scenario = [&]() -> asio::awaitable<void> {
@@ -135,7 +162,9 @@ int run_demo(const DemoOptions& options) {
       co_return;
     }
     // Nodes power up once the tunnel is there, so their boot-ups are not dropped as no-link.
-    for (auto& r : runners) asio::co_spawn(ex, r->run(), asio::detached);
+    for (std::size_t m = 0; m < runners.size(); ++m) {
+      can::spawn_owned(ex, runners[m]->run(), on_end(fmt::format("the nodes of module {}", m)));
+    }
     // A master that joins late resets communication to learn who is there (boot-ups), then
     // starts every node.
     table.clear();
@@ -208,29 +237,18 @@ int run_demo(const DemoOptions& options) {
       "canbridge demo: %u module(s) x %u simulated node(s) on virtual CAN buses,\n"
       "gateway and surface joined by a TCP backbone on 127.0.0.1:%u\n",
       options.modules, options.nodes_per_module, server->port());
-  asio::co_spawn(ex, master.run(), asio::detached);
+  can::spawn_owned(ex, master.run(), on_end("the surface master"));
   surface.start();
   gateway.start();
   client->start([&](auto link) { gateway.attach(std::move(link)); });
-  asio::co_spawn(ex, scenario(), [&](std::exception_ptr e) {
-    if (e) {
-      try {
-        std::rethrow_exception(e);
-      } catch (const std::exception& ex_) {
-        std::printf("FAILED: %s\n", ex_.what());
-      }
-    }
-    // Ordered shutdown: the clients of the buses first, then the roles, then the links.
-    master.stop();
-    for (auto& r : runners) r->stop();
-    client->stop();
-    server->stop();
-    gateway.stop();
-    surface.stop();
+  can::spawn_owned(ex, scenario(), [&](const std::string& why) {
+    if (!why.empty()) fail("the scenario: " + why);
+    shut_down();
   });
   io.run_for(30s);  // bounded: everything above ends well before
 
   std::printf("\ncounters:\n%s\n", final_counters.c_str());
+  if (failed) status = 1;
   std::printf("\n%s\n",
               status == 0 ? "demo OK: every node answered through the tunnel" : "demo FAILED");
   return status;

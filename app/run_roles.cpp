@@ -100,6 +100,8 @@ int run_gateway(const config::GatewayOptions& options) {
     if (serial) serial->stop();
     gateway.stop();
   });
+  // A gateway that stopped itself (a loop ended or threw) takes the process down in order.
+  gateway.on_failure([&](const std::string&) { shutdown.trigger(); });
   gateway.start();
   if (tcp) tcp->start(attach);
   if (serial) serial->start(attach);
@@ -109,6 +111,10 @@ int run_gateway(const config::GatewayOptions& options) {
                               : "tcp " + options.connect.to_string());
   shutdown.run();
   spdlog::info("{}", gateway.stats_line());
+  if (!gateway.failure().empty()) {
+    spdlog::error("gateway {}: exiting after a failure: {}", options.name, gateway.failure());
+    return 1;
+  }
   return 0;
 }
 
@@ -142,6 +148,8 @@ int run_surface(const config::SurfaceOptions& options) {
     for (auto& line : lines) line->stop();
     surface.stop();
   });
+  // A surface that stopped itself (a loop ended or threw) takes the process down in order.
+  surface.on_failure([&](const std::string&) { shutdown.trigger(); });
   surface.start();
   if (server) {
     if (std::error_code ec = server->start(options.listen.host, options.listen.port, attach)) {
@@ -158,6 +166,10 @@ int run_surface(const config::SurfaceOptions& options) {
   }
   shutdown.run();
   spdlog::info("{}", surface.stats_line());
+  if (!surface.failure().empty()) {
+    spdlog::error("surface {}: exiting after a failure: {}", options.name, surface.failure());
+    return 1;
+  }
   return 0;
 }
 

@@ -6,7 +6,8 @@
 
 namespace canbridge::bridge {
 
-// Both return the process exit status; startup errors are thrown (std::exception) to main.
+// Both return the process exit status: 0 after a signal, 1 when the role stopped itself because
+// one of its loops failed. Startup errors are thrown (std::exception) to main.
 int run_gateway(const config::GatewayOptions& options);
 int run_surface(const config::SurfaceOptions& options);
 

@@ -5,7 +5,6 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
-#include <atomic>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
 #include <boost/asio/error.hpp>
@@ -27,14 +26,6 @@ constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
 
 // Past this, the write buffer is released after use so one burst does not pin memory forever.
 constexpr std::size_t kRetainedWriteCapacity = std::size_t{1} << 20;
-
-// A peer that sends garbage usually keeps doing so on every reconnect: say it once per process
-// (counters keep the exact numbers), details of later occurrences go to debug.
-bool first_time(std::atomic<bool>& flag) {
-  return !flag.exchange(true, std::memory_order_relaxed);
-}
-std::atomic<bool> warned_malformed{false};
-std::atomic<bool> warned_oversize{false};
 
 std::string describe(const tcp::endpoint& endpoint) {
   return endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
@@ -325,7 +316,10 @@ void MessageLink::report_handler_error(std::exception_ptr error) {
 void MessageLink::report_decode_error(std::error_code error) {
   const bool malformed = error == errc::malformed_length;
   ++(malformed ? counters_.malformed : counters_.oversize);
-  if (first_time(malformed ? warned_malformed : warned_oversize)) {
+  // Once per link and kind (counters keep the exact numbers); later ones go to debug.
+  bool& warned = malformed ? warned_malformed_ : warned_oversize_;
+  if (!warned) {
+    warned = true;
     spdlog::warn("backbone: dropping {} after {} (first occurrence; further ones are only counted)",
                  peer_name_, error.message());
   } else {

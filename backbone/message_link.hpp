@@ -156,6 +156,8 @@ class MessageLink : public std::enable_shared_from_this<MessageLink> {
   LinkCounters counters_;
   int loops_running_ = 0;
   bool started_ = false;
+  bool warned_malformed_ = false;  // report_decode_error() said it once already
+  bool warned_oversize_ = false;
   bool closing_ = false;          // end() ran: loops are stopping
   bool finished_ = false;         // loops stopped and on_closed ran
   bool writer_sleeping_ = false;  // the writer waits on wake_

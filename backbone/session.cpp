@@ -3,7 +3,6 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <atomic>
 #include <random>
 
 #include "backbone/delimited_codec.hpp"
@@ -22,6 +21,7 @@ constexpr std::uint8_t kTagResend = (v1::Envelope::kResendFieldNumber << 3) | 0;
 constexpr std::uint8_t kTagKeepalive = (v1::Envelope::kKeepaliveFieldNumber << 3) | 2;
 constexpr std::uint8_t kTagPayload = (v1::Envelope::kPayloadFieldNumber << 3) | 2;
 constexpr std::uint8_t kTagMissing = (v1::Envelope::kMissingFieldNumber << 3) | 2;  // packed
+constexpr std::uint8_t kTagUnreliableSeq = (v1::Envelope::kUnreliableSeqFieldNumber << 3) | 0;
 // Holes listed in one resend request: enough to repair a burst in one round trip.
 constexpr std::size_t kMaxMissingListed = 16;
 
@@ -53,19 +53,16 @@ const char* role_name(v1::Hello::Role role) {
   }
 }
 
-std::atomic<bool> warned_malformed{false};
+}  // namespace
 
 // A refused gateway retries with backoff and is refused again, for as long as the configuration
 // stays wrong: the first refusal is an error, the same one again only a debug line (the stats
 // line counts them all).
-bool same_as_last_refusal(const std::string& text) {
-  static std::string last;  // the roles run on one thread
-  if (text == last) return true;
-  last = text;
+bool SessionLink::same_as_last_refusal(const std::string& text) {
+  if (text == log_.last_refusal) return true;
+  log_.last_refusal = text;
   return false;
 }
-
-}  // namespace
 
 std::uint64_t random_session_id() {
   std::random_device device;
@@ -133,7 +130,7 @@ class SessionLink::Writer final : public PayloadSink {
   }
   Clock::time_point now() const override { return now_; }
   void send_unreliable(std::span<const std::uint8_t> payload) override {
-    session_.append_envelope(out_, 0, payload, false);
+    session_.append_envelope(out_, 0, payload, false, ++session_.stream_->unreliable_sent_);
     ++session_.counters_.unreliable_sent;
   }
 
@@ -165,14 +162,15 @@ class SessionLink::Writer final : public PayloadSink {
 std::shared_ptr<SessionLink> SessionLink::create(std::shared_ptr<MessageLink> link,
                                                  const Identity& identity,
                                                  const SessionOptions& options, PeerStream* preset,
-                                                 Binder binder, SessionCounters& counters) {
-  return std::shared_ptr<SessionLink>(
-      new SessionLink(std::move(link), identity, options, preset, std::move(binder), counters));
+                                                 Binder binder, SessionCounters& counters,
+                                                 SessionLogMemory* log) {
+  return std::shared_ptr<SessionLink>(new SessionLink(std::move(link), identity, options, preset,
+                                                      std::move(binder), counters, log));
 }
 
 SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,
                          const SessionOptions& options, PeerStream* preset, Binder binder,
-                         SessionCounters& counters)
+                         SessionCounters& counters, SessionLogMemory* log)
     : link_(std::move(link)),
       identity_(identity),
       options_(options),
@@ -180,6 +178,7 @@ SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& iden
       initiator_(preset != nullptr),
       binder_(std::move(binder)),
       counters_(counters),
+      log_(log ? *log : own_log_),
       watchdog_(link_->executor()) {}
 
 SessionLink::~SessionLink() = default;
@@ -206,7 +205,8 @@ void SessionLink::close() {
 }
 
 void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
-                                  std::span<const std::uint8_t> payload, bool keepalive) {
+                                  std::span<const std::uint8_t> payload, bool keepalive,
+                                  std::uint64_t unreliable_seq) {
   const std::uint64_t ack = stream_->receiver_.cumulative_ack();
   const bool resend = resend_owed_;
   std::size_t missing_bytes = 0;
@@ -221,6 +221,7 @@ void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
   if (ack != 0) size += 1 + varint_length(ack);
   if (resend) size += 2;
   if (missing_bytes != 0) size += 1 + varint_length(missing_bytes) + missing_bytes;
+  if (unreliable_seq != 0) size += 1 + varint_length(unreliable_seq);
   size += keepalive ? 2 : 1 + varint_length(payload.size()) + payload.size();
   put_varint(out, size);
   if (seq != 0) {
@@ -240,6 +241,10 @@ void SessionLink::append_envelope(std::string& out, std::uint64_t seq,
     out.push_back(static_cast<char>(kTagMissing));
     put_varint(out, missing_bytes);
     for (std::uint64_t m : missing_) put_varint(out, m);
+  }
+  if (unreliable_seq != 0) {
+    out.push_back(static_cast<char>(kTagUnreliableSeq));
+    put_varint(out, unreliable_seq);
   }
   if (keepalive) {
     out.push_back(static_cast<char>(kTagKeepalive));
@@ -388,7 +393,8 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
   last_run_ = now;
   if (!inbound_.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) {
     ++counters_.malformed;
-    if (!warned_malformed.exchange(true)) {
+    if (!log_.warned_malformed) {
+      log_.warned_malformed = true;
       spdlog::warn(
           "backbone: a message from {} is not a valid envelope: dropped (counted; "
           "further ones are only counted)",
@@ -459,6 +465,13 @@ void SessionLink::on_message(std::span<const std::uint8_t> bytes) {
                                              payload.size());
     if (inbound_.seq() == 0) {
       ++counters_.unreliable_delivered;
+      // Process data is never resent: a gap in its numbering is what the line lost.
+      if (const std::uint64_t useq = inbound_.unreliable_seq(); useq != 0) {
+        if (useq > stream_->unreliable_seen_ + 1) {
+          counters_.unreliable_lost += useq - stream_->unreliable_seen_ - 1;
+        }
+        stream_->unreliable_seen_ = std::max(stream_->unreliable_seen_, useq);
+      }
       if (stream_->handlers_.on_payload) stream_->handlers_.on_payload(view, false);
     } else {
       ReliableReceiver& receiver = stream_->receiver_;
@@ -543,6 +556,7 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
       if (stream.handlers_.on_peer_restart) stream.handlers_.on_peer_restart(h);
     }
     stream.receiver_.reset(h.send_base());
+    stream.unreliable_seen_ = 0;
     stream.peer_session_id_ = h.session_id();
   }
   const Clock::time_point now = this->now();

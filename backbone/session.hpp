@@ -72,6 +72,14 @@ struct SessionCounters {
   std::uint64_t reliable_dropped_too_old = 0;       // tombstoned: older than reliable_max_age
   std::uint64_t reliable_dropped_peer_restart = 0;  // tombstoned: meant for the peer's old process
   std::uint64_t tombstones_received = 0;            // empty reliable payloads, not delivered
+  std::uint64_t unreliable_lost = 0;  // gaps in a peer's unreliable sequence: lost on the line
+};
+
+// What one side has said in its log already, shared by its links like SessionCounters: a repeat
+// (the same refusal on every reconnect, a flood of bad envelopes) is only counted.
+struct SessionLogMemory {
+  bool warned_malformed = false;
+  std::string last_refusal;
 };
 
 // Why a reliable payload was dropped before its peer acknowledged it.
@@ -152,6 +160,8 @@ class PeerStream {
   // The latest refusal the peer sent since this stream was last up: a refused peer retries, and
   // the same refusal again is logged at debug level only.
   std::string last_refusal_;
+  std::uint64_t unreliable_sent_ = 0;  // Envelope.unreliable_seq of the last one sent
+  std::uint64_t unreliable_seen_ = 0;  // ... the highest received from the peer's session
   v1::Hello peer_hello_;
   Handlers handlers_;
   std::shared_ptr<SessionLink> link_;  // set while a link to the peer is ready
@@ -182,11 +192,13 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   using Binder = std::function<BindResult(const v1::Hello& peer, SessionLink& link)>;
 
   // `preset` is the stream of a side with exactly one peer (the gateway), whose hello can go out
-  // before the peer's arrives; null when the binder picks the stream (the surface).
+  // before the peer's arrives; null when the binder picks the stream (the surface). `log` is the
+  // side's (null: this link's own).
   static std::shared_ptr<SessionLink> create(std::shared_ptr<MessageLink> link,
                                              const Identity& identity,
                                              const SessionOptions& options, PeerStream* preset,
-                                             Binder binder, SessionCounters& counters);
+                                             Binder binder, SessionCounters& counters,
+                                             SessionLogMemory* log = nullptr);
   ~SessionLink();
 
   void start();
@@ -198,7 +210,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
  private:
   SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,
               const SessionOptions& options, PeerStream* preset, Binder binder,
-              SessionCounters& counters);
+              SessionCounters& counters, SessionLogMemory* log);
   class Writer;
 
   void on_message(std::span<const std::uint8_t> bytes);
@@ -220,7 +232,9 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   void arm_watchdog();
   void on_watchdog();
   void append_envelope(std::string& out, std::uint64_t seq, std::span<const std::uint8_t> payload,
-                       bool keepalive);
+                       bool keepalive, std::uint64_t unreliable_seq = 0);
+  // The same refusal or protocol complaint again: logged at debug level only.
+  bool same_as_last_refusal(const std::string& text);
 
   std::shared_ptr<MessageLink> link_;
   Identity identity_;
@@ -229,6 +243,8 @@ class SessionLink : public std::enable_shared_from_this<SessionLink> {
   bool initiator_;  // sends its hello first (has a preset stream); the other side answers
   Binder binder_;
   SessionCounters& counters_;
+  SessionLogMemory own_log_;
+  SessionLogMemory& log_;
   boost::asio::steady_timer watchdog_;
   std::chrono::steady_clock::time_point last_rx_;
   std::chrono::steady_clock::time_point last_tx_;

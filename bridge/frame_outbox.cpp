@@ -157,6 +157,7 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
       ++frames;
     }
     if (frames == 0) return;  // cannot happen with budget >= kMaxFrameBytes; never loop on it
+    if (!reliable) batch.set_process_frames_sent(process_frames_sent_ += frames);
     serialized_.clear();
     payload_.AppendToString(&serialized_);
     if (reliable) {

@@ -117,6 +117,7 @@ class FrameOutbox {
   std::string serialized_;
   OutboxCounters counters_;
   DiscardObserver on_discard_;
+  std::uint64_t process_frames_sent_ = 0;  // in unreliable batches: FrameBatch.process_frames_sent
 };
 
 }  // namespace canbridge::bridge

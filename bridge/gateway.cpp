@@ -4,14 +4,14 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <limits>
 
+#include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
+#include "can/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
 
 namespace canbridge::bridge {
@@ -263,11 +263,27 @@ Gateway::~Gateway() = default;
 
 void Gateway::start() {
   for (std::size_t m = 0; m < modules_.size(); ++m) {
-    asio::co_spawn(executor_, read_bus(m), asio::detached);
+    can::spawn_owned(executor_, read_bus(m), [this, m](const std::string& why) {
+      on_task_end("reader of bus " + modules_[m].bus->name(), why);
+    });
     writers_[m]->start();
   }
-  asio::co_spawn(executor_, watch_nodes(), asio::detached);
-  if (!pdop_.empty()) asio::co_spawn(executor_, watch_pdop(), asio::detached);
+  can::spawn_owned(executor_, watch_nodes(),
+                   [this](const std::string& why) { on_task_end("node table timer", why); });
+  if (!pdop_.empty()) {
+    can::spawn_owned(executor_, watch_pdop(),
+                     [this](const std::string& why) { on_task_end("PDO Packet timer", why); });
+  }
+}
+
+// A gateway with one loop gone is up but deaf to a bus (or blind to its node table): worse than
+// down, because nothing tells the operator. Stop all of it, in order, and say why.
+void Gateway::on_task_end(const std::string& task, const std::string& why) {
+  if (stopped_) return;
+  failure_ = task + " stopped: " + (why.empty() ? "it ended" : why);
+  spdlog::error("gateway {}: {}; stopping the gateway", name_, failure_);
+  stop();
+  if (on_failure_) on_failure_(failure_);
 }
 
 PdopReassembler::TimePoint Gateway::pdop_deadline() const {
@@ -581,7 +597,7 @@ void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
     old_links_tx_bytes_ += link_->message_link()->counters().tx_bytes;
   }
   link_ = backbone::SessionLink::create(std::move(link), identity_, tuning_.session, &stream_,
-                                        nullptr, counters_.session);
+                                        nullptr, counters_.session, &session_log_);
   link_->start();
 }
 
@@ -595,7 +611,7 @@ void Gateway::stop() {
   for (auto& m : modules_) m.bus->close();
 }
 
-asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
+asio::awaitable<std::error_code> Gateway::read_bus(std::size_t module_index) {
   GatewayModule& module = modules_[module_index];
   can::Bus& bus = *module.bus;
   std::vector<can::Frame> batch;
@@ -607,10 +623,7 @@ asio::awaitable<void> Gateway::read_bus(std::size_t module_index) {
       map_.modules()[module_index].profile == IdProfile::pdop && !reassembler;
   for (;;) {
     batch.clear();
-    if (std::error_code ec = co_await bus.receive_batch(batch)) {
-      if (!stopped_) spdlog::error("gateway: bus {} stopped: {}", bus.name(), ec.message());
-      co_return;
-    }
+    if (std::error_code ec = co_await bus.receive_batch(batch)) co_return ec;
     counters_.from_buses += batch.size();
     const auto now = LoopGuard::Clock::now();
     const auto clock_offset = steady_to_unix_offset();
@@ -690,18 +703,31 @@ void Gateway::withdraw_sdo_requests_to_buses() {
 }
 
 void Gateway::on_payload(std::span<const std::uint8_t> payload) {
-  if (inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) &&
-      inbound_.has_pdop_packets()) {
+  // Parsed once; the body says what it is.
+  decoded_.clear();
+  if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
+      !(inbound_.has_frames() || inbound_.has_pdop_packets())) {
+    ++counters_.malformed_payloads;
+    warn_.warn(Warn::kMalformed,
+               "gateway: dropped a backbone payload: not a frame batch (counted)");
+    return;
+  }
+  if (inbound_.has_pdop_packets()) {
     on_rpdop_packets(inbound_.pdop_packets());
     after_pdop_input();
     return;
   }
-  if (auto error = decode_frame_payload(payload, inbound_, decoded_)) {
+  if (const BatchError error = decode_frame_batch(inbound_.frames(), decoded_);
+      error != BatchError::none) {
     ++counters_.malformed_payloads;
-    warn_.warn(Warn::kMalformed, "gateway: dropped a backbone payload: {} (counted)", *error);
+    warn_.warn(Warn::kMalformed,
+               "gateway: dropped a backbone payload: malformed frame batch ({}) (counted)",
+               to_string(error));
     return;
   }
   const v1::FrameBatch& batch = inbound_.frames();
+  line_loss_.on_batch(stream_.peer_hello().session_id(), batch.process_frames_sent(),
+                      decoded_.size());
   counters_.frames_received += decoded_.size();
   std::optional<std::size_t> only;
   if (batch.module_id() != kAnyModule) {
@@ -768,6 +794,7 @@ GatewayCounters Gateway::counters() const {
   }
   c.translation = translator_.drops();
   c.outbox = outbox_.counters();
+  c.process_lost_on_line = line_loss_.lost();
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {
@@ -808,7 +835,12 @@ std::string Gateway::stats_line() const {
                        c.bus_drops[r]);
     }
   }
-  if (!pdop_.empty()) {
+  s += fmt::format(
+      "; from-buses {} frames-received {} unknown-module {} process-lost-on-line {} "
+      "queued-total {} sdo-requests-withdrawn {}; {}",
+      c.from_buses, c.frames_received, c.unknown_module, c.process_lost_on_line, c.outbox.queued,
+      c.outbox.sdo_requests_withdrawn, session_counters_text(c.session));
+  if (!pdop_.empty() || c.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
     std::uint64_t dropped_frames = 0;
     for (const PdopModule& p : pdop_) {
       if (p.reassembler) dropped_frames += p.reassembler->counters().dropped_frames;
@@ -820,14 +852,9 @@ std::string Gateway::stats_line() const {
         c.pdop_refused, c.rpdop_packets, c.rpdop_complete, c.rpdop_failed);
   }
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
-    s += fmt::format("; framing: frames {} crc-errors {} discarded-bytes {}", c.framing.frames,
-                     c.framing.crc_errors, c.framing.discarded_bytes);
+    s += "; " + framing_counters_text(c.framing);
   }
-  for (const auto& m : modules_) {
-    const can::BusCounters b = m.bus->counters();
-    s += fmt::format("; {} rx {} tx {} kernel-drops {} {}", m.bus->name(), b.rx_frames, b.tx_frames,
-                     b.rx_dropped_kernel, can::to_string(b.state));
-  }
+  for (const auto& m : modules_) s += "; " + bus_counters_text(m.bus->name(), m.bus->counters());
   return s;
 }
 

@@ -9,6 +9,7 @@
 #include <boost/asio/steady_timer.hpp>
 #include <chrono>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -18,6 +19,7 @@
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/bus_writer.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -60,8 +62,9 @@ struct GatewayCounters {
   std::uint64_t backbone_pauses = 0;     // the surface's payloads went unread: a bus was backed up
   std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
   std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
-  backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
-  std::uint64_t echoes_dropped = 0;      // frames this gateway wrote, read back from a bus
+  std::uint64_t process_lost_on_line = 0;  // process frames the surface sent that never arrived
+  backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
+  std::uint64_t echoes_dropped = 0;        // frames this gateway wrote, read back from a bus
   // SDO requests from the surface still waiting for a bus when the link died (the master was
   // told they failed): never written.
   std::uint64_t sdo_requests_withdrawn = 0;
@@ -100,6 +103,13 @@ class Gateway {
   // frames not yet acknowledged go again on it, exactly once.
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
+  // Called once when the gateway stops itself because one of its loops ended or threw (a bus
+  // gone for good, a bug): the process shuts down in order and exits non-zero.
+  void on_failure(std::function<void(const std::string& reason)> handler) {
+    on_failure_ = std::move(handler);
+  }
+  // Why the gateway stopped itself; empty while it has not.
+  const std::string& failure() const { return failure_; }
 
   GatewayCounters counters() const;
   const std::vector<GatewayModule>& modules() const { return modules_; }
@@ -109,7 +119,10 @@ class Gateway {
   std::string stats_line() const;
 
  private:
-  boost::asio::awaitable<void> read_bus(std::size_t module_index);
+  // Returns the bus's error when the bus ends (closed, or gone for good).
+  boost::asio::awaitable<std::error_code> read_bus(std::size_t module_index);
+  // Every loop the gateway spawns ends here: one that ends while the gateway runs stops it.
+  void on_task_end(const std::string& task, const std::string& why);
   // Frames one module's BusWriter put on its bus.
   void on_written(std::size_t module_index, std::span<const can::Frame> frames);
   // Input from the surface waits while any module bus is backed up (BusWriteQueue::backlogged).
@@ -201,6 +214,8 @@ class Gateway {
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;
   backbone::PeerStream stream_;
+  backbone::SessionLogMemory session_log_;
+  LineLossCounter line_loss_;
   std::shared_ptr<backbone::SessionLink> link_;     // the newest link, ready or not
   backbone::DeframerCounters old_links_framing_{};  // of the links before link_
   std::uint64_t old_links_tx_bytes_ = 0;
@@ -210,6 +225,8 @@ class Gateway {
   WarnOnce<kWarnKinds> warn_;
   bool claims_changed_ = false;  // a node moved: the next NodeEvents carries the new claims
   bool stopped_ = false;
+  std::function<void(const std::string&)> on_failure_;
+  std::string failure_;
 };
 
 }  // namespace canbridge::bridge

@@ -4,14 +4,15 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <deque>
 
+#include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
+#include "bridge/line_loss_counter.hpp"
+#include "can/spawn_owned.hpp"
 
 namespace canbridge::bridge {
 
@@ -58,6 +59,7 @@ struct Surface::Gateway {
   FrameOutbox outbox;
   std::deque<std::string> rpdop_out;  // serialized PdopPackets payloads
   backbone::PeerStream stream;
+  LineLossCounter line_loss;
 };
 
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
@@ -87,9 +89,22 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
 Surface::~Surface() = default;
 
 void Surface::start() {
-  asio::co_spawn(executor_, read_bus(), asio::detached);
-  asio::co_spawn(executor_, watch_relay(), asio::detached);
+  can::spawn_owned(executor_, read_bus(), [this](const std::string& why) {
+    on_task_end("reader of bus " + bus_->name(), why);
+  });
+  can::spawn_owned(executor_, watch_relay(),
+                   [this](const std::string& why) { on_task_end("RPDOP relay timer", why); });
   writer_.start();
+}
+
+// A surface with one loop gone is up but deaf to its bus: worse than down, because nothing tells
+// the operator. Stop all of it, in order, and say why.
+void Surface::on_task_end(const std::string& task, const std::string& why) {
+  if (stopped_) return;
+  failure_ = task + " stopped: " + (why.empty() ? "it ended" : why);
+  spdlog::error("surface {}: {}; stopping the surface", name_, failure_);
+  stop();
+  if (on_failure_) on_failure_(failure_);
 }
 
 asio::awaitable<void> Surface::watch_relay() {
@@ -149,7 +164,7 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   auto session = backbone::SessionLink::create(
       std::move(link), identity_, tuning_.session, nullptr,
       [this](const v1::Hello& hello, backbone::SessionLink&) { return bind(hello); },
-      counters_.session);
+      counters_.session, &session_log_);
   links_.push_back(session);
   session->start();
 }
@@ -198,15 +213,12 @@ std::size_t Surface::gateways_ready() const {
       gateways_.begin(), gateways_.end(), [](const auto& g) { return g.second->stream.up(); }));
 }
 
-asio::awaitable<void> Surface::read_bus() {
+asio::awaitable<std::error_code> Surface::read_bus() {
   std::vector<can::Frame> batch;
   batch.reserve(512);
   for (;;) {
     batch.clear();
-    if (std::error_code ec = co_await bus_->receive_batch(batch)) {
-      if (!stopped_) spdlog::error("surface: bus {} stopped: {}", bus_->name(), ec.message());
-      co_return;
-    }
+    if (std::error_code ec = co_await bus_->receive_batch(batch)) co_return ec;
     counters_.from_bus += batch.size();
     if (gateways_.empty()) {
       counters_.dropped_no_gateway += batch.size();
@@ -320,6 +332,8 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
                from.name, batch.module_id());
     return;
   }
+  from.line_loss.on_batch(from.stream.peer_hello().session_id(), batch.process_frames_sent(),
+                          decoded_.size());
   counters_.frames_received += decoded_.size();
   for (const can::Frame& frame : decoded_) {
     if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame);
@@ -555,6 +569,7 @@ SurfaceCounters Surface::counters() const {
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
     c.outbox += g->outbox.counters();
+    c.process_lost_on_line += g->line_loss.lost();
   }
   return c;
 }
@@ -568,12 +583,12 @@ std::string Surface::stats_line() const {
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
-      "bus-refused {}, no-gateway {}, unclaimed {}, "
+      "bus-refused {}, dropped-no-gateway {}, unclaimed {}, "
       "malformed {}, unknown-module {}, node-events {}; "
       "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {} bus-refused {}, "
       "rpdop forwarded {} complete {} failed {}; "
-      "{} rx {} tx {} "
-      "kernel-drops {} {}; bus-waited {} (peak {}, backbone-pauses {})",
+      "from-bus {} frames-received {} process-lost-on-line {} batches {} queued-total {}; {}; "
+      "{}; bus-waited {} (peak {}, backbone-pauses {})",
       name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
@@ -584,8 +599,9 @@ std::string Surface::stats_line() const {
       c.dropped_no_gateway, c.dropped_unclaimed, c.malformed_payloads + c.session.malformed,
       c.unknown_module, c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards,
       c.pdop_malformed, c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded,
-      c.rpdop_complete, c.rpdop_failed, bus_->name(), b.rx_frames, b.tx_frames, b.rx_dropped_kernel,
-      can::to_string(b.state), c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
+      c.rpdop_complete, c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line,
+      c.outbox.batches_sent, c.outbox.queued, session_counters_text(c.session),
+      bus_counters_text(bus_->name(), b), c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
@@ -593,6 +609,9 @@ std::string Surface::stats_line() const {
     }
   }
   s += "; " + lanes_summary(c.outbox);
+  if (c.framing.frames + c.framing.discarded_bytes != 0) {
+    s += "; " + framing_counters_text(c.framing);
+  }
   return s;
 }
 

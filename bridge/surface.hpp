@@ -39,12 +39,13 @@ struct SurfaceCounters {
   std::uint64_t bus_waiting_peak = 0;
   std::array<std::uint64_t, BusWriteQueue::kDropReasons> bus_drops{};  // by BusWriteQueue::Drop
   std::uint64_t backbone_pauses = 0;  // the gateways' payloads went unread: the bus was backed up
-  std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
-  std::uint64_t unknown_module = 0;      // batches for a module the gateway did not announce
-  backbone::DeframerCounters framing{};  // CRC-framed links (serial), all links so far
-  std::uint64_t sdo_aborted = 0;         // SDO requests answered with 0x05040000: gateway link down
-  std::uint64_t echoes_dropped = 0;      // frames the surface wrote, read back from its bus
-  std::uint64_t node_events = 0;         // node table events the gateways reported
+  std::uint64_t malformed_payloads = 0;    // payloads that are not a valid, consistent batch
+  std::uint64_t unknown_module = 0;        // batches for a module the gateway did not announce
+  std::uint64_t process_lost_on_line = 0;  // process frames gateways sent that never arrived
+  backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
+  std::uint64_t sdo_aborted = 0;     // SDO requests answered with 0x05040000: gateway link down
+  std::uint64_t echoes_dropped = 0;  // frames the surface wrote, read back from its bus
+  std::uint64_t node_events = 0;     // node table events the gateways reported
   // SDO requests never sent because the master got an abort when their link went down: queued
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
@@ -92,6 +93,13 @@ class Surface {
   // connected gateway claims is refused, with the reason sent to it (GatewayTable).
   void attach(std::shared_ptr<backbone::MessageLink> link);
   void stop();
+  // Called once when the surface stops itself because one of its loops ended or threw (its bus
+  // gone for good, a bug): the process shuts down in order and exits non-zero.
+  void on_failure(std::function<void(const std::string& reason)> handler) {
+    on_failure_ = std::move(handler);
+  }
+  // Why the surface stopped itself; empty while it has not.
+  const std::string& failure() const { return failure_; }
 
   SurfaceCounters counters() const;
   std::size_t gateways_ready() const;
@@ -106,7 +114,10 @@ class Surface {
  private:
   struct Gateway;
 
-  boost::asio::awaitable<void> read_bus();
+  // Returns the bus's error when the bus ends (closed, or gone for good).
+  boost::asio::awaitable<std::error_code> read_bus();
+  // Every loop the surface spawns ends here: one that ends while the surface runs stops it.
+  void on_task_end(const std::string& task, const std::string& why);
   backbone::BindResult bind(const v1::Hello& hello);
   void on_payload(Gateway& from, std::span<const std::uint8_t> payload);
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
@@ -171,11 +182,14 @@ class Surface {
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_
+  backbone::SessionLogMemory session_log_;
   SurfaceCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;
   WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
+  std::function<void(const std::string&)> on_failure_;
+  std::string failure_;
 };
 
 }  // namespace canbridge::bridge

@@ -28,6 +28,12 @@ struct BusCounters {
   std::uint64_t tx_retries = 0;         // EAGAIN/ENOBUFS back-offs
   std::uint64_t error_frames = 0;       // error frames received
   std::uint64_t reopens = 0;            // times the interface was lost and reopened
+  // While the interface was lost (down or gone, being reopened): send() refused because the
+  // transmit queue filled meanwhile (not in tx_dropped_queue), and frames still queued for the
+  // old socket that went with it. Frames on the wire meanwhile are not seen at all: the first
+  // frame after a reopen carries FrameFlags::follows_loss.
+  std::uint64_t tx_dropped_interface_lost = 0;
+  std::uint64_t rx_dropped_interface_lost = 0;
   BusState state = BusState::error_active;
 };
 

@@ -4,6 +4,7 @@
 #include <linux/can/error.h>
 #include <linux/can/raw.h>
 #include <net/if.h>
+#include <spdlog/spdlog.h>
 #include <sys/socket.h>
 #include <sys/uio.h>
 #include <unistd.h>
@@ -11,7 +12,6 @@
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/posix/stream_descriptor.hpp>
 #include <boost/asio/post.hpp>
 #include <boost/asio/steady_timer.hpp>
@@ -22,6 +22,8 @@
 #include <cstring>
 #include <ctime>
 #include <system_error>
+
+#include "can/spawn_owned.hpp"
 
 namespace canbridge::can {
 
@@ -224,12 +226,52 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   // writer's waits) and reopen in the background. Queued frames stay queued.
   void lose_socket() {
     if (socket.is_open()) {
+      count_frames_left_behind();
       boost::system::error_code ignored;
       socket.close(ignored);
     }
     if (closed || reopening) return;
     reopening = true;
-    asio::co_spawn(executor, reopen(shared_from_this()), asio::detached);
+    spawn_owned(executor, reopen(shared_from_this()),
+                [self = shared_from_this()](const std::string& why) {
+                  if (!why.empty()) self->fail("reopen loop", why);
+                });
+  }
+
+  // One of the bus's own loops threw: without it the bus would look open and never move a frame
+  // again. Close it and end the pending receive with an error, so the role sees it and stops.
+  void fail(const char* loop, const std::string& why) {
+    if (closed) return;
+    spdlog::error("bus {}: {} stopped: {}; closing the bus", options.interface, loop,
+                  why.empty() ? "it ended" : why);
+    failed = true;
+    close();
+  }
+
+  // Frames the kernel queued for a socket about to be closed go with it: count them. The loss
+  // itself is reported once (a pending socket error) before the queue reads again. Bounded: on
+  // an interface still up (an error other than a loss), frames keep coming.
+  void count_frames_left_behind() {
+    bool error_seen = false;
+    for (int round = 0; round < 64; ++round) {
+      for (std::size_t i = 0; i < options.batch_size; ++i) {
+        rx_msgs[i].msg_hdr.msg_controllen = sizeof(ControlBuffer);
+        rx_msgs[i].msg_hdr.msg_flags = 0;
+      }
+      const int n = ::recvmmsg(socket.native_handle(), rx_msgs.data(),
+                               static_cast<unsigned>(options.batch_size), MSG_DONTWAIT, nullptr);
+      if (n < 0 && interface_lost(errno) && !error_seen) {
+        error_seen = true;
+        continue;
+      }
+      if (n <= 0) return;
+      for (int i = 0; i < n; ++i) {
+        const auto k = static_cast<std::size_t>(i);
+        if (rx_msgs[k].msg_len == sizeof(can_frame) && !(rx_frames[k].can_id & CAN_ERR_FLAG)) {
+          ++counters.rx_dropped_interface_lost;
+        }
+      }
+    }
   }
 
   static asio::awaitable<void> reopen(std::shared_ptr<Impl> self) {
@@ -243,6 +285,9 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       }
       if (!self->open_socket()) {
         ++self->counters.reopens;
+        // The bus went on while this socket was away: whoever reads must not take the next
+        // frame for the one after the last it saw (a PDO Packet with a hole in it).
+        self->loss_pending = true;
         self->reader_wake.cancel();
         self->writer_wake.cancel();
         break;
@@ -257,11 +302,13 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       return state.cancelled() != asio::cancellation_type::none;
     };
     const auto canceled = std::make_error_code(std::errc::operation_canceled);
+    const auto failure = std::make_error_code(std::errc::io_error);
     // A reader on a saturated bus could read batch after batch without ever suspending and
     // starve the rest of the loop: after a full batch, give the loop one turn first. Otherwise
     // go straight on; a turn costs an extra epoll_wait and a frame's worth of latency.
     if (rx_batch_was_full) co_await asio::post(executor, asio::use_awaitable);
     for (;;) {
+      if (failed) co_return failure;
       if (closed || cancelled(co_await asio::this_coro::cancellation_state)) co_return canceled;
       if (!socket.is_open()) {
         co_await reader_wake.async_wait(asio::as_tuple(asio::use_awaitable));
@@ -288,8 +335,14 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         // Only error frames this round: look again (after a wait if the queue was drained, else
         // after giving the loop a turn).
         if (!rx_drained) co_await asio::post(executor, asio::use_awaitable);
+      } else if (interface_lost(err)) {
+        // The kernel reports the loss once; what it queued for this socket before it is still
+        // readable: deliver that (one batch; anything beyond is counted), then reopen. A
+        // transient loss reaches the caller only as counters.
+        const int rest = receive_once(out);
+        lose_socket();
+        if (rest == 0) co_return std::error_code{};
       } else if (err != EINTR) {
-        // ENETDOWN and the rest: reopen. A transient loss reaches the caller only as counters.
         lose_socket();
       }
     }
@@ -368,7 +421,9 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       return false;
     }
     if (tx_queue.full()) {
-      ++counters.tx_dropped_queue;
+      // Why it is full matters to whoever reads the counters: a bus too slow for the load, or
+      // an interface away (down, gone) while the queue kept taking frames.
+      ++(socket.is_open() ? counters.tx_dropped_queue : counters.tx_dropped_interface_lost);
       return false;
     }
     tx_queue.push_back(frame);
@@ -481,6 +536,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   std::uint32_t last_overflow = 0;
   bool loss_pending = false;  // frames were lost: flag the next frame delivered
   bool closed = false;
+  bool failed = false;  // closed because one of its own loops failed (see fail())
   bool reopening = false;
   bool writer_idle = false;
   std::size_t room_wanted = 0;     // free slots a wait_send_room() waits for; 0: none waits
@@ -512,7 +568,9 @@ std::unique_ptr<SocketCanBus> SocketCanBus::open(asio::any_io_executor executor,
     ec = opened;
     return nullptr;
   }
-  asio::co_spawn(executor, Impl::writer(impl), asio::detached);
+  spawn_owned(executor, Impl::writer(impl), [impl](const std::string& why) {
+    if (!impl->closed) impl->fail("transmit loop", why);
+  });
   if (opened) impl->lose_socket();  // down at startup: open it once it comes up
   return std::unique_ptr<SocketCanBus>(new SocketCanBus(std::move(impl)));
 }

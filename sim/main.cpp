@@ -4,7 +4,6 @@
 
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/signal_set.hpp>
 #include <boost/asio/steady_timer.hpp>
@@ -20,6 +19,7 @@
 #include <vector>
 
 #include "can/socketcan_bus.hpp"
+#include "can/spawn_owned.hpp"
 #include "can/virtual_bus.hpp"
 #include "sim/node_runner.hpp"
 #include "sim/rig_file.hpp"
@@ -175,19 +175,39 @@ int main(int argc, char** argv) {
     return 1;
   }
 
-  for (auto& b : buses) asio::co_spawn(io, b.runner->run(), asio::detached);
   asio::steady_timer stats_timer(io);
-  if (options.stats_seconds > 0) {
-    asio::co_spawn(io, log_stats(buses, options.stats_seconds, stats_timer), asio::detached);
-  }
   asio::signal_set signals(io, SIGINT, SIGTERM);
-  signals.async_wait([&](const boost::system::error_code& ec, int signal) {
-    if (ec) return;
-    spdlog::info("signal {}: stopping", signal);
-    // Ordered shutdown: stop the node runners, then close the buses so every loop ends.
+  bool stopping = false;
+  int exit_status = 0;
+  // Ordered shutdown: stop the node runners, then close the buses so every loop ends.
+  auto stop_all = [&] {
+    stopping = true;
+    signals.cancel();
     for (auto& b : buses) b.runner->stop();
     for (auto& b : buses) b.bus->close();
     stats_timer.cancel();
+  };
+  // A loop that ends on its own (a bus gone, a bug) would leave a rig with silent nodes: stop
+  // everything and exit non-zero instead.
+  auto on_end = [&](const std::string& loop, const std::string& why) {
+    if (stopping) return;
+    spdlog::error("canbridge-sim: {} stopped: {}; stopping", loop, why.empty() ? "it ended" : why);
+    exit_status = 1;
+    stop_all();
+  };
+  for (auto& b : buses) {
+    can::spawn_owned(io, b.runner->run(), [&, name = b.name](const std::string& why) {
+      on_end("the nodes of bus " + name, why);
+    });
+  }
+  if (options.stats_seconds > 0) {
+    can::spawn_owned(io, log_stats(buses, options.stats_seconds, stats_timer),
+                     [&](const std::string& why) { on_end("the stats timer", why); });
+  }
+  signals.async_wait([&](const boost::system::error_code& ec, int signal) {
+    if (ec) return;
+    spdlog::info("signal {}: stopping", signal);
+    stop_all();
   });
   // The runners boot their nodes on their first turn; announce readiness after that turn.
   asio::post(io, [&] {
@@ -200,5 +220,5 @@ int main(int argc, char** argv) {
               << std::endl;
   });
   io.run();
-  return 0;
+  return exit_status;
 }

@@ -3,6 +3,7 @@
 // stream delivers and producing numbered reliable payloads on demand.
 #pragma once
 
+#include <algorithm>
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
 #include <deque>
@@ -55,6 +56,12 @@ class SessionEnd {
     return session;
   }
 
+  // Sends unreliable payloads numbered up to `last` (inclusive), each once: lost ones stay lost.
+  void send_unreliable_up_to(std::uint64_t last) {
+    unreliable_limit_ = last;
+    stream_.wake();
+  }
+
   // Queues reliable payloads numbered up to `last` (inclusive).
   void send_up_to(std::uint64_t last) {
     limit_ = last;
@@ -76,7 +83,8 @@ class SessionEnd {
   SessionCounters counters;
   std::vector<std::uint64_t> received;  // reliable payload numbers, in delivery order
   std::uint64_t unreliable = 0;
-  std::uint64_t corrupt = 0;  // payloads of the wrong size
+  std::uint64_t highest_unreliable = 0;  // the highest unreliable payload number received
+  std::uint64_t corrupt = 0;             // payloads of the wrong size
   int ups = 0;
   int downs = 0;
   int peer_restarts = 0;
@@ -103,10 +111,19 @@ class SessionEnd {
       sink.send_reliable(std::move(p));
       ++next_;
     }
+    while (next_unreliable_ <= unreliable_limit_ && sink.room() > payload_size + 16) {
+      std::string p(payload_size, '\0');
+      for (std::size_t i = 0; i < 8 && i < payload_size; ++i) {
+        p[i] = static_cast<char>((next_unreliable_ >> (8 * i)) & 0xFF);
+      }
+      sink.send_unreliable({reinterpret_cast<const std::uint8_t*>(p.data()), p.size()});
+      ++next_unreliable_;
+    }
   }
   void receive(std::span<const std::uint8_t> p, bool reliable) {
     if (!reliable) {
       ++unreliable;
+      highest_unreliable = std::max(highest_unreliable, number(p));
       return;
     }
     if (p.size() != payload_size) {
@@ -129,6 +146,8 @@ class SessionEnd {
   PeerStream stream_;
   std::uint64_t next_ = 1;
   std::uint64_t limit_ = 0;
+  std::uint64_t next_unreliable_ = 1;
+  std::uint64_t unreliable_limit_ = 0;
 };
 
 // True when `received` is exactly 1..n in order.

@@ -11,6 +11,7 @@
 #include <boost/asio/this_coro.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <filesystem>
+#include <functional>
 
 #include "backbone/serial_client.hpp"
 #include "backbone/session.hpp"
@@ -184,6 +185,65 @@ TEST(EmulatedSession, SerialPtyPairThroughANoisyLineWithTenCuts) {
   io.run_for(50ms);
   EXPECT_EQ(emulator.stop(), 0);
   std::filesystem::remove_all(dir);
+}
+
+// Process data is never resent, so what a noisy line loses of it is gone; it must not be gone
+// without a count. Every unreliable payload up to the highest that arrived either arrived or is
+// counted as lost on the line (bit errors caught by the CRC, writes lost in cuts).
+TEST(EmulatedSession, UnreliablePayloadsLostOnTheLineAreCounted) {
+  asio::io_context io{1};
+  SessionEnd gateway{"gw", v1::Hello::ROLE_GATEWAY, lossy_line_options(), {1}};
+  SessionEnd surface{"surface", v1::Hello::ROLE_SURFACE, lossy_line_options()};
+  gateway.payload_size = 16;
+  ServerOptions server_options;
+  server_options.link.framing = LinkFraming::cobs_crc32c;
+  auto server = TcpServer::create(io.get_executor(), server_options);
+  ASSERT_FALSE(server->start("127.0.0.1", 0, [&](auto link) { surface.attach(link); }));
+  test::ChildProcess emulator({CANBRIDGE_LINK_EMULATOR_BIN, "--a", "tcp-listen:127.0.0.1:0", "--b",
+                               "tcp-connect:127.0.0.1:" + std::to_string(server->port()), "--baud",
+                               "10000000", "--ber", "1e-4", "--seed", "20261201", "--cuts", "2",
+                               "--cut-ms", "150:250", "--cut-window-s", "0.3:1.5"});
+  ASSERT_TRUE(emulator.wait_for_line("link-emulator: ready", 5s)) << emulator.output();
+  const auto ready = emulator::find_ready_line(emulator.output());
+  ASSERT_TRUE(ready);
+  const auto port = emulator::endpoint_port(ready->a);
+  ASSERT_TRUE(port);
+  ClientOptions client_options;
+  client_options.backoff_min = 20ms;
+  client_options.backoff_max = 200ms;
+  client_options.link.framing = LinkFraming::cobs_crc32c;
+  auto client = TcpClient::create(io.get_executor(), "127.0.0.1", *port, client_options);
+  client->start([&](auto link) { gateway.attach(link); });
+
+  // 10 payloads every 2 ms for about 2 s, and on until one numbered past 10,000 arrived.
+  constexpr std::uint64_t kWanted = 10000;
+  asio::steady_timer pace(io);
+  std::uint64_t limit = 0;
+  std::function<void()> more = [&] {
+    gateway.send_unreliable_up_to(limit += 10);
+    pace.expires_after(2ms);
+    pace.async_wait([&](boost::system::error_code ec) {
+      if (!ec) more();
+    });
+  };
+  more();
+  const bool done = test::run_until(
+      io, [&] { return surface.highest_unreliable >= kWanted; }, 30s);
+  pace.cancel();
+  ASSERT_TRUE(done) << "highest " << surface.highest_unreliable << "\n" << emulator.output();
+  const SessionCounters& c = surface.counters;
+  EXPECT_EQ(surface.unreliable, c.unreliable_delivered);
+  EXPECT_EQ(c.unreliable_delivered + c.unreliable_lost, surface.highest_unreliable);
+  EXPECT_GT(c.unreliable_lost, 0u);  // the line really lost some
+  std::printf("unreliable: highest %llu, delivered %llu, counted lost on the line %llu\n",
+              static_cast<unsigned long long>(surface.highest_unreliable),
+              static_cast<unsigned long long>(c.unreliable_delivered),
+              static_cast<unsigned long long>(c.unreliable_lost));
+  client->stop();
+  server->stop();
+  io.restart();
+  io.run_for(50ms);
+  EXPECT_EQ(emulator.stop(), 0);
 }
 
 }  // namespace

@@ -702,3 +702,44 @@ TEST(FrameOutbox, LaneCountersAddUpAcrossOutboxesAndShowInOneSummary) {
 
 }  // namespace
 }  // namespace canbridge::bridge
+
+namespace canbridge::bridge {
+namespace {
+
+// Process data is never resent, so the receiver can only count what the line lost if each
+// unreliable batch says how many process frames were sent up to it; reliable batches say nothing.
+TEST(FrameOutbox, UnreliableBatchesCarryTheRunningCountOfProcessFramesSent) {
+  FrameOutbox::Options options;
+  options.max_batch_bytes = 200;  // several batches
+  FrameOutbox outbox(options);
+  FakeSink sink;
+  for (std::uint8_t i = 0; i < 60; ++i) {
+    // Process data, not conflated (every frame counts), with some SDO responses among it.
+    ASSERT_TRUE(
+        outbox.push(1, can::Frame::standard(0x181 + (i % 20), {i, i, i, i}), DeliveryOptions{}));
+    if (i % 10 == 0) {
+      ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), DeliveryOptions{}));
+    }
+  }
+  ASSERT_TRUE(drain(outbox, sink));
+  std::uint64_t sent = 0;
+  std::size_t unreliable_batches = 0;
+  for (const auto& s : sink.sent) {
+    v1::Payload payload;
+    ASSERT_TRUE(payload.ParseFromString(s.bytes));
+    std::vector<can::Frame> frames;
+    ASSERT_EQ(decode_frame_batch(payload.frames(), frames), BatchError::none);
+    if (s.reliable) {
+      EXPECT_EQ(payload.frames().process_frames_sent(), 0u);
+      continue;
+    }
+    ++unreliable_batches;
+    sent += frames.size();
+    EXPECT_EQ(payload.frames().process_frames_sent(), sent);
+  }
+  EXPECT_EQ(sent, 60u);
+  EXPECT_GT(unreliable_batches, 2u);
+}
+
+}  // namespace
+}  // namespace canbridge::bridge

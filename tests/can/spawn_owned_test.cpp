@@ -1,0 +1,67 @@
+// spawn_owned: the owner of a coroutine hears how it ended, whether it returned, returned an
+// error or threw.
+#include "can/spawn_owned.hpp"
+
+#include <gtest/gtest.h>
+
+#include <boost/asio/io_context.hpp>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+namespace canbridge::can {
+namespace {
+
+namespace asio = boost::asio;
+
+std::optional<std::string> end_of(asio::awaitable<void> task, asio::io_context& io) {
+  std::optional<std::string> reason;
+  spawn_owned(io, std::move(task), [&](const std::string& why) { reason = why; });
+  io.run();
+  return reason;
+}
+
+TEST(SpawnOwned, AReturnEndsWithAnEmptyReason) {
+  asio::io_context io;
+  auto task = []() -> asio::awaitable<void> { co_return; };
+  EXPECT_EQ(end_of(task(), io), std::string());
+}
+
+TEST(SpawnOwned, AThrowEndsWithTheExceptionsText) {
+  asio::io_context io;
+  auto task = []() -> asio::awaitable<void> {
+    throw std::runtime_error("reader broke");
+    co_return;
+  };
+  EXPECT_EQ(end_of(task(), io), std::string("reader broke"));
+}
+
+TEST(SpawnOwned, AnErrorReturnEndsWithItsMessage) {
+  asio::io_context io;
+  std::optional<std::string> reason;
+  auto task = []() -> asio::awaitable<std::error_code> {
+    co_return std::make_error_code(std::errc::no_such_device);
+  };
+  spawn_owned(io, task(), [&](const std::string& why) { reason = why; });
+  io.run();
+  EXPECT_EQ(reason, std::make_error_code(std::errc::no_such_device).message());
+
+  reason.reset();
+  auto fine = []() -> asio::awaitable<std::error_code> { co_return std::error_code{}; };
+  spawn_owned(io, fine(), [&](const std::string& why) { reason = why; });
+  io.restart();
+  io.run();
+  EXPECT_EQ(reason, std::string());
+}
+
+TEST(SpawnOwned, AnExceptionOfAnyTypeIsStillReported) {
+  asio::io_context io;
+  auto task = []() -> asio::awaitable<void> {
+    throw 42;
+    co_return;
+  };
+  EXPECT_EQ(end_of(task(), io), std::string("an exception of unknown type"));
+}
+
+}  // namespace
+}  // namespace canbridge::can
