@@ -1,11 +1,10 @@
 #include "bridge/bus_writer.hpp"
 
-#include <spdlog/spdlog.h>
-
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <exception>
+
+#include "can/spawn_owned.hpp"
 
 namespace canbridge::bridge {
 
@@ -27,13 +26,9 @@ BusWriter::BusWriter(asio::any_io_executor executor, can::Bus& bus, BusWriteQueu
       wake_(std::move(executor), asio::steady_timer::time_point::max()) {}
 
 void BusWriter::start() {
-  asio::co_spawn(wake_.get_executor(), run(), [name = bus_.name()](std::exception_ptr error) {
-    if (!error) return;
-    try {
-      std::rethrow_exception(error);
-    } catch (const std::exception& e) {
-      spdlog::error("bus {}: the writer stopped: {}", name, e.what());
-    }
+  can::spawn_owned(wake_.get_executor(), run(), [this](const std::string& why) {
+    if (stopped_) return;
+    if (on_end_) on_end_(why.empty() ? "the bus closed" : why);
   });
 }
 

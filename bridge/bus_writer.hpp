@@ -7,6 +7,7 @@
 #include <boost/asio/steady_timer.hpp>
 #include <functional>
 #include <span>
+#include <string>
 #include <vector>
 
 #include "bridge/bus_write_queue.hpp"
@@ -46,6 +47,9 @@ class BusWriter {
   bool write(const can::Frame& frame, BusWriteQueue::Lane lane);
   bool write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane);
 
+  // Runs once if the writer's loop ends while not stopped (the bus closed for good, or the loop
+  // threw), with why: its owner stops, as for any of its loops (can::spawn_owned).
+  void on_end(std::function<void(const std::string& why)> handler) { on_end_ = std::move(handler); }
   const BusWriteQueue& queue() const { return queue_; }
   // BusWriteQueue::withdraw_single_frames, then the bus's own transmit queue
   // (can::Bus::withdraw_queued); returns how many frames were removed in all.
@@ -62,6 +66,7 @@ class BusWriter {
   BusWriteQueue queue_;
   Written on_written_;
   BacklogChanged on_backlog_changed_;
+  std::function<void(const std::string& why)> on_end_;
   boost::asio::steady_timer wake_;  // condition variable: frames started waiting, or stop()
   std::vector<can::Frame> out_;
   std::uint64_t refused_ = 0;

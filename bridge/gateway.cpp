@@ -266,6 +266,9 @@ void Gateway::start() {
     can::spawn_owned(executor_, read_bus(m), [this, m](const std::string& why) {
       on_task_end("reader of bus " + modules_[m].bus->name(), why);
     });
+    writers_[m]->on_end([this, m](const std::string& why) {
+      on_task_end("writer of bus " + modules_[m].bus->name(), why);
+    });
     writers_[m]->start();
   }
   can::spawn_owned(executor_, watch_nodes(),

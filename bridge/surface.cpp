@@ -94,6 +94,8 @@ void Surface::start() {
   });
   can::spawn_owned(executor_, watch_relay(),
                    [this](const std::string& why) { on_task_end("RPDOP relay timer", why); });
+  writer_.on_end(
+      [this](const std::string& why) { on_task_end("writer of bus " + bus_->name(), why); });
   writer_.start();
 }
 

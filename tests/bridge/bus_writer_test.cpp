@@ -6,6 +6,7 @@
 
 #include <boost/asio/io_context.hpp>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "can/virtual_bus.hpp"
@@ -84,6 +85,17 @@ TEST_F(BusWriterTest, AFrameOfferedWhileOthersWaitNeverGoesFirst) {
   medium.hold(false);
   ASSERT_TRUE(test::run_until(io, [&] { return far.frames.size() == 5; }));
   for (std::uint8_t i = 0; i < 5; ++i) EXPECT_EQ(far.frames[i], emcy(i)) << int{i};
+}
+
+// A writer whose bus is gone must not end in silence: its role stops (can::spawn_owned).
+TEST_F(BusWriterTest, ClosingTheBusEndsTheWriterAndItsOwnerHearsWhy) {
+  std::vector<std::string> ends;
+  writer.on_end([&](const std::string& why) { ends.push_back(why); });
+  medium.hold(true);
+  for (std::uint8_t i = 0; i < 5; ++i) ASSERT_TRUE(writer.write(emcy(i), Lane::reliable));
+  bus->close();
+  ASSERT_TRUE(test::run_until(io, [&] { return !ends.empty(); }));
+  EXPECT_EQ(ends, (std::vector<std::string>{"the bus closed"}));
 }
 
 TEST_F(BusWriterTest, ClosingTheBusDropsWhatWaitsAndCountsIt) {
