@@ -42,8 +42,8 @@ Frame request(std::uint16_t cob, std::uint32_t seq) {
 // sch_tbf first when it is a module (modprobe, or from user-mode Linux's module tree). Returns
 // the failure, empty on success.
 std::string limit_rate(const std::string& interface) {
-  const std::vector<std::string> tc{"tc",   "qdisc",   "add",   "dev",  interface, "root", "tbf",
-                                    "rate", "120kbit", "burst", "1600", "limit",   "800"};
+  const std::vector<std::string> tc{"tc",   "qdisc",  "add",   "dev",  interface, "root", "tbf",
+                                    "rate", "60kbit", "burst", "1600", "limit",   "800"};
   if (test::run(tc).status == 0) return {};
   test::run({"modprobe", "sch_tbf"});
   utsname host{};
@@ -98,7 +98,7 @@ TEST(BusRoom, EveryReliableFrameReachesARateLimitedBusOnceAndInOrder) {
     }
   });
   // The last request is the marker: everything before it, and nothing twice, must come first.
-  const auto got = test::receive_until(node_side, request(0x602, kFrames), 5000ms);
+  const auto got = test::receive_until(node_side, request(0x602, kFrames), 15000ms);
   const auto elapsed = std::chrono::steady_clock::now() - started;
   master.join();
   ASSERT_FALSE(send_failed);
