@@ -15,6 +15,7 @@
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
 #include "routing/node_map.hpp"
+#include "tests/bridge/loopback_roles.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
@@ -54,16 +55,7 @@ class GatewayNodes : public ::testing::Test {
         }
       }
     };
-    surface.start();
-    gateway->start();
-    ASSERT_FALSE(server->start("127.0.0.1", 0, [this](auto link) { surface.attach(link); }));
-    backbone::ClientOptions options;
-    options.backoff_min = 10ms;
-    options.backoff_max = 50ms;
-    client = backbone::TcpClient::create(io.get_executor(), "127.0.0.1", server->port(), options);
-    client->start([g = gateway.get()](auto link) { g->attach(std::move(link)); });
-    ASSERT_TRUE(
-        run_until(io, [&] { return surface.gateways_ready() == 1 && gateway->connected(); }));
+    ASSERT_TRUE(start_linked_over_loopback(io, surface, *gateway, server, client));
     ASSERT_TRUE(node.send(Frame::standard(0x700u + kLocal, {0x05})));  // the table knows it
     ASSERT_TRUE(run_until(io, [&] { return gateway->node_table().node(0, kLocal) != nullptr; }));
   }

@@ -25,6 +25,7 @@
 #include "routing/node_map.hpp"
 #include "routing/pdop_segmenter.hpp"
 #include "sim/rpdop_receiver.hpp"
+#include "tests/bridge/loopback_roles.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
@@ -123,16 +124,7 @@ class PdopBridging : public ::testing::Test {
     surface.on_pdop_packet([this](const SurfacePdopPacket& p) {
       packets.push_back({p.surface_node, p.local_node, p.tpdo, {p.data.begin(), p.data.end()}});
     });
-    surface.start();
-    gateway->start();
-    ASSERT_FALSE(server->start("127.0.0.1", 0, [this](auto link) { surface.attach(link); }));
-    backbone::ClientOptions options;
-    options.backoff_min = 10ms;
-    options.backoff_max = 50ms;
-    client = backbone::TcpClient::create(io.get_executor(), "127.0.0.1", server->port(), options);
-    client->start([g = gateway.get()](auto link) { g->attach(std::move(link)); });
-    ASSERT_TRUE(
-        run_until(io, [&] { return surface.gateways_ready() == 1 && gateway->connected(); }));
+    ASSERT_TRUE(start_linked_over_loopback(io, surface, *gateway, server, client));
   }
 
   void TearDown() override {
