@@ -15,9 +15,9 @@
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
 #include "bridge/surface.hpp"
-#include "can/spawn_owned.hpp"
 #include "can/virtual_bus.hpp"
 #include "canopen/sdo_client.hpp"
+#include "coro/spawn_owned.hpp"
 #include "sim/node_runner.hpp"
 
 namespace canbridge::bridge {
@@ -163,7 +163,7 @@ int run_demo(const DemoOptions& options) {
     }
     // Nodes power up once the tunnel is there, so their boot-ups are not dropped as no-link.
     for (std::size_t m = 0; m < runners.size(); ++m) {
-      can::spawn_owned(ex, runners[m]->run(), on_end(fmt::format("the nodes of module {}", m)));
+      coro::spawn_owned(ex, runners[m]->run(), on_end(fmt::format("the nodes of module {}", m)));
     }
     // A master that joins late resets communication to learn who is there (boot-ups), then
     // starts every node.
@@ -237,11 +237,11 @@ int run_demo(const DemoOptions& options) {
       "canbridge demo: %u module(s) x %u simulated node(s) on virtual CAN buses,\n"
       "gateway and surface joined by a TCP backbone on 127.0.0.1:%u\n",
       options.modules, options.nodes_per_module, server->port());
-  can::spawn_owned(ex, master.run(), on_end("the surface master"));
+  coro::spawn_owned(ex, master.run(), on_end("the surface master"));
   surface.start();
   gateway.start();
   client->start([&](auto link) { gateway.attach(std::move(link)); });
-  can::spawn_owned(ex, scenario(), [&](const std::string& why) {
+  coro::spawn_owned(ex, scenario(), [&](const std::string& why) {
     if (!why.empty()) fail("the scenario: " + why);
     shut_down();
   });

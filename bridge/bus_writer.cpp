@@ -4,7 +4,7 @@
 #include <boost/asio/use_awaitable.hpp>
 #include <exception>
 
-#include "can/spawn_owned.hpp"
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
 
@@ -26,7 +26,7 @@ BusWriter::BusWriter(asio::any_io_executor executor, can::Bus& bus, BusWriteQueu
       wake_(std::move(executor), asio::steady_timer::time_point::max()) {}
 
 void BusWriter::start() {
-  can::spawn_owned(wake_.get_executor(), run(), [this](const std::string& why) {
+  coro::spawn_owned(wake_.get_executor(), run(), [this](const std::string& why) {
     if (stopped_) return;
     if (on_end_) on_end_(why.empty() ? "the bus closed" : why);
   });

@@ -48,7 +48,7 @@ class BusWriter {
   bool write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane);
 
   // Runs once if the writer's loop ends while not stopped (the bus closed for good, or the loop
-  // threw), with why: its owner stops, as for any of its loops (can::spawn_owned).
+  // threw), with why: its owner stops, as for any of its loops (coro::spawn_owned).
   void on_end(std::function<void(const std::string& why)> handler) { on_end_ = std::move(handler); }
   const BusWriteQueue& queue() const { return queue_; }
   // BusWriteQueue::withdraw_single_frames, then the bus's own transmit queue

@@ -11,7 +11,7 @@
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
-#include "can/spawn_owned.hpp"
+#include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
 
 namespace canbridge::bridge {
@@ -263,7 +263,7 @@ Gateway::~Gateway() = default;
 
 void Gateway::start() {
   for (std::size_t m = 0; m < modules_.size(); ++m) {
-    can::spawn_owned(executor_, read_bus(m), [this, m](const std::string& why) {
+    coro::spawn_owned(executor_, read_bus(m), [this, m](const std::string& why) {
       on_task_end("reader of bus " + modules_[m].bus->name(), why);
     });
     writers_[m]->on_end([this, m](const std::string& why) {
@@ -271,11 +271,11 @@ void Gateway::start() {
     });
     writers_[m]->start();
   }
-  can::spawn_owned(executor_, watch_nodes(),
-                   [this](const std::string& why) { on_task_end("node table timer", why); });
+  coro::spawn_owned(executor_, watch_nodes(),
+                    [this](const std::string& why) { on_task_end("node table timer", why); });
   if (!pdop_.empty()) {
-    can::spawn_owned(executor_, watch_pdop(),
-                     [this](const std::string& why) { on_task_end("PDO Packet timer", why); });
+    coro::spawn_owned(executor_, watch_pdop(),
+                      [this](const std::string& why) { on_task_end("PDO Packet timer", why); });
   }
 }
 

@@ -12,7 +12,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
-#include "can/spawn_owned.hpp"
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
 
@@ -89,11 +89,11 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
 Surface::~Surface() = default;
 
 void Surface::start() {
-  can::spawn_owned(executor_, read_bus(), [this](const std::string& why) {
+  coro::spawn_owned(executor_, read_bus(), [this](const std::string& why) {
     on_task_end("reader of bus " + bus_->name(), why);
   });
-  can::spawn_owned(executor_, watch_relay(),
-                   [this](const std::string& why) { on_task_end("RPDOP relay timer", why); });
+  coro::spawn_owned(executor_, watch_relay(),
+                    [this](const std::string& why) { on_task_end("RPDOP relay timer", why); });
   writer_.on_end(
       [this](const std::string& why) { on_task_end("writer of bus " + bus_->name(), why); });
   writer_.start();

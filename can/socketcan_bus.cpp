@@ -23,7 +23,7 @@
 #include <ctime>
 #include <system_error>
 
-#include "can/spawn_owned.hpp"
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::can {
 
@@ -232,10 +232,10 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     }
     if (closed || reopening) return;
     reopening = true;
-    spawn_owned(executor, reopen(shared_from_this()),
-                [self = shared_from_this()](const std::string& why) {
-                  if (!why.empty()) self->fail("reopen loop", why);
-                });
+    coro::spawn_owned(executor, reopen(shared_from_this()),
+                      [self = shared_from_this()](const std::string& why) {
+                        if (!why.empty()) self->fail("reopen loop", why);
+                      });
   }
 
   // One of the bus's own loops threw: without it the bus would look open and never move a frame
@@ -568,7 +568,7 @@ std::unique_ptr<SocketCanBus> SocketCanBus::open(asio::any_io_executor executor,
     ec = opened;
     return nullptr;
   }
-  spawn_owned(executor, Impl::writer(impl), [impl](const std::string& why) {
+  coro::spawn_owned(executor, Impl::writer(impl), [impl](const std::string& why) {
     if (!impl->closed) impl->fail("transmit loop", why);
   });
   if (opened) impl->lose_socket();  // down at startup: open it once it comes up

@@ -19,8 +19,8 @@
 #include <vector>
 
 #include "can/socketcan_bus.hpp"
-#include "can/spawn_owned.hpp"
 #include "can/virtual_bus.hpp"
+#include "coro/spawn_owned.hpp"
 #include "sim/node_runner.hpp"
 #include "sim/rig_file.hpp"
 
@@ -196,13 +196,13 @@ int main(int argc, char** argv) {
     stop_all();
   };
   for (auto& b : buses) {
-    can::spawn_owned(io, b.runner->run(), [&, name = b.name](const std::string& why) {
+    coro::spawn_owned(io, b.runner->run(), [&, name = b.name](const std::string& why) {
       on_end("the nodes of bus " + name, why);
     });
   }
   if (options.stats_seconds > 0) {
-    can::spawn_owned(io, log_stats(buses, options.stats_seconds, stats_timer),
-                     [&](const std::string& why) { on_end("the stats timer", why); });
+    coro::spawn_owned(io, log_stats(buses, options.stats_seconds, stats_timer),
+                      [&](const std::string& why) { on_end("the stats timer", why); });
   }
   signals.async_wait([&](const boost::system::error_code& ec, int signal) {
     if (ec) return;

@@ -17,16 +17,17 @@ links=$2
 # layer but one another only as listed. proto/session and proto/canbridge are proto/'s two
 # schemas (session.pb.h, canbridge.pb.h: libraries canbridge_session_proto, canbridge_proto).
 allowed_edges=(
-  "can:"
+  "coro:"
+  "can: coro"
   "proto:"
-  "backbone: proto/session"
+  "backbone: proto/session coro"
   "canopen: can"
   "yaml:"
   "routing: can canopen"
   "config: yaml canopen routing"
-  "sim: can canopen yaml"
-  "bridge: can backbone canopen routing proto/canbridge"
-  "app: can backbone canopen bridge config sim"
+  "sim: can canopen yaml coro"
+  "bridge: can backbone canopen routing proto/canbridge coro"
+  "app: can backbone canopen bridge config sim coro"
   "bench: * tools"
   "tools: *"
   "tests: * tools"

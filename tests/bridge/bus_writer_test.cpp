@@ -87,7 +87,7 @@ TEST_F(BusWriterTest, AFrameOfferedWhileOthersWaitNeverGoesFirst) {
   for (std::uint8_t i = 0; i < 5; ++i) EXPECT_EQ(far.frames[i], emcy(i)) << int{i};
 }
 
-// A writer whose bus is gone must not end in silence: its role stops (can::spawn_owned).
+// A writer whose bus is gone must not end in silence: its role stops (coro::spawn_owned).
 TEST_F(BusWriterTest, ClosingTheBusEndsTheWriterAndItsOwnerHearsWhy) {
   std::vector<std::string> ends;
   writer.on_end([&](const std::string& why) { ends.push_back(why); });

@@ -1,7 +1,7 @@
 // Starts a coroutine that belongs to an owner, so that its end is never silent: whether it
 // returned, returned an error or threw, the owner hears why and decides (a role stops in order,
-// a bus closes and fails its reader). The one error policy for coroutines; it lives in can/, the
-// lowest layer that spawns them, so every layer above (bridge/, sim/, the processes) shares it.
+// a bus closes and fails its reader). The one error policy for coroutines; it lives in coro/, a
+// leaf below every layer that spawns them (can/, backbone/, bridge/, sim/, the processes).
 #pragma once
 
 #include <boost/asio/awaitable.hpp>
@@ -11,7 +11,7 @@
 #include <system_error>
 #include <utility>
 
-namespace canbridge::can {
+namespace canbridge::coro {
 
 // The text of what a coroutine threw; empty for no exception.
 inline std::string describe_exception(const std::exception_ptr& error) {
@@ -47,4 +47,4 @@ void spawn_owned(Executor&& executor, boost::asio::awaitable<std::error_code> ta
       });
 }
 
-}  // namespace canbridge::can
+}  // namespace canbridge::coro

@@ -1,6 +1,6 @@
 // spawn_owned: the owner of a coroutine hears how it ended, whether it returned, returned an
 // error or threw.
-#include "can/spawn_owned.hpp"
+#include "coro/spawn_owned.hpp"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <stdexcept>
 #include <string>
 
-namespace canbridge::can {
+namespace canbridge::coro {
 namespace {
 
 namespace asio = boost::asio;
@@ -64,4 +64,4 @@ TEST(SpawnOwned, AnExceptionOfAnyTypeIsStillReported) {
 }
 
 }  // namespace
-}  // namespace canbridge::can
+}  // namespace canbridge::coro
