@@ -32,16 +32,6 @@ class BackboneCategory final : public std::error_category {
   }
 };
 
-// Writes the varint at `p`, which must have room for varint_size(value) bytes.
-std::uint8_t* write_varint(std::uint32_t value, std::uint8_t* p) {
-  while (value >= 0x80) {
-    *p++ = static_cast<std::uint8_t>(value | 0x80);
-    value >>= 7;
-  }
-  *p++ = static_cast<std::uint8_t>(value);
-  return p;
-}
-
 // Grows `out` by `n` bytes and returns where they start.
 std::uint8_t* grow(std::string& out, std::size_t n) {
   const std::size_t old_size = out.size();
@@ -68,13 +58,22 @@ std::error_code make_error_code(errc e) noexcept {
   return {static_cast<int>(e), backbone_category()};
 }
 
-std::size_t varint_size(std::uint32_t value) noexcept {
+std::size_t varint_size(std::uint64_t value) noexcept {
   std::size_t n = 1;
   while (value >= 0x80) {
     value >>= 7;
     ++n;
   }
   return n;
+}
+
+std::uint8_t* write_varint(std::uint64_t value, std::uint8_t* p) noexcept {
+  while (value >= 0x80) {
+    *p++ = static_cast<std::uint8_t>(value | 0x80);
+    value >>= 7;
+  }
+  *p++ = static_cast<std::uint8_t>(value);
+  return p;
 }
 
 void append_delimited(std::string& out, std::span<const std::uint8_t> message) {

@@ -33,8 +33,13 @@ std::error_code make_error_code(errc e) noexcept;
 inline constexpr std::size_t kDefaultMaxMessageSize = std::size_t{1} << 20;  // 1 MiB
 inline constexpr std::size_t kMaxLengthPrefixBytes = 5;  // a varint32 never needs more
 
-// Bytes the varint encoding of `value` occupies (1..5).
-std::size_t varint_size(std::uint32_t value) noexcept;
+// Bytes the varint encoding of `value` occupies (1..5 for a length prefix, up to 10 for the
+// 64-bit fields of an envelope written by hand, see envelope_codec.hpp).
+std::size_t varint_size(std::uint64_t value) noexcept;
+
+// Writes the varint encoding of `value` at `p`, which must have room for varint_size(value)
+// bytes; returns the byte after it.
+std::uint8_t* write_varint(std::uint64_t value, std::uint8_t* p) noexcept;
 
 // Appends the length prefix and then `message` to `out`.
 void append_delimited(std::string& out, std::span<const std::uint8_t> message);
