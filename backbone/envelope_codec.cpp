@@ -35,7 +35,8 @@ std::size_t missing_bytes(std::span<const std::uint64_t> missing) {
   return n;
 }
 
-// Everything before the body, in field-number order (as protobuf writes it).
+// Everything before the body. The body goes last, after fields 8 and 9: the order the wire has
+// always had (protobuf parses fields in any order).
 std::size_t header_size(const EnvelopeHeader& h, std::size_t missing_len) {
   std::size_t size = varint_field_size(h.seq) + varint_field_size(h.ack);
   if (h.resend) size += 2;

@@ -14,7 +14,7 @@ struct EnvelopeHeader {
   std::uint64_t seq = 0;             // Envelope.seq: position in the reliable stream
   std::uint64_t ack = 0;             // Envelope.ack: cumulative acknowledgement
   bool resend = false;               // Envelope.resend: the receiver saw a gap after ack
-  std::span<const std::uint64_t> missing;  // Envelope.missing (packed): further holes
+  std::span<const std::uint64_t> missing = {};  // Envelope.missing (packed): further holes
   std::uint64_t unreliable_seq = 0;  // Envelope.unreliable_seq: numbered process data
 };
 
