@@ -11,11 +11,11 @@ namespace canbridge::backbone {
 // The fields an envelope written by hand carries besides its body; zero / empty: left out, as
 // protobuf leaves out a proto3 default.
 struct EnvelopeHeader {
-  std::uint64_t seq = 0;             // Envelope.seq: position in the reliable stream
-  std::uint64_t ack = 0;             // Envelope.ack: cumulative acknowledgement
-  bool resend = false;               // Envelope.resend: the receiver saw a gap after ack
+  std::uint64_t seq = 0;                        // Envelope.seq: position in the reliable stream
+  std::uint64_t ack = 0;                        // Envelope.ack: cumulative acknowledgement
+  bool resend = false;                          // Envelope.resend: the receiver saw a gap after ack
   std::span<const std::uint64_t> missing = {};  // Envelope.missing (packed): further holes
-  std::uint64_t unreliable_seq = 0;  // Envelope.unreliable_seq: numbered process data
+  std::uint64_t unreliable_seq = 0;             // Envelope.unreliable_seq: numbered process data
 };
 
 // Appends one delimited envelope (length prefix, then the Envelope) whose body is `payload`.

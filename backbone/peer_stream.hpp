@@ -152,7 +152,7 @@ class PeerStream {
  private:
   friend class SessionLink;
   friend class SessionCore;
-class SessionCore;
+  class SessionCore;
   ReliableSender sender_;
   ReliableReceiver receiver_;
   std::uint64_t peer_session_id_ = 0;  // 0: never heard of the peer

@@ -153,7 +153,6 @@ Clock::duration SessionCore::peer_patience() const {
                                    2 * tick_period());
 }
 
-
 // ---------------------------------------------------------------------------------------------
 // Input.
 
@@ -441,7 +440,6 @@ bool SessionCore::same_as_last_refusal(const std::string& text) {
   log_.last_refusal = text;
   return false;
 }
-
 
 // ---------------------------------------------------------------------------------------------
 // Output.

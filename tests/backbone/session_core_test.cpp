@@ -236,7 +236,7 @@ std::vector<std::uint64_t> range(std::uint64_t first, std::uint64_t last) {
 TEST_F(SessionCoreTest, GatewayHelloFirstThenSurfaceAnswers) {
   gateway.open_link(true, now);
   surface.open_link(false, now);
-  EXPECT_EQ(gateway.shell.wakes, 1);  // its hello waits to be written
+  EXPECT_EQ(gateway.shell.wakes, 1);                     // its hello waits to be written
   EXPECT_TRUE(transfer(surface, gateway, {}) == false);  // the surface has nothing to say yet
   ASSERT_TRUE(transfer(gateway, surface, {}));
   EXPECT_FALSE(surface.core->ready());  // its own hello is not out yet
