@@ -600,6 +600,10 @@ void SessionLink::on_closed() {
   if (ready_ && stream_ && stream_->link_.get() == this) {
     stream_->link_.reset();
     stream_->sender_.on_link_down();
+    // What waits here behind a gap is still unacknowledged at the peer, which resends it on the
+    // next link, and may have withdrawn part of it meanwhile (SDO requests its master was told
+    // had failed): only the peer's resent version may be delivered.
+    stream_->receiver_.reset(stream_->receiver_.expected());
     spdlog::info("backbone: link to {} over {} closed ({})", describe_peer(stream_->peer_hello_),
                  link_->peer_name(), link_->counters().close_reason.message());
     if (stream_->handlers_.on_down) stream_->handlers_.on_down();
