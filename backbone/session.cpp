@@ -518,6 +518,9 @@ void SessionLink::on_hello(const v1::Envelope& envelope) {
       stream_->sender_.on_ack(envelope.ack(), now);
     }
     stream_->sender_.rewind();
+    // It resends all it holds unacknowledged once our hello reaches it, possibly edited (see
+    // on_closed): what waits here behind a gap is not delivered.
+    stream_->receiver_.reset(stream_->receiver_.expected());
     if (!initiator_) hello_sent_ = false;
     link_->wake_writer();
     return;

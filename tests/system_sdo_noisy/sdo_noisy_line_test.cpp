@@ -52,8 +52,9 @@ constexpr const char* kSlowLineTuning =
     "  resend_buffer_bytes: 65536\n";
 constexpr auto kAnswerBound = 2 * kReliableMaxAge;
 constexpr int kCutWindowStartS = 4;  // the first cut comes once every process is up
-// Two sockets read by two threads: their arrival times may be this far apart for one moment.
-constexpr auto kClockSlack = 20ms;
+// Arrival times come from two sockets read by two threads of a slow guest: one may read late
+// by this much (the measurements that compare them allow for it).
+constexpr auto kClockSlack = 100ms;
 
 // Module 1's nodes 1..24 (rig.yaml) are surface nodes 33..56 (the default map): enough for 100
 // requests/s, one at a time per node, over a line with round trips of 100..200 ms.
@@ -173,13 +174,12 @@ class SdoOnNoisyLine : public ::testing::Test {
   std::unique_ptr<ChildProcess> emulator_, surface_, gateway_, sim_;
   Clock::time_point emulator_ready_;
   std::string gateway_final_, surface_final_, emulator_final_, logs_;
+  test::BusLog module_bus{"vcan1"};  // reading long before the traffic, so never late at its start
 };
 
 TEST_F(SdoOnNoisyLine, EveryRequestEndsInAnAnswerOrAnAbortAndReachesItsNodeAtMostOnce) {
   const int seconds = env_int("CANBRIDGE_SDO_NOISY_SECONDS", 10);
   ASSERT_NO_FATAL_FAILURE(start(seconds, env_int("CANBRIDGE_SDO_NOISY_SEED", 3)));
-  test::BusLog module_bus("vcan1");
-
   test::SdoLoadOptions load;
   for (std::uint8_t n = 1; n <= kLocalNodes; ++n) load.nodes.push_back(kSurfaceOffset + n);
   load.answer_bound = kAnswerBound;
@@ -236,8 +236,10 @@ TEST_F(SdoOnNoisyLine, EveryRequestEndsInAnAnswerOrAnAbortAndReachesItsNodeAtMos
         break;
       case SdoRequestRecord::End::abort:
         ++(r.abort_code == kLinkDownAbort ? link_aborts : other_aborts);
-        if (times > 0 && it->second.front() < r.answered) ++aborted_executed_before;
-        if (times > 0 && it->second.front() >= r.answered) {
+        if (times > 0 && it->second.front() <= r.answered + kClockSlack) {
+          ++aborted_executed_before;
+        }
+        if (times > 0 && it->second.front() > r.answered + kClockSlack) {
           incident("executed after its abort", ++aborted_executed_after, r, it->second.front());
         }
         break;
