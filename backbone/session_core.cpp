@@ -129,6 +129,10 @@ void SessionCore::on_link_closed(bool carried, const std::string& reason) {
   closing_ = true;
   if (!carried) return;
   stream_->sender_.on_link_down();
+  // What waits here behind a gap is still unacknowledged at the peer, which resends it on the
+  // next link, and may have withdrawn part of it meanwhile (SDO requests its master was told
+  // had failed): only the peer's resent version may be delivered.
+  stream_->receiver_.reset(stream_->receiver_.expected());
   spdlog::info("backbone: link to {} over {} closed ({})", describe_peer(stream_->peer_hello_),
                link_.peer_name, reason);
   if (stream_->handlers_.on_down) stream_->handlers_.on_down();
@@ -347,6 +351,9 @@ void SessionCore::on_hello_again(const v1::Envelope& envelope, TimePoint now) {
     stream_->sender_.on_ack(envelope.ack(), now);
   }
   stream_->sender_.rewind();
+  // It resends all it holds unacknowledged once our hello reaches it, possibly edited (see
+  // on_link_closed): what waits here behind a gap is not delivered.
+  stream_->receiver_.reset(stream_->receiver_.expected());
   if (!initiator_) hello_sent_ = false;
   shell_.wake_writer();
 }
