@@ -482,6 +482,28 @@ TEST_F(SessionCoreTest, AReconnectOfTheSameProcessResumes) {
   EXPECT_EQ(gateway.counters.reliable_resent, 3u);
 }
 
+// What the receiver holds behind a gap when the link ends is not delivered later: the peer still
+// has it unacknowledged, may withdraw some of it meanwhile (an SDO request its master was told
+// had failed becomes a tombstone), and resends only what it still means on the next link.
+TEST_F(SessionCoreTest, WhatWaitedBehindAGapIsNotDeliveredAfterTheLinkEnds) {
+  connect();
+  lose_to_surface = [](const v1::Envelope& e) { return is_data(e) && e.seq() == 1; };
+  gateway.send(1, 3);
+  exchange();
+  EXPECT_TRUE(surface.received.empty());  // 2 and 3 wait behind the hole
+  surface.core->on_link_closed(true, "cut");
+  gateway.core->on_link_closed(true, "cut");
+  // The gateway withdraws 3 while the link is down.
+  gateway.stream.edit_unacked([](std::string& payload) {
+    if (payload == number(3)) payload.clear();
+  });
+  lose_to_surface = nullptr;
+  connect();
+  ASSERT_TRUE(ready());
+  EXPECT_EQ(surface.received, range(1, 2));  // never the withdrawn 3
+  EXPECT_EQ(surface.counters.tombstones_received, 1u);
+}
+
 TEST_F(SessionCoreTest, UnreliableGapsAreCountedAsLost) {
   connect();
   lose_to_surface = [&](const v1::Envelope& e) { return e.unreliable_seq() == 2; };
