@@ -51,19 +51,16 @@ void apply_log_level(const config::LogOptions& log) {
   spdlog::set_level(spdlog::level::from_str(log.level));
 }
 
-}  // namespace
-
-int run_gateway(const config::GatewayOptions& options) {
-  apply_log_level(options.log);
-  asio::io_context io(1);
-  NodeMap map;
+// The configured modules on their buses, their nodes added to `map`.
+std::vector<GatewayModule> open_modules(asio::any_io_executor ex,
+                                        const config::GatewayOptions& options, NodeMap& map) {
   std::vector<GatewayModule> modules;
   for (const auto& m : options.modules) {
     auto problems = map.add_module(m.id, m.nodes, m.profile);  // validated by the loader already
     if (!problems.empty()) throw std::runtime_error(problems.front());
     GatewayModule module;
     module.id = m.id;
-    module.bus = open_bus(io.get_executor(), m.bus, options.can);
+    module.bus = open_bus(ex, m.bus, options.can);
     module.conflate_pdos = m.conflate_pdos;
     module.lss = options.lss_module == m.id;
     module.heartbeat_lost_after = m.heartbeat_lost_after;
@@ -72,25 +69,41 @@ int run_gateway(const config::GatewayOptions& options) {
     module.pdop_segmentation = m.pdop_segmentation;
     modules.push_back(std::move(module));
   }
+  return modules;
+}
+
+std::shared_ptr<backbone::TcpClient> tcp_client(asio::any_io_executor ex,
+                                                const config::GatewayOptions& options) {
+  backbone::ClientOptions client_options;
+  client_options.backoff_min = options.reconnect_min;
+  client_options.backoff_max = options.reconnect_max;
+  if (options.session.tcp_crc_framing) {
+    client_options.link.framing = backbone::LinkFraming::cobs_crc32c;
+  }
+  return backbone::TcpClient::create(ex, options.connect.host, options.connect.port,
+                                     client_options);
+}
+
+}  // namespace
+
+int run_gateway(const config::GatewayOptions& options) {
+  apply_log_level(options.log);
+  asio::io_context io(1);
+  NodeMap map;
+  std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
   Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
                   make_tuning(options.session));
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     gateway.attach(std::move(link));
   };
+  // Exactly one of the two (the loader checks it).
   std::shared_ptr<backbone::TcpClient> tcp;
   std::shared_ptr<backbone::SerialClient> serial;
   if (options.serial) {
     serial = backbone::SerialClient::create(io.get_executor(),
                                             serial_options(*options.serial, &options));
   } else {
-    backbone::ClientOptions client_options;
-    client_options.backoff_min = options.reconnect_min;
-    client_options.backoff_max = options.reconnect_max;
-    if (options.session.tcp_crc_framing) {
-      client_options.link.framing = backbone::LinkFraming::cobs_crc32c;
-    }
-    tcp = backbone::TcpClient::create(io.get_executor(), options.connect.host, options.connect.port,
-                                      client_options);
+    tcp = tcp_client(io.get_executor(), options);
   }
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return gateway.stats_line(); });

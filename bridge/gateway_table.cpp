@@ -53,6 +53,16 @@ std::optional<GatewayTable::GatewayId> GatewayTable::find(std::string_view name)
 // The first reason `hello` may not bind, "" when it may. Like the configuration check of one
 // file (NodeMap::add_module), a refusal names both owners and the first id they share.
 std::string GatewayTable::conflict(const Hello& hello) const {
+  if (std::string why = module_conflict(hello); !why.empty()) return why;
+  if (!hello.claims) return {};
+  // Surface node ids first (what an operator maps), then the COB-IDs their profiles imply.
+  if (std::string why = node_conflict(hello); !why.empty()) return why;
+  return cob_conflict(hello);
+}
+
+// A module announced twice, the name held by another live process, or a module another
+// connected gateway serves.
+std::string GatewayTable::module_conflict(const Hello& hello) const {
   const std::string self = quoted(hello.name);
   const auto& wanted = hello.modules;
   for (auto it = wanted.begin(); it != wanted.end(); ++it) {
@@ -77,59 +87,70 @@ std::string GatewayTable::conflict(const Hello& hello) const {
       }
     }
   }
-  if (!hello.claims) return {};
-  auto connected_other = [&](std::int32_t owner) {
-    return owner != kNobody && entries_[static_cast<std::size_t>(owner)].connected &&
-           entries_[static_cast<std::size_t>(owner)].name != hello.name;
-  };
-  // Surface node ids first (what an operator maps), then the COB-IDs their profiles imply.
+  return {};
+}
+
+// A claim held by a connected gateway other than `name` (its own, earlier session is no rival).
+bool GatewayTable::held_by_other(std::int32_t owner, const std::string& name) const {
+  return owner != kNobody && entries_[static_cast<std::size_t>(owner)].connected &&
+         entries_[static_cast<std::size_t>(owner)].name != name;
+}
+
+// The refusal names the first shared id and counts the overlap with that same owner, so the
+// operator sees the size of the clash with one gateway, not a mix of several.
+std::string GatewayTable::node_conflict(const Hello& hello) const {
+  const std::string self = quoted(hello.name);
   std::int32_t first_owner = kNobody;
   std::size_t overlaps = 0;
   std::string first;
   for (const ModuleClaim& m : hello.claims->modules) {
     for (NodeId node : m.surface_nodes) {
       const std::int32_t owner = node_owner_[node];
-      if (!connected_other(owner) || (first_owner != kNobody && owner != first_owner)) continue;
-      if (overlaps++ == 0) {
-        first_owner = owner;
-        const Entry& other = entries_[static_cast<std::size_t>(owner)];
-        first = "surface node id " + std::to_string(node) + " of " + self + " module " +
-                std::to_string(m.id) + " is already " + quoted(other.name) + " module " +
-                std::to_string(other.claims ? module_with_node(*other.claims, node) : 0) +
-                "'s, connected to surface '" + surface_name_ + "'";
-      }
+      if (!held_by_other(owner, hello.name) || (first_owner != kNobody && owner != first_owner))
+        continue;
+      if (overlaps++ != 0) continue;
+      first_owner = owner;
+      const Entry& other = entries_[static_cast<std::size_t>(owner)];
+      first = "surface node id " + std::to_string(node) + " of " + self + " module " +
+              std::to_string(m.id) + " is already " + quoted(other.name) + " module " +
+              std::to_string(other.claims ? module_with_node(*other.claims, node) : 0) +
+              "'s, connected to surface '" + surface_name_ + "'";
     }
   }
-  if (overlaps != 0) {
-    const std::string& other = entries_[static_cast<std::size_t>(first_owner)].name;
-    return first + (overlaps > 1 ? " (" + std::to_string(overlaps) + " ids overlap in all)" : "") +
-           "; " + self + " refused: map its nodes to surface ids " + quoted(other) +
-           " does not use";
-  }
+  if (overlaps == 0) return {};
+  const std::string& other = entries_[static_cast<std::size_t>(first_owner)].name;
+  return first + (overlaps > 1 ? " (" + std::to_string(overlaps) + " ids overlap in all)" : "") +
+         "; " + self + " refused: map its nodes to surface ids " + quoted(other) + " does not use";
+}
+
+// As node_conflict, for the surface COB-IDs the claimed nodes' profiles use.
+std::string GatewayTable::cob_conflict(const Hello& hello) const {
+  const std::string self = quoted(hello.name);
+  std::int32_t first_owner = kNobody;
+  std::size_t overlaps = 0;
+  std::string first;
   for (const ModuleClaim& m : hello.claims->modules) {
     for (const CobRange& r : m.cob_ranges) {
       for (std::uint32_t cob = r.first; cob <= r.last; ++cob) {
         const std::int32_t owner = cob_owner_[cob];
-        if (!connected_other(owner) || (first_owner != kNobody && owner != first_owner)) continue;
-        if (overlaps++ == 0) {
-          first_owner = owner;
-          const Entry& other = entries_[static_cast<std::size_t>(owner)];
-          first = "surface COB-ID " + hex_cob(cob) + " of " + self + " module " +
-                  std::to_string(m.id) + " collides with " + quoted(other.name) + " module " +
-                  std::to_string(other.claims ? module_with_cob(*other.claims, cob) : 0) +
-                  ", connected to surface '" + surface_name_ + "'";
-        }
+        if (!held_by_other(owner, hello.name) || (first_owner != kNobody && owner != first_owner))
+          continue;
+        if (overlaps++ != 0) continue;
+        first_owner = owner;
+        const Entry& other = entries_[static_cast<std::size_t>(owner)];
+        first = "surface COB-ID " + hex_cob(cob) + " of " + self + " module " +
+                std::to_string(m.id) + " collides with " + quoted(other.name) + " module " +
+                std::to_string(other.claims ? module_with_cob(*other.claims, cob) : 0) +
+                ", connected to surface '" + surface_name_ + "'";
       }
     }
   }
-  if (overlaps != 0) {
-    const std::string& other = entries_[static_cast<std::size_t>(first_owner)].name;
-    return first +
-           (overlaps > 1 ? " (" + std::to_string(overlaps) + " COB-IDs collide in all)" : "") +
-           "; " + self + " refused: give its nodes surface ids whose COB-IDs " + quoted(other) +
-           " does not use";
-  }
-  return {};
+  if (overlaps == 0) return {};
+  const std::string& other = entries_[static_cast<std::size_t>(first_owner)].name;
+  return first +
+         (overlaps > 1 ? " (" + std::to_string(overlaps) + " COB-IDs collide in all)" : "") + "; " +
+         self + " refused: give its nodes surface ids whose COB-IDs " + quoted(other) +
+         " does not use";
 }
 
 GatewayTable::Admission GatewayTable::admit(const Hello& hello) {

@@ -85,6 +85,10 @@ class GatewayTable {
  private:
   static constexpr std::int32_t kNobody = -1;
   std::string conflict(const Hello& hello) const;
+  std::string module_conflict(const Hello& hello) const;
+  std::string node_conflict(const Hello& hello) const;
+  std::string cob_conflict(const Hello& hello) const;
+  bool held_by_other(std::int32_t owner, const std::string& name) const;
   std::string refuse(const Hello& hello, std::string why);
   void take_claims(GatewayId gateway);
 

@@ -82,92 +82,87 @@ Parsed<std::chrono::nanoseconds> parse_timestamp(std::string_view text) {
   return r;
 }
 
-}  // namespace
-
-Parsed<Frame> parse_cansend_frame(std::string_view text) {
-  Parsed<Frame> r;
-  Frame& f = r.value;
-  const std::size_t hash = text.find('#');
-  if (hash == std::string_view::npos) {
-    r.error = "frame " + quoted(text) + " has no '#' between identifier and data";
-    return r;
-  }
-  const std::string_view id_text = text.substr(0, hash);
+// The identifier before '#': 3 hex digits standard, 8 extended (or an error frame's class bits
+// with the error flag). Sets the frame's id and flags; returns the error, empty when valid.
+std::string parse_identifier(std::string_view id_text, Frame& f) {
   if (id_text.size() != 3 && id_text.size() != 8) {
-    r.error = "identifier " + quoted(id_text) +
-              " must be 3 (standard) or 8 (extended) hex digits, not " +
-              std::to_string(id_text.size());
-    return r;
+    return "identifier " + quoted(id_text) +
+           " must be 3 (standard) or 8 (extended) hex digits, not " +
+           std::to_string(id_text.size());
   }
   std::uint32_t id = 0;
   for (char c : id_text) {
     const int v = hex_value(c);
-    if (v < 0) {
-      r.error = "identifier " + quoted(id_text) + " is not hexadecimal";
-      return r;
-    }
+    if (v < 0) return "identifier " + quoted(id_text) + " is not hexadecimal";
     id = (id << 4) | static_cast<std::uint32_t>(v);
   }
   if (id_text.size() == 3) {
-    if (id > kMaxStandardId) {
-      r.error = "standard identifier " + quoted(id_text) + " is above 7FF";
-      return r;
-    }
+    if (id > kMaxStandardId) return "standard identifier " + quoted(id_text) + " is above 7FF";
   } else if ((id & ~kMaxExtendedId) == kErrorFlag) {
     f.flags = FrameFlags::error;
     id &= kMaxExtendedId;
   } else if (id > kMaxExtendedId) {
-    r.error = "extended identifier " + quoted(id_text) + " is above 1FFFFFFF";
-    return r;
+    return "extended identifier " + quoted(id_text) + " is above 1FFFFFFF";
   } else {
     f.flags = FrameFlags::extended;
   }
   f.id = id;
+  return {};
+}
 
-  std::string_view data = text.substr(hash + 1);
-  if (!data.empty() && data.front() == '#') {
-    r.error = "CAN FD frames ('##') are not supported";
-    return r;
+// "R" or "R<len>" after the '#' (the 'R' already removed): a remote frame, no data bytes.
+std::string parse_remote(std::string_view data, Frame& f) {
+  if (f.is_error()) return "an error frame cannot be a remote frame";
+  f.flags |= FrameFlags::remote;
+  if (data.empty()) return {};
+  if (data.size() != 1 || data.front() < '0' || data.front() > '8') {
+    return "remote frame length " + quoted(data) + " is not a single digit 0..8";
   }
-  if (!data.empty() && (data.front() == 'R' || data.front() == 'r')) {
-    if (f.is_error()) {
-      r.error = "an error frame cannot be a remote frame";
-      return r;
-    }
-    f.flags |= FrameFlags::remote;
-    data.remove_prefix(1);
-    if (data.empty()) return r;
-    if (data.size() != 1 || data.front() < '0' || data.front() > '8') {
-      r.error = "remote frame length " + quoted(data) + " is not a single digit 0..8";
-      return r;
-    }
-    f.len = static_cast<std::uint8_t>(data.front() - '0');
-    return r;
-  }
+  f.len = static_cast<std::uint8_t>(data.front() - '0');
+  return {};
+}
+
+// Up to 8 bytes of two hex digits each, optionally separated by '.'.
+std::string parse_data_bytes(std::string_view data, Frame& f) {
   std::size_t pos = 0;
   std::size_t len = 0;
   while (pos < data.size()) {
     if (data[pos] == '.') ++pos;  // an optional separator before each byte
     if (pos == data.size()) break;
-    if (len == kMaxPayload) {
-      r.error = "data " + quoted(data) + " has more than 8 bytes";
-      return r;
-    }
-    if (pos + 1 == data.size()) {
-      r.error = "data " + quoted(data) + " ends in half a byte";
-      return r;
-    }
+    if (len == kMaxPayload) return "data " + quoted(data) + " has more than 8 bytes";
+    if (pos + 1 == data.size()) return "data " + quoted(data) + " ends in half a byte";
     const int hi = hex_value(data[pos]);
     const int lo = hex_value(data[pos + 1]);
     if (hi < 0 || lo < 0) {
-      r.error = "data " + quoted(data) + " has a character that is not hex at offset " +
-                std::to_string(pos + (hi < 0 ? 0 : 1));
-      return r;
+      return "data " + quoted(data) + " has a character that is not hex at offset " +
+             std::to_string(pos + (hi < 0 ? 0 : 1));
     }
     f.data[len++] = static_cast<std::uint8_t>((hi << 4) | lo);
     pos += 2;
   }
   f.len = static_cast<std::uint8_t>(len);
+  return {};
+}
+
+}  // namespace
+
+Parsed<Frame> parse_cansend_frame(std::string_view text) {
+  Parsed<Frame> r;
+  const std::size_t hash = text.find('#');
+  if (hash == std::string_view::npos) {
+    r.error = "frame " + quoted(text) + " has no '#' between identifier and data";
+    return r;
+  }
+  r.error = parse_identifier(text.substr(0, hash), r.value);
+  if (!r.error.empty()) return r;
+  std::string_view data = text.substr(hash + 1);
+  if (!data.empty() && data.front() == '#') {
+    r.error = "CAN FD frames ('##') are not supported";
+  } else if (!data.empty() && (data.front() == 'R' || data.front() == 'r')) {
+    r.error = parse_remote(data.substr(1), r.value);
+  } else {
+    r.error = parse_data_bytes(data, r.value);
+  }
   return r;
 }
 

@@ -86,14 +86,21 @@ void ValueTransferTracker::confirm(Multiplexer mux) {
 ValueRewrite ValueTransferTracker::on_request(can::Frame& request, const IdMapping& to_local) {
   confirmed_.reset();
   if (!is_sdo_frame(request)) return ValueRewrite::unchanged;
-  const std::uint8_t command = request.data[0];
   if (phase_ == Phase::block_download_sub_block) {
-    if (command == kAbortInSubBlock) {
+    if (request.data[0] == kAbortInSubBlock) {
       reset();
       return ValueRewrite::unchanged;
     }
     return block_segment(request, to_local);
   }
+  if (const auto result = followed_request(request, to_local)) return *result;
+  // Aborts, the end of a transfer and frames that do not fit the phase: the transfer is over.
+  reset();
+  return ValueRewrite::unchanged;
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::followed_request(can::Frame& request,
+                                                                   const IdMapping& to_local) {
   switch (specifier_of(request)) {
     case ccs::initiate_download:
       return initiate_download(request, to_local);
@@ -102,63 +109,73 @@ ValueRewrite ValueTransferTracker::on_request(can::Frame& request, const IdMappi
       begin(Phase::upload_initiated, mux, value_kind(mux));
       return ValueRewrite::unchanged;
     }
-    case ccs::download_segment: {
-      if (phase_ != Phase::segmented_download || last_sent_) break;
-      const std::size_t length = kSegmentBytes - ((command >> 1) & 0x07);
-      const bool last = (command & kLastSegment) != 0;
-      const bool whole = at_start_ && last && length == value_size(kind_);
-      at_start_ = false;
-      last_sent_ = last;
-      return first_segment(request, whole, to_local);
-    }
+    case ccs::download_segment:
+      return download_segment(request, to_local);
     case ccs::upload_segment:
-      if (phase_ != Phase::segmented_upload) break;
+      if (phase_ != Phase::segmented_upload) return std::nullopt;
       return ValueRewrite::unchanged;
-    case ccs::abort:
-      break;
     case ccs::block_upload:
-      switch (command & 0x03) {
-        case block_upload_cs::initiate: {
-          const Multiplexer mux = read_multiplexer(request);
-          begin(Phase::block_upload_initiated, mux, value_kind(mux));
-          client_crc_ = (command & kCrcSupported) != 0;
-          return ValueRewrite::unchanged;
-        }
-        case block_upload_cs::start:
-          if (phase_ != Phase::block_upload_start) break;
-          phase_ = Phase::block_upload_sub_block;
-          last_seqno_ = 0;
-          return ValueRewrite::unchanged;
-        case block_upload_cs::ack:
-          if (phase_ != Phase::block_upload_sub_block) break;
-          block_ack(request.data[1], Phase::block_upload_end);
-          return ValueRewrite::unchanged;
-        case block_upload_cs::end:  // the client's end block upload response closes the transfer
-        default:
-          break;
-      }
-      break;
+      return block_upload_request(request);
     case ccs::block_download:
-      if ((command & 0x01) == block_download_cs::initiate) {
-        const Multiplexer mux = read_multiplexer(request);
-        begin(Phase::block_download_initiated, mux,
-              checked_kind(value_kind(mux), (command & kBlockSizeIndicated) != 0,
-                           read_u32(request, 4)));
-        client_crc_ = (command & kCrcSupported) != 0;
-        return ValueRewrite::unchanged;
-      }
-      if ((command & 0x01) == block_download_cs::end && phase_ == Phase::block_download_end) {
-        const ValueRewrite result = correct_crc(request);
-        reset();
-        return result;
-      }
-      break;
+      return block_download_request(request);
+    case ccs::abort:
     default:
-      break;
+      return std::nullopt;
   }
-  // Aborts, the end of a transfer and frames that do not fit the phase: the transfer is over.
-  reset();
-  return ValueRewrite::unchanged;
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::download_segment(can::Frame& request,
+                                                                   const IdMapping& to_local) {
+  if (phase_ != Phase::segmented_download || last_sent_) return std::nullopt;
+  const std::uint8_t command = request.data[0];
+  const std::size_t length = kSegmentBytes - ((command >> 1) & 0x07);
+  const bool last = (command & kLastSegment) != 0;
+  const bool whole = at_start_ && last && length == value_size(kind_);
+  at_start_ = false;
+  last_sent_ = last;
+  return first_segment(request, whole, to_local);
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::block_upload_request(const can::Frame& request) {
+  const std::uint8_t command = request.data[0];
+  switch (command & 0x03) {
+    case block_upload_cs::initiate: {
+      const Multiplexer mux = read_multiplexer(request);
+      begin(Phase::block_upload_initiated, mux, value_kind(mux));
+      client_crc_ = (command & kCrcSupported) != 0;
+      return ValueRewrite::unchanged;
+    }
+    case block_upload_cs::start:
+      if (phase_ != Phase::block_upload_start) return std::nullopt;
+      phase_ = Phase::block_upload_sub_block;
+      last_seqno_ = 0;
+      return ValueRewrite::unchanged;
+    case block_upload_cs::ack:
+      if (phase_ != Phase::block_upload_sub_block) return std::nullopt;
+      block_ack(request.data[1], Phase::block_upload_end);
+      return ValueRewrite::unchanged;
+    case block_upload_cs::end:  // the client's end block upload response closes the transfer
+    default:
+      return std::nullopt;
+  }
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::block_download_request(can::Frame& request) {
+  const std::uint8_t command = request.data[0];
+  if ((command & 0x01) == block_download_cs::initiate) {
+    const Multiplexer mux = read_multiplexer(request);
+    begin(
+        Phase::block_download_initiated, mux,
+        checked_kind(value_kind(mux), (command & kBlockSizeIndicated) != 0, read_u32(request, 4)));
+    client_crc_ = (command & kCrcSupported) != 0;
+    return ValueRewrite::unchanged;
+  }
+  if ((command & 0x01) == block_download_cs::end && phase_ == Phase::block_download_end) {
+    const ValueRewrite result = correct_crc(request);
+    reset();
+    return result;
+  }
+  return std::nullopt;
 }
 
 ValueRewrite ValueTransferTracker::initiate_download(can::Frame& request,
@@ -185,96 +202,128 @@ ValueRewrite ValueTransferTracker::initiate_download(can::Frame& request,
 ValueRewrite ValueTransferTracker::on_response(can::Frame& response, const IdMapping& to_surface) {
   confirmed_.reset();
   if (!is_sdo_frame(response)) return ValueRewrite::unchanged;
-  const std::uint8_t command = response.data[0];
   if (phase_ == Phase::block_upload_sub_block) {
-    if (command == kAbortInSubBlock) {
+    if (response.data[0] == kAbortInSubBlock) {
       reset();
       return ValueRewrite::unchanged;
     }
     return block_segment(response, to_surface);
   }
-  switch (specifier_of(response)) {
-    case scs::initiate_upload:
-      if ((phase_ == Phase::upload_initiated || phase_ == Phase::block_upload_initiated) &&
-          (command & kExpedited) == 0) {
-        // Segmented (also a block upload answered by the SDO upload protocol).
-        confirm(read_multiplexer(response));
-        begin(Phase::segmented_upload, mux_,
-              checked_kind(kind_, (command & kSizeIndicated) != 0, read_u32(response, 4)));
-        at_start_ = true;
-        return ValueRewrite::unchanged;
-      }
-      // Expedited (complete in itself) or unexpected: names its own object.
-      reset();
-      return rewrite_response(response, to_surface);
-    case scs::initiate_download:
-      if (phase_ == Phase::idle && requested_ && requested_->mux == read_multiplexer(response)) {
-        const ConfirmedWrite write = *requested_;
-        reset();
-        confirmed_ = write;
-        return ValueRewrite::unchanged;
-      }
-      if (phase_ != Phase::download_initiated) break;
-      confirm(read_multiplexer(response));
-      phase_ = Phase::segmented_download;
-      at_start_ = true;
-      return ValueRewrite::unchanged;
-    case scs::download_segment:
-      if (phase_ != Phase::segmented_download) break;
-      if (last_sent_) reset();  // the last segment confirmed
-      return ValueRewrite::unchanged;
-    case scs::upload_segment: {
-      if (phase_ != Phase::segmented_upload) break;
-      const std::size_t length = kSegmentBytes - ((command >> 1) & 0x07);
-      const bool last = (command & kLastSegment) != 0;
-      const bool whole = at_start_ && last && length == value_size(kind_);
-      at_start_ = false;
-      const ValueRewrite result = first_segment(response, whole, to_surface);
-      if (last) reset();
-      return result;
-    }
-    case scs::block_download:
-      switch (command & 0x03) {
-        case block_download_ss::initiate:
-          if (phase_ != Phase::block_download_initiated) break;
-          confirm(read_multiplexer(response));
-          phase_ = Phase::block_download_sub_block;
-          server_crc_ = (command & kCrcSupported) != 0;
-          at_start_ = true;
-          last_seqno_ = 0;
-          return ValueRewrite::unchanged;
-        case block_download_ss::ack:
-          if (phase_ != Phase::block_download_sub_block) break;
-          block_ack(response.data[1], Phase::block_download_end);
-          return ValueRewrite::unchanged;
-        case block_download_ss::end:  // the server's end block download response
-        default:
-          break;
-      }
-      break;
-    case scs::block_upload:
-      if ((command & 0x01) == block_upload_ss::initiate) {
-        if (phase_ != Phase::block_upload_initiated) break;
-        confirm(read_multiplexer(response));
-        kind_ = checked_kind(kind_, (command & kBlockSizeIndicated) != 0, read_u32(response, 4));
-        phase_ = Phase::block_upload_start;
-        server_crc_ = (command & kCrcSupported) != 0;
-        at_start_ = true;
-        return ValueRewrite::unchanged;
-      }
-      if ((command & 0x01) == block_upload_ss::end && phase_ == Phase::block_upload_end) {
-        const ValueRewrite result = correct_crc(response);
-        // The client's end block upload response follows; idle reads it as nothing to do.
-        reset();
-        return result;
-      }
-      break;
-    case scs::abort:
-    default:
-      break;
-  }
+  if (const auto result = followed_response(response, to_surface)) return *result;
+  // Aborts, the end of a transfer and frames that do not fit the phase: the transfer is over.
   reset();
   return ValueRewrite::unchanged;
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::followed_response(can::Frame& response,
+                                                                    const IdMapping& to_surface) {
+  switch (specifier_of(response)) {
+    case scs::initiate_upload:
+      return initiate_upload_response(response, to_surface);
+    case scs::initiate_download:
+      return initiate_download_response(response);
+    case scs::download_segment:
+      if (phase_ != Phase::segmented_download) return std::nullopt;
+      if (last_sent_) reset();  // the last segment confirmed
+      return ValueRewrite::unchanged;
+    case scs::upload_segment:
+      return upload_segment(response, to_surface);
+    case scs::block_download:
+      return block_download_response(response);
+    case scs::block_upload:
+      return block_upload_response(response);
+    case scs::abort:
+    default:
+      return std::nullopt;
+  }
+}
+
+ValueRewrite ValueTransferTracker::initiate_upload_response(can::Frame& response,
+                                                            const IdMapping& to_surface) {
+  const std::uint8_t command = response.data[0];
+  if ((phase_ == Phase::upload_initiated || phase_ == Phase::block_upload_initiated) &&
+      (command & kExpedited) == 0) {
+    // Segmented (also a block upload answered by the SDO upload protocol).
+    confirm(read_multiplexer(response));
+    begin(Phase::segmented_upload, mux_,
+          checked_kind(kind_, (command & kSizeIndicated) != 0, read_u32(response, 4)));
+    at_start_ = true;
+    return ValueRewrite::unchanged;
+  }
+  // Expedited (complete in itself) or unexpected: names its own object.
+  reset();
+  return rewrite_response(response, to_surface);
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::initiate_download_response(
+    const can::Frame& response) {
+  // The answer to an expedited download: the write it confirms is reported.
+  if (phase_ == Phase::idle && requested_ && requested_->mux == read_multiplexer(response)) {
+    const ConfirmedWrite write = *requested_;
+    reset();
+    confirmed_ = write;
+    return ValueRewrite::unchanged;
+  }
+  if (phase_ != Phase::download_initiated) return std::nullopt;
+  confirm(read_multiplexer(response));
+  phase_ = Phase::segmented_download;
+  at_start_ = true;
+  return ValueRewrite::unchanged;
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::upload_segment(can::Frame& response,
+                                                                 const IdMapping& to_surface) {
+  if (phase_ != Phase::segmented_upload) return std::nullopt;
+  const std::uint8_t command = response.data[0];
+  const std::size_t length = kSegmentBytes - ((command >> 1) & 0x07);
+  const bool last = (command & kLastSegment) != 0;
+  const bool whole = at_start_ && last && length == value_size(kind_);
+  at_start_ = false;
+  const ValueRewrite result = first_segment(response, whole, to_surface);
+  if (last) reset();
+  return result;
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::block_download_response(
+    const can::Frame& response) {
+  const std::uint8_t command = response.data[0];
+  switch (command & 0x03) {
+    case block_download_ss::initiate:
+      if (phase_ != Phase::block_download_initiated) return std::nullopt;
+      confirm(read_multiplexer(response));
+      phase_ = Phase::block_download_sub_block;
+      server_crc_ = (command & kCrcSupported) != 0;
+      at_start_ = true;
+      last_seqno_ = 0;
+      return ValueRewrite::unchanged;
+    case block_download_ss::ack:
+      if (phase_ != Phase::block_download_sub_block) return std::nullopt;
+      block_ack(response.data[1], Phase::block_download_end);
+      return ValueRewrite::unchanged;
+    case block_download_ss::end:  // the server's end block download response
+    default:
+      return std::nullopt;
+  }
+}
+
+std::optional<ValueRewrite> ValueTransferTracker::block_upload_response(can::Frame& response) {
+  const std::uint8_t command = response.data[0];
+  if ((command & 0x01) == block_upload_ss::initiate) {
+    if (phase_ != Phase::block_upload_initiated) return std::nullopt;
+    confirm(read_multiplexer(response));
+    kind_ = checked_kind(kind_, (command & kBlockSizeIndicated) != 0, read_u32(response, 4));
+    phase_ = Phase::block_upload_start;
+    server_crc_ = (command & kCrcSupported) != 0;
+    at_start_ = true;
+    return ValueRewrite::unchanged;
+  }
+  if ((command & 0x01) == block_upload_ss::end && phase_ == Phase::block_upload_end) {
+    const ValueRewrite result = correct_crc(response);
+    // The client's end block upload response follows; idle reads it as nothing to do.
+    reset();
+    return result;
+  }
+  return std::nullopt;
 }
 
 // --- shared ------------------------------------------------------------------------------------

@@ -107,6 +107,18 @@ class ValueTransferTracker {
   // The server's initiate response names `mux`: if not the requested object, nothing is rewritten.
   void confirm(Multiplexer mux);
   ValueRewrite initiate_download(can::Frame& request, const IdMapping& to_local);
+  // The frame read against the open transfer's phase; nullopt when it ends or does not fit
+  // the transfer (the caller then forgets it).
+  std::optional<ValueRewrite> followed_request(can::Frame& request, const IdMapping& to_local);
+  std::optional<ValueRewrite> download_segment(can::Frame& request, const IdMapping& to_local);
+  std::optional<ValueRewrite> block_upload_request(const can::Frame& request);
+  std::optional<ValueRewrite> block_download_request(can::Frame& request);
+  std::optional<ValueRewrite> followed_response(can::Frame& response, const IdMapping& to_surface);
+  ValueRewrite initiate_upload_response(can::Frame& response, const IdMapping& to_surface);
+  std::optional<ValueRewrite> initiate_download_response(const can::Frame& response);
+  std::optional<ValueRewrite> upload_segment(can::Frame& response, const IdMapping& to_surface);
+  std::optional<ValueRewrite> block_download_response(const can::Frame& response);
+  std::optional<ValueRewrite> block_upload_response(can::Frame& response);
   // A frame whose data bytes 1..7 hold the start of the value (segment), when `whole`.
   ValueRewrite first_segment(can::Frame& segment, bool whole, const IdMapping& map);
   ValueRewrite block_segment(can::Frame& segment, const IdMapping& map);

@@ -105,70 +105,90 @@ class Reader : public YamlReader {
 
   // The session keys both roles share under `backbone`.
   void session_tuning(const YAML::Node& backbone, SessionTuning& out) {
-    using std::chrono::milliseconds;
-    const auto ms = [&](const char* key, std::int64_t min, std::int64_t max) {
-      auto v = integer(backbone, key, "backbone", min, max, false);
-      return v ? std::optional<milliseconds>(*v) : std::nullopt;
+    read_liveness(backbone, out);
+    read_retransmission(backbone, out);
+    // Buffer and queue sizes: plain counts, each with its own sane range.
+    struct Count {
+      const char* key;
+      std::int64_t min;
+      std::int64_t max;
+      std::size_t SessionTuning::*field;
     };
-    const auto count = [&](const char* key, std::int64_t min, std::int64_t max,
-                           std::size_t& field) {
-      if (auto v = integer(backbone, key, "backbone", min, max, false)) {
-        field = static_cast<std::size_t>(*v);
+    static constexpr Count kCounts[] = {
+        {"resend_buffer_messages", 1, 1LL << 20, &SessionTuning::resend_buffer_messages},
+        {"resend_buffer_bytes", 1024, 1LL << 30, &SessionTuning::resend_buffer_bytes},
+        {"max_write_bytes", 64, 1LL << 20, &SessionTuning::max_write_bytes},
+        {"queue_reliable_frames", 1, 1LL << 22, &SessionTuning::queue_reliable_frames},
+        {"queue_process_frames", 1, 1LL << 22, &SessionTuning::queue_process_frames},
+    };
+    for (const Count& c : kCounts) {
+      if (auto v = integer(backbone, c.key, "backbone", c.min, c.max, false)) {
+        out.*c.field = static_cast<std::size_t>(*v);
       }
-    };
-    const auto keepalive = ms("keepalive_ms", 10, 600000);
-    const auto dead_after = ms("dead_after_ms", 10, 3600000);
+    }
+    read_tcp_framing(backbone, out);
+  }
+
+  std::optional<std::chrono::milliseconds> backbone_ms(const YAML::Node& backbone, const char* key,
+                                                       std::int64_t min, std::int64_t max) {
+    auto v = integer(backbone, key, "backbone", min, max, false);
+    return v ? std::optional<std::chrono::milliseconds>(*v) : std::nullopt;
+  }
+
+  void read_liveness(const YAML::Node& backbone, SessionTuning& out) {
+    const auto keepalive = backbone_ms(backbone, "keepalive_ms", 10, 600000);
+    const auto dead_after = backbone_ms(backbone, "dead_after_ms", 10, 3600000);
     if (keepalive) out.keepalive = *keepalive;
     if (dead_after) out.dead_after = *dead_after;
     // A link must not be declared dead while the peer is merely between two keepalives. Checked
     // only when neither value is already reported, and against the default when one is absent.
     const bool keepalive_ok = keepalive || !backbone["keepalive_ms"];
     const bool dead_after_ok = dead_after || !backbone["dead_after_ms"];
-    if (keepalive_ok && dead_after_ok && out.dead_after <= out.keepalive) {
-      const std::string ka = std::to_string(out.keepalive.count());
-      const std::string da = std::to_string(out.dead_after.count());
-      if (dead_after) {
-        problem(backbone["dead_after_ms"], "backbone.dead_after_ms",
-                da + " must exceed keepalive_ms (" + ka + "), best by a few keepalives");
-      } else {
-        problem(backbone["keepalive_ms"], "backbone.dead_after_ms",
-                "the default " + da + " does not exceed keepalive_ms (" + ka +
-                    "): give dead_after_ms, a few keepalives longer");
-      }
+    if (!keepalive_ok || !dead_after_ok || out.dead_after > out.keepalive) return;
+    const std::string ka = std::to_string(out.keepalive.count());
+    const std::string da = std::to_string(out.dead_after.count());
+    if (dead_after) {
+      problem(backbone["dead_after_ms"], "backbone.dead_after_ms",
+              da + " must exceed keepalive_ms (" + ka + "), best by a few keepalives");
+    } else {
+      problem(backbone["keepalive_ms"], "backbone.dead_after_ms",
+              "the default " + da + " does not exceed keepalive_ms (" + ka +
+                  "): give dead_after_ms, a few keepalives longer");
     }
-    const auto retransmit = ms("retransmit_ms", 10, 600000);
+  }
+
+  // A frame lost once must still be young enough to be resent. Checked like dead_after_ms.
+  void read_retransmission(const YAML::Node& backbone, SessionTuning& out) {
+    const auto retransmit = backbone_ms(backbone, "retransmit_ms", 10, 600000);
     if (retransmit) out.retransmit = *retransmit;
-    // A frame lost once must still be young enough to be resent. Checked like dead_after_ms.
-    const auto max_age = ms("reliable_max_age_ms", 100, 3600000);
+    const auto max_age = backbone_ms(backbone, "reliable_max_age_ms", 100, 3600000);
     if (max_age) out.reliable_max_age = *max_age;
-    if ((max_age || !backbone["reliable_max_age_ms"]) &&
-        (retransmit || !backbone["retransmit_ms"]) && out.reliable_max_age <= out.retransmit) {
-      const std::string age = std::to_string(out.reliable_max_age.count());
-      const std::string rto = std::to_string(out.retransmit.count());
-      if (max_age) {
-        problem(backbone["reliable_max_age_ms"], "backbone.reliable_max_age_ms",
-                age + " must exceed retransmit_ms (" + rto +
-                    "), or a frame lost once could never be resent");
-      } else {
-        problem(backbone["retransmit_ms"], "backbone.reliable_max_age_ms",
-                "the default " + age + " does not exceed retransmit_ms (" + rto +
-                    "): give reliable_max_age_ms, longer than retransmit_ms");
-      }
+    const bool max_age_ok = max_age || !backbone["reliable_max_age_ms"];
+    const bool retransmit_ok = retransmit || !backbone["retransmit_ms"];
+    if (!max_age_ok || !retransmit_ok || out.reliable_max_age > out.retransmit) return;
+    const std::string age = std::to_string(out.reliable_max_age.count());
+    const std::string rto = std::to_string(out.retransmit.count());
+    if (max_age) {
+      problem(backbone["reliable_max_age_ms"], "backbone.reliable_max_age_ms",
+              age + " must exceed retransmit_ms (" + rto +
+                  "), or a frame lost once could never be resent");
+    } else {
+      problem(backbone["retransmit_ms"], "backbone.reliable_max_age_ms",
+              "the default " + age + " does not exceed retransmit_ms (" + rto +
+                  "): give reliable_max_age_ms, longer than retransmit_ms");
     }
-    count("resend_buffer_messages", 1, 1LL << 20, out.resend_buffer_messages);
-    count("resend_buffer_bytes", 1024, 1LL << 30, out.resend_buffer_bytes);
-    count("max_write_bytes", 64, 1LL << 20, out.max_write_bytes);
-    count("queue_reliable_frames", 1, 1LL << 22, out.queue_reliable_frames);
-    count("queue_process_frames", 1, 1LL << 22, out.queue_process_frames);
-    if (auto framing = string(backbone, "tcp_framing", "backbone", false)) {
-      if (*framing == "length-prefix") {
-        out.tcp_crc_framing = false;
-      } else if (*framing == "cobs-crc32c") {
-        out.tcp_crc_framing = true;
-      } else {
-        problem(backbone["tcp_framing"], "backbone.tcp_framing",
-                "'" + *framing + "' is not one of length-prefix, cobs-crc32c");
-      }
+  }
+
+  void read_tcp_framing(const YAML::Node& backbone, SessionTuning& out) {
+    auto framing = string(backbone, "tcp_framing", "backbone", false);
+    if (!framing) return;
+    if (*framing == "length-prefix") {
+      out.tcp_crc_framing = false;
+    } else if (*framing == "cobs-crc32c") {
+      out.tcp_crc_framing = true;
+    } else {
+      problem(backbone["tcp_framing"], "backbone.tcp_framing",
+              "'" + *framing + "' is not one of length-prefix, cobs-crc32c");
     }
   }
 
@@ -315,12 +335,110 @@ void read_module_pdop(Reader& in, const YAML::Node& m, const std::string& path, 
   report_unit_problems(in, bridge::validate(segmentation), block, key, field, reported);
 }
 
+// False when a profile is given but refused, so checks that depend on it stay quiet.
+bool read_module_profile(Reader& in, const YAML::Node& m, const std::string& path,
+                         ModuleOptions& module) {
+  auto profile = in.string(m, "profile", path, false);
+  if (!profile) return !m["profile"];
+  if (auto p = bridge::parse_id_profile(*profile)) {
+    module.profile = *p;
+    return true;
+  }
+  in.problem(m["profile"], path + ".profile", "'" + *profile + "' is not one of cia301, pdop, qd");
+  return false;
+}
+
+// One bus per module, and a bus is a SocketCAN interface name (IFNAMSIZ - 1 characters).
+void check_module_bus(Reader& in, const YAML::Node& m, const std::string& path,
+                      const std::string& bus, std::set<std::string>& buses) {
+  if (!buses.insert(bus).second) {
+    in.problem(m["bus"], path + ".bus", "bus '" + bus + "' is used by two modules");
+  }
+  if (bus.size() >= 16) {
+    in.problem(m["bus"], path + ".bus", "interface names are at most 15 characters");
+  }
+}
+
+// `nodes: {local: surface, ...}`, or the default map when absent (only for low module ids);
+// false when the map is refused.
+bool read_module_nodes(Reader& in, const YAML::Node& m, const std::string& path,
+                       std::optional<std::int64_t> id, ModuleOptions& module) {
+  const YAML::Node nodes = m["nodes"];
+  if (!nodes) {
+    if (!id || *id <= bridge::kMaxDefaultModuleId) return true;
+    in.problem(m["id"], path + ".id",
+               "modules above " + std::to_string(bridge::kMaxDefaultModuleId) +
+                   " have no default node map (local + 32 x id would pass 127): give 'nodes'");
+    return false;
+  }
+  module.default_nodes = false;
+  if (!nodes.IsMap() || nodes.size() == 0) {
+    in.problem(nodes, path + ".nodes", "must map local node ids to surface node ids, e.g. {1: 33}");
+    return false;
+  }
+  bool ok = true;
+  for (const auto& kv : nodes) {
+    const std::string field = path + ".nodes." + kv.first.Scalar();
+    auto local = in.integer(kv.first, field, 1, 127);
+    auto surface = in.integer(kv.second, field, 1, 127);
+    if (local && surface) {
+      module.nodes.emplace_back(static_cast<std::uint8_t>(*local),
+                                static_cast<std::uint8_t>(*surface));
+    } else {
+      ok = false;
+    }
+  }
+  return ok;
+}
+
+// Every field of the module is read even after a problem, so one pass reports them all; the
+// module is returned when it has an id and a bus.
+std::optional<ModuleOptions> read_module(Reader& in, const YAML::Node& m, const std::string& path,
+                                         std::set<std::string>& buses, bridge::NodeMap& map) {
+  in.only_keys(m, path,
+               {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "pdop"});
+  ModuleOptions module;
+  auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
+  auto bus = in.string(m, "bus", path, true);
+  const bool profile_ok = read_module_profile(in, m, path, module);
+  if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
+  if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
+    module.heartbeat_lost_after = std::chrono::milliseconds(*lost);
+  }
+  read_module_pdop(in, m, path, profile_ok, module);
+  if (bus) check_module_bus(in, m, path, *bus, buses);
+  bool nodes_ok = read_module_nodes(in, m, path, id, module);
+  if (!id || !bus) return std::nullopt;
+  module.id = static_cast<std::uint32_t>(*id);
+  module.bus = *bus;
+  if (module.default_nodes) module.nodes = bridge::NodeMap::default_pairs(module.id);
+  if (nodes_ok && profile_ok && module.default_nodes && module.id != 0 &&
+      module.profile != bridge::IdProfile::cia301) {
+    // One problem, not one per node: the default map of module 1.. starts at surface 33.
+    in.problem(m["profile"], path + ".profile",
+               std::string("a ") + bridge::to_string(module.profile) +
+                   " module needs surface node ids 1..31 and the default map (local + 32 x " +
+                   std::to_string(module.id) + ") leaves them: give 'nodes'");
+    nodes_ok = false;
+  }
+  if (nodes_ok && profile_ok) {
+    // Range and image problems are the node map's; without 'nodes' the profile line is where
+    // the default map stopped fitting.
+    const YAML::Node at = m["nodes"] ? m["nodes"] : m["profile"] ? m["profile"] : m;
+    for (const std::string& p : map.add_module(module.id, module.nodes, module.profile)) {
+      in.problem(at, path, p);
+    }
+  }
+  return module;
+}
+
 void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
   const YAML::Node modules = root["modules"];
   if (!modules) return in.problem(root, "modules", "missing (required): at least one module");
   if (!modules.IsSequence() || modules.size() == 0) {
     return in.problem(modules, "modules", "must be a non-empty list");
   }
+  // Built alongside, so a module overlapping an earlier one is reported where it is written.
   bridge::NodeMap map;
   std::set<std::string> buses;
   for (std::size_t i = 0; i < modules.size(); ++i) {
@@ -330,83 +448,8 @@ void read_modules(Reader& in, const YAML::Node& root, GatewayOptions& out) {
       in.problem(m, path, "must be a mapping with id and bus");
       continue;
     }
-    in.only_keys(m, path,
-                 {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "pdop"});
-    ModuleOptions module;
-    auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
-    auto bus = in.string(m, "bus", path, true);
-    bool profile_ok = true;
-    if (auto profile = in.string(m, "profile", path, false)) {
-      if (auto p = bridge::parse_id_profile(*profile)) {
-        module.profile = *p;
-      } else {
-        in.problem(m["profile"], path + ".profile",
-                   "'" + *profile + "' is not one of cia301, pdop, qd");
-        profile_ok = false;
-      }
-    } else if (m["profile"]) {
-      profile_ok = false;
-    }
-    if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
-    if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
-      module.heartbeat_lost_after = std::chrono::milliseconds(*lost);
-    }
-    read_module_pdop(in, m, path, profile_ok, module);
-    if (bus && !buses.insert(*bus).second) {
-      in.problem(m["bus"], path + ".bus", "bus '" + *bus + "' is used by two modules");
-    }
-    if (bus && bus->size() >= 16) {
-      in.problem(m["bus"], path + ".bus", "interface names are at most 15 characters");
-    }
-    const YAML::Node nodes = m["nodes"];
-    bool nodes_ok = true;
-    if (nodes) {
-      module.default_nodes = false;
-      if (!nodes.IsMap() || nodes.size() == 0) {
-        in.problem(nodes, path + ".nodes",
-                   "must map local node ids to surface node ids, e.g. {1: 33}");
-        nodes_ok = false;
-      } else {
-        for (const auto& kv : nodes) {
-          const std::string field = path + ".nodes." + kv.first.Scalar();
-          auto local = in.integer(kv.first, field, 1, 127);
-          auto surface = in.integer(kv.second, field, 1, 127);
-          if (local && surface) {
-            module.nodes.emplace_back(static_cast<std::uint8_t>(*local),
-                                      static_cast<std::uint8_t>(*surface));
-          } else {
-            nodes_ok = false;
-          }
-        }
-      }
-    } else if (id && *id > bridge::kMaxDefaultModuleId) {
-      in.problem(m["id"], path + ".id",
-                 "modules above " + std::to_string(bridge::kMaxDefaultModuleId) +
-                     " have no default node map (local + 32 x id would pass 127): give 'nodes'");
-      nodes_ok = false;
-    }
-    if (!id || !bus) continue;
-    module.id = static_cast<std::uint32_t>(*id);
-    module.bus = *bus;
-    if (module.default_nodes) module.nodes = bridge::NodeMap::default_pairs(module.id);
-    if (nodes_ok && profile_ok && module.default_nodes && module.id != 0 &&
-        module.profile != bridge::IdProfile::cia301) {
-      // One problem, not one per node: the default map of module 1.. starts at surface 33.
-      in.problem(m["profile"], path + ".profile",
-                 std::string("a ") + bridge::to_string(module.profile) +
-                     " module needs surface node ids 1..31 and the default map (local + 32 x " +
-                     std::to_string(module.id) + ") leaves them: give 'nodes'");
-      nodes_ok = false;
-    }
-    if (nodes_ok && profile_ok) {
-      // Range and image problems are the node map's; without 'nodes' the profile line is where
-      // the default map stopped fitting.
-      const YAML::Node at = nodes ? nodes : m["profile"] ? m["profile"] : m;
-      for (const std::string& p : map.add_module(module.id, module.nodes, module.profile)) {
-        in.problem(at, path, p);
-      }
-    }
-    out.modules.push_back(std::move(module));
+    if (auto module = read_module(in, m, path, buses, map))
+      out.modules.push_back(std::move(*module));
   }
 }
 
@@ -448,93 +491,176 @@ void read_surface_pdop(Reader& in, const YAML::Node& root, bridge::RpdopRelayOpt
 // Protobuf and envelope bytes around one PDO Packet's data, at most (ids, lengths, times).
 constexpr std::size_t kPdopMessageOverhead = 128;
 
+namespace {
+
+// Exactly one transport: with both, which one the operator meant is anyone's guess.
+void check_one_transport(Reader& in, const YAML::Node& root, const YAML::Node& backbone) {
+  const YAML::Node connect_key = key_of(backbone, "connect");
+  const YAML::Node serial_key = key_of(backbone, "serial");
+  if (connect_key && serial_key) {
+    const int connect_at = line_of(connect_key);
+    const int serial_at = line_of(serial_key);
+    in.problem(std::max(connect_at, serial_at), "backbone",
+               "'connect' (line " + std::to_string(connect_at) + ") and 'serial' (line " +
+                   std::to_string(serial_at) + ") are both given: a gateway uses exactly one");
+  } else if (!connect_key && !serial_key) {
+    in.problem(key_of(root, "backbone"), "backbone",
+               "needs 'connect: host:port' (TCP) or 'serial:' (a serial line): neither is given");
+  }
+}
+
+void read_gateway_link(Reader& in, const YAML::Node& backbone, GatewayOptions& out) {
+  if (auto ep = in.endpoint(backbone, "connect", "backbone", false)) {
+    if (ep->port == 0) {
+      in.problem(backbone["connect"], "backbone.connect", "port 0 cannot be connected to");
+    }
+    out.connect = *ep;
+  }
+  if (const YAML::Node serial = backbone["serial"]) {
+    if (serial.IsSequence()) {
+      in.problem(serial, "backbone.serial",
+                 "must be one mapping {device, baud, flow_control}: a gateway has one line");
+    } else {
+      out.serial = in.serial_line(serial, "backbone.serial");
+    }
+  }
+  // Also the back-off of reopening a serial line that failed or went dead.
+  if (auto v = in.integer(backbone, "reconnect_min_ms", "backbone", 1, 600000, false)) {
+    out.reconnect_min = std::chrono::milliseconds(*v);
+  }
+  if (auto v = in.integer(backbone, "reconnect_max_ms", "backbone", 1, 600000, false)) {
+    out.reconnect_max = std::chrono::milliseconds(*v);
+  }
+  if (out.reconnect_max < out.reconnect_min) {
+    in.problem(backbone["reconnect_max_ms"], "backbone.reconnect_max_ms",
+               "must not be below reconnect_min_ms");
+  }
+}
+
+void read_gateway_backbone(Reader& in, const YAML::Node& root, GatewayOptions& out) {
+  const YAML::Node backbone = root["backbone"];
+  if (!backbone) {
+    return in.problem(
+        root, "backbone",
+        "missing (required): needs 'connect: host:port' (TCP) or 'serial:' (a serial line)");
+  }
+  if (!backbone.IsMap()) {
+    return in.problem(
+        backbone, "backbone",
+        "must be a mapping with 'connect: host:port' (TCP) or 'serial:' (a serial line)");
+  }
+  in.only_keys(
+      backbone, "backbone",
+      {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms", "dead_after_ms",
+       "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes",
+       "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+  check_one_transport(in, root, backbone);
+  read_gateway_link(in, backbone, out);
+  in.session_tuning(backbone, out.session);
+}
+
+// A packet crosses as one reliable message, which the resend buffer must be able to hold.
+void check_packets_fit(Reader& in, const YAML::Node& root, const GatewayOptions& out) {
+  for (std::size_t i = 0; i < out.modules.size(); ++i) {
+    const ModuleOptions& m = out.modules[i];
+    if (m.profile != bridge::IdProfile::pdop || !m.reassemble_pdop) continue;
+    if (m.pdop_reassembly.max_packet_bytes + kPdopMessageOverhead <=
+        out.session.resend_buffer_bytes) {
+      continue;
+    }
+    const YAML::Node module = root["modules"][i];
+    const YAML::Node at = module["pdop"] && module["pdop"]["max_packet_bytes"]
+                              ? module["pdop"]["max_packet_bytes"]
+                              : module;
+    in.problem(at, "modules[" + std::to_string(i) + "].pdop.max_packet_bytes",
+               std::to_string(m.pdop_reassembly.max_packet_bytes) +
+                   " does not fit in backbone.resend_buffer_bytes (" +
+                   std::to_string(out.session.resend_buffer_bytes) +
+                   ") with its message: such a packet could never cross");
+  }
+}
+
+// The one module whose bus the surface's LSS requests reach; it must be one of ours.
+void read_lss_module(Reader& in, const YAML::Node& root, GatewayOptions& out) {
+  auto lss = in.integer(root, "lss_module", "", 0, 0xFFFFFFFELL, false);
+  if (!lss) return;
+  const auto id = static_cast<std::uint32_t>(*lss);
+  const bool served = std::any_of(out.modules.begin(), out.modules.end(),
+                                  [&](const ModuleOptions& m) { return m.id == id; });
+  if (!served) {
+    in.problem(root["lss_module"], "lss_module",
+               "module " + std::to_string(id) + " is not one of this gateway's modules");
+  }
+  out.lss_module = id;
+}
+
+// Two lines on one device would fight over its bytes: refused, naming both items.
+void read_surface_lines(Reader& in, const YAML::Node& serial, SurfaceOptions& out) {
+  std::map<std::string, std::size_t> devices;
+  for (std::size_t i = 0; i < serial.size(); ++i) {
+    const std::string path = item_path("backbone", "serial", i);
+    auto line = in.serial_line(serial[i], path);
+    // Checked on the device alone, so that it is reported even when another field is bad.
+    const YAML::Node device = serial[i].IsMap() ? serial[i]["device"] : YAML::Node();
+    if (device && device.IsScalar() && !device.Scalar().empty()) {
+      if (auto [it, fresh] = devices.emplace(device.Scalar(), i); !fresh) {
+        in.problem(device, path + ".device",
+                   "'" + device.Scalar() + "' is also the device of backbone.serial[" +
+                       std::to_string(it->second) + "]");
+        continue;
+      }
+    }
+    if (line) out.serial.push_back(std::move(*line));
+  }
+}
+
+void read_surface_backbone(Reader& in, const YAML::Node& root, SurfaceOptions& out) {
+  const YAML::Node backbone = root["backbone"];
+  if (!backbone) {
+    return in.problem(
+        root, "backbone",
+        "missing (required): needs 'listen: host:port' (TCP), 'serial:' lines, or both");
+  }
+  if (!backbone.IsMap()) {
+    return in.problem(backbone, "backbone",
+                      "must be a mapping with 'listen: host:port' (TCP), 'serial:' lines, or both");
+  }
+  in.only_keys(
+      backbone, "backbone",
+      {"listen", "serial", "conflate_pdos", "keepalive_ms", "dead_after_ms", "retransmit_ms",
+       "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
+       "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+  // An empty list ("serial: []") reaches no gateway either.
+  const YAML::Node lines = backbone["serial"];
+  if (!key_of(backbone, "listen") && (!lines || (lines.IsSequence() && lines.size() == 0))) {
+    in.problem(key_of(root, "backbone"), "backbone",
+               "needs 'listen: host:port' (TCP), 'serial:' lines, or both: neither is given");
+  }
+  if (auto ep = in.endpoint(backbone, "listen", "backbone", false)) out.listen = *ep;
+  if (lines && !lines.IsSequence()) {
+    in.problem(lines, "backbone.serial",
+               "must be a list of serial lines, one '- device: ...' item per gateway");
+  } else if (lines) {
+    read_surface_lines(in, lines, out);
+  }
+  if (auto conflate = in.boolean(backbone, "conflate_pdos", "backbone")) {
+    out.conflate_pdos = *conflate;
+  }
+  in.session_tuning(backbone, out.session);
+}
+
+}  // namespace
+
 GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
   in.only_keys(root, "", {"role", "name", "backbone", "modules", "lss_module", "can", "log"});
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
-  const YAML::Node backbone = root["backbone"];
-  if (!backbone) {
-    in.problem(root, "backbone",
-               "missing (required): needs 'connect: host:port' (TCP) or 'serial:' (a serial line)");
-  } else if (!backbone.IsMap()) {
-    in.problem(backbone, "backbone",
-               "must be a mapping with 'connect: host:port' (TCP) or 'serial:' (a serial line)");
-  } else {
-    in.only_keys(backbone, "backbone",
-                 {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
-                  "dead_after_ms", "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages",
-                  "resend_buffer_bytes", "max_write_bytes", "queue_reliable_frames",
-                  "queue_process_frames", "tcp_framing"});
-    // Exactly one transport: with both, which one the operator meant is anyone's guess.
-    const YAML::Node connect_key = key_of(backbone, "connect");
-    const YAML::Node serial_key = key_of(backbone, "serial");
-    if (connect_key && serial_key) {
-      const int connect_at = line_of(connect_key);
-      const int serial_at = line_of(serial_key);
-      in.problem(std::max(connect_at, serial_at), "backbone",
-                 "'connect' (line " + std::to_string(connect_at) + ") and 'serial' (line " +
-                     std::to_string(serial_at) + ") are both given: a gateway uses exactly one");
-    } else if (!connect_key && !serial_key) {
-      in.problem(key_of(root, "backbone"), "backbone",
-                 "needs 'connect: host:port' (TCP) or 'serial:' (a serial line): neither is given");
-    }
-    if (auto ep = in.endpoint(backbone, "connect", "backbone", false)) {
-      if (ep->port == 0) {
-        in.problem(backbone["connect"], "backbone.connect", "port 0 cannot be connected to");
-      }
-      out.connect = *ep;
-    }
-    if (const YAML::Node serial = backbone["serial"]) {
-      if (serial.IsSequence()) {
-        in.problem(serial, "backbone.serial",
-                   "must be one mapping {device, baud, flow_control}: a gateway has one line");
-      } else {
-        out.serial = in.serial_line(serial, "backbone.serial");
-      }
-    }
-    // Also the back-off of reopening a serial line that failed or went dead.
-    if (auto v = in.integer(backbone, "reconnect_min_ms", "backbone", 1, 600000, false)) {
-      out.reconnect_min = std::chrono::milliseconds(*v);
-    }
-    if (auto v = in.integer(backbone, "reconnect_max_ms", "backbone", 1, 600000, false)) {
-      out.reconnect_max = std::chrono::milliseconds(*v);
-    }
-    if (out.reconnect_max < out.reconnect_min) {
-      in.problem(backbone["reconnect_max_ms"], "backbone.reconnect_max_ms",
-                 "must not be below reconnect_min_ms");
-    }
-    in.session_tuning(backbone, out.session);
-  }
+  read_gateway_backbone(in, root, out);
   read_modules(in, root, out);
-  // A packet crosses as one reliable message, which the resend buffer must be able to hold.
-  for (std::size_t i = 0; i < out.modules.size(); ++i) {
-    const ModuleOptions& m = out.modules[i];
-    if (m.profile != bridge::IdProfile::pdop || !m.reassemble_pdop) continue;
-    if (m.pdop_reassembly.max_packet_bytes + kPdopMessageOverhead >
-        out.session.resend_buffer_bytes) {
-      const YAML::Node module = root["modules"][i];
-      const YAML::Node at = module["pdop"] && module["pdop"]["max_packet_bytes"]
-                                ? module["pdop"]["max_packet_bytes"]
-                                : module;
-      in.problem(at, "modules[" + std::to_string(i) + "].pdop.max_packet_bytes",
-                 std::to_string(m.pdop_reassembly.max_packet_bytes) +
-                     " does not fit in backbone.resend_buffer_bytes (" +
-                     std::to_string(out.session.resend_buffer_bytes) +
-                     ") with its message: such a packet could never cross");
-    }
-  }
-  if (auto lss = in.integer(root, "lss_module", "", 0, 0xFFFFFFFELL, false)) {
-    const auto id = static_cast<std::uint32_t>(*lss);
-    const bool served = std::any_of(out.modules.begin(), out.modules.end(),
-                                    [&](const ModuleOptions& m) { return m.id == id; });
-    if (!served) {
-      in.problem(root["lss_module"], "lss_module",
-                 "module " + std::to_string(id) + " is not one of this gateway's modules");
-    }
-    out.lss_module = id;
-  }
+  check_packets_fit(in, root, out);
+  read_lss_module(in, root, out);
   in.can_options(root, out.can);
   in.log_options(root, out.log);
   in.finish();
@@ -548,56 +674,9 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
-  const YAML::Node backbone = root["backbone"];
-  if (!backbone) {
-    in.problem(root, "backbone",
-               "missing (required): needs 'listen: host:port' (TCP), 'serial:' lines, or both");
-  } else if (!backbone.IsMap()) {
-    in.problem(backbone, "backbone",
-               "must be a mapping with 'listen: host:port' (TCP), 'serial:' lines, or both");
-  } else {
-    in.only_keys(
-        backbone, "backbone",
-        {"listen", "serial", "conflate_pdos", "keepalive_ms", "dead_after_ms", "retransmit_ms",
-         "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
-         "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
-    // An empty list ("serial: []") reaches no gateway either.
-    const YAML::Node lines = backbone["serial"];
-    if (!key_of(backbone, "listen") && (!lines || (lines.IsSequence() && lines.size() == 0))) {
-      in.problem(key_of(root, "backbone"), "backbone",
-                 "needs 'listen: host:port' (TCP), 'serial:' lines, or both: neither is given");
-    }
-    if (auto ep = in.endpoint(backbone, "listen", "backbone", false)) out.listen = *ep;
-    if (const YAML::Node serial = backbone["serial"]) {
-      if (!serial.IsSequence()) {
-        in.problem(serial, "backbone.serial",
-                   "must be a list of serial lines, one '- device: ...' item per gateway");
-      } else {
-        // Two lines on one device would fight over its bytes: refused, naming both items.
-        std::map<std::string, std::size_t> devices;
-        for (std::size_t i = 0; i < serial.size(); ++i) {
-          const std::string path = item_path("backbone", "serial", i);
-          auto line = in.serial_line(serial[i], path);
-          // Checked on the device alone, so that it is reported even when another field is bad.
-          const YAML::Node device = serial[i].IsMap() ? serial[i]["device"] : YAML::Node();
-          if (device && device.IsScalar() && !device.Scalar().empty()) {
-            if (auto [it, fresh] = devices.emplace(device.Scalar(), i); !fresh) {
-              in.problem(device, path + ".device",
-                         "'" + device.Scalar() + "' is also the device of backbone.serial[" +
-                             std::to_string(it->second) + "]");
-              continue;
-            }
-          }
-          if (line) out.serial.push_back(std::move(*line));
-        }
-      }
-    }
-    if (auto conflate = in.boolean(backbone, "conflate_pdos", "backbone")) {
-      out.conflate_pdos = *conflate;
-    }
-    in.session_tuning(backbone, out.session);
-  }
+  read_surface_backbone(in, root, out);
   read_surface_pdop(in, root, out.rpdop_relay);
+  // A packet crosses as one reliable message, which the resend buffer must be able to hold.
   if (out.rpdop_relay.max_packet_bytes + kPdopMessageOverhead > out.session.resend_buffer_bytes) {
     const YAML::Node pdop = root["pdop"];
     in.problem(pdop && pdop.IsMap() && pdop["max_packet_bytes"] ? pdop["max_packet_bytes"] : root,

@@ -124,14 +124,9 @@ asio::awaitable<void> log_stats(std::vector<RunningBus>& buses, unsigned seconds
   }
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Options options;
-  if (const auto exit_status = parse(argc, argv, options)) return *exit_status;
-  spdlog::set_level(options.verbose ? spdlog::level::debug : spdlog::level::info);
-
-  sim::RigSpec rig;
+// Loads the rig and checks that every --bus names one of its buses; returns the exit status when
+// the program should stop here.
+std::optional<int> load(const Options& options, sim::RigSpec& rig) {
   try {
     rig = sim::load_rig(options.rig_path);
   } catch (const std::exception& e) {
@@ -143,38 +138,45 @@ int main(int argc, char** argv) {
     for (const auto& b : rig.buses) known = known || b.name == name;
     if (!known) return usage_error("rig " + rig.name + " has no bus " + name);
   }
+  return std::nullopt;
+}
 
-  asio::io_context io(1);
-  std::vector<RunningBus> buses;
-  std::size_t node_count = 0;
-  try {
-    for (const auto& spec : rig.buses) {
-      if (!options.buses.empty() && options.buses.count(spec.name) == 0) continue;
-      RunningBus running;
-      running.name = spec.name;
-      running.interface = spec.interface;
-      if (const auto it = options.interfaces.find(spec.name); it != options.interfaces.end()) {
-        running.interface = it->second;
-      }
-      if (options.all_virtual) running.interface.clear();
-      if (running.interface.empty()) {
-        running.virtual_bus = std::make_unique<can::VirtualBus>(io.get_executor(), spec.name);
-        running.bus = running.virtual_bus->connect("nodes");
-      } else {
-        can::SocketCanOptions socket;
-        socket.interface = running.interface;
-        running.bus = can::SocketCanBus::open(io.get_executor(), socket);
-      }
-      running.runner = std::make_unique<sim::NodeRunner>(io.get_executor(), *running.bus);
-      for (const auto& node : spec.nodes) running.runner->add(node);
-      node_count += spec.nodes.size();
-      buses.push_back(std::move(running));
-    }
-  } catch (const std::exception& e) {
-    std::cerr << "canbridge-sim: " << e.what() << "\n";
-    return 1;
+// A bus on the interface the command line or the file names, or on a virtual bus; with its
+// nodes added (they boot when the runner runs). Throws when the interface cannot be opened.
+RunningBus open_bus(asio::io_context& io, const sim::BusSpec& spec, const Options& options) {
+  RunningBus running;
+  running.name = spec.name;
+  running.interface = spec.interface;
+  if (const auto it = options.interfaces.find(spec.name); it != options.interfaces.end()) {
+    running.interface = it->second;
   }
+  if (options.all_virtual) running.interface.clear();
+  if (running.interface.empty()) {
+    running.virtual_bus = std::make_unique<can::VirtualBus>(io.get_executor(), spec.name);
+    running.bus = running.virtual_bus->connect("nodes");
+  } else {
+    can::SocketCanOptions socket;
+    socket.interface = running.interface;
+    running.bus = can::SocketCanBus::open(io.get_executor(), socket);
+  }
+  running.runner = std::make_unique<sim::NodeRunner>(io.get_executor(), *running.bus);
+  for (const auto& node : spec.nodes) running.runner->add(node);
+  return running;
+}
 
+void announce_ready(const std::vector<RunningBus>& buses, std::size_t node_count) {
+  for (const auto& b : buses) {
+    spdlog::info("bus {} on {}: {} nodes", b.name,
+                 b.interface.empty() ? std::string("virtual bus") : b.interface,
+                 b.runner->nodes().size());
+  }
+  std::cout << "canbridge-sim: ready " << node_count << " nodes on " << buses.size() << " buses"
+            << std::endl;
+}
+
+// Runs the buses until a signal or until a loop ends on its own; returns the exit status.
+int run(asio::io_context& io, std::vector<RunningBus>& buses, std::size_t node_count,
+        unsigned stats_seconds) {
   asio::steady_timer stats_timer(io);
   asio::signal_set signals(io, SIGINT, SIGTERM);
   bool stopping = false;
@@ -200,8 +202,8 @@ int main(int argc, char** argv) {
       on_end("the nodes of bus " + name, why);
     });
   }
-  if (options.stats_seconds > 0) {
-    coro::spawn_owned(io, log_stats(buses, options.stats_seconds, stats_timer),
+  if (stats_seconds > 0) {
+    coro::spawn_owned(io, log_stats(buses, stats_seconds, stats_timer),
                       [&](const std::string& why) { on_end("the stats timer", why); });
   }
   signals.async_wait([&](const boost::system::error_code& ec, int signal) {
@@ -210,15 +212,32 @@ int main(int argc, char** argv) {
     stop_all();
   });
   // The runners boot their nodes on their first turn; announce readiness after that turn.
-  asio::post(io, [&] {
-    for (const auto& b : buses) {
-      spdlog::info("bus {} on {}: {} nodes", b.name,
-                   b.interface.empty() ? std::string("virtual bus") : b.interface,
-                   b.runner->nodes().size());
-    }
-    std::cout << "canbridge-sim: ready " << node_count << " nodes on " << buses.size() << " buses"
-              << std::endl;
-  });
+  asio::post(io, [&] { announce_ready(buses, node_count); });
   io.run();
   return exit_status;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options options;
+  if (const auto exit_status = parse(argc, argv, options)) return *exit_status;
+  spdlog::set_level(options.verbose ? spdlog::level::debug : spdlog::level::info);
+  sim::RigSpec rig;
+  if (const auto exit_status = load(options, rig)) return *exit_status;
+
+  asio::io_context io(1);
+  std::vector<RunningBus> buses;
+  std::size_t node_count = 0;
+  try {
+    for (const auto& spec : rig.buses) {
+      if (!options.buses.empty() && options.buses.count(spec.name) == 0) continue;
+      buses.push_back(open_bus(io, spec, options));
+      node_count += spec.nodes.size();
+    }
+  } catch (const std::exception& e) {
+    std::cerr << "canbridge-sim: " << e.what() << "\n";
+    return 1;
+  }
+  return run(io, buses, node_count, options.stats_seconds);
 }

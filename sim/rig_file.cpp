@@ -307,6 +307,12 @@ class RigReader {
 
   // Rules between the nodes of one bus.
   void check_bus(const std::vector<NodeRead>& nodes) {
+    const auto by_id = check_unique_ids(nodes);
+    check_borrowed_ids(nodes, by_id);
+    check_tpdo_transmitters(nodes);
+  }
+
+  std::map<int, const NodeRead*> check_unique_ids(const std::vector<NodeRead>& nodes) {
     std::map<int, const NodeRead*> by_id;
     for (const auto& n : nodes) {
       if (!n.node_id) continue;
@@ -317,8 +323,13 @@ class RigReader {
                         std::to_string(it->second->node_id_line) + ")");
       }
     }
-    // qd (extended connection set) and fpga (PDO Packet t/c bits) nodes transmit on the
-    // identifiers of nodes N+32, N+64 and N+96 as well as their own.
+    return by_id;
+  }
+
+  // qd (extended connection set) and fpga (PDO Packet t/c bits) nodes transmit on the
+  // identifiers of nodes N+32, N+64 and N+96 as well as their own.
+  void check_borrowed_ids(const std::vector<NodeRead>& nodes,
+                          const std::map<int, const NodeRead*>& by_id) {
     for (const auto& n : nodes) {
       if (!n.node_id || *n.node_id <= kMaxShortNodeId) continue;
       auto it = by_id.find(*n.node_id & kMaxShortNodeId);
@@ -333,32 +344,13 @@ class RigReader {
                                          : "an fpga node's PDO Packets use the identifiers of "
                                            "nodes N+32, N+64 and N+96 (t and c bits, seeds/000)"));
     }
-    // An explicit TPDO COB-ID must have one transmitter: CAN arbitration cannot resolve two
-    // stations sending the same identifier.
+  }
+
+  // An explicit TPDO COB-ID must have one transmitter: CAN arbitration cannot resolve two
+  // stations sending the same identifier.
+  void check_tpdo_transmitters(const std::vector<NodeRead>& nodes) {
     std::map<std::uint32_t, std::string> users;
-    for (const auto& n : nodes) {
-      if (!n.node_id || !n.kind) continue;
-      const auto id = static_cast<std::uint32_t>(*n.node_id);
-      for (const auto& t : n.spec.tpdos) {
-        if (t.cob_id || t.number > kMaxStandardPdos) continue;
-        const std::uint32_t base = predefined_pdo_base(true, t.number);
-        const std::string who = describe(n) + " TPDO " + std::to_string(t.number);
-        users.emplace(base + id, who);
-        if (*n.kind == NodeKind::fpga) {
-          for (std::uint32_t tc = 0x20; tc <= 0x60; tc += 0x20) {
-            users.emplace(base | tc | id, who + " (PDO Packet fragments)");
-          }
-        }
-      }
-      if (*n.kind == NodeKind::qd) {
-        // Every PDO-range identifier ending in the qd node's id may be one of its 34 TPDOs.
-        // Its own four RPDOs (0x200 + N, ...) are receive identifiers others may send to.
-        for (std::uint32_t cob = 0x180; cob < 0x580; cob += 0x20) {
-          if ((cob & 0x7F) == 0 && (cob & 0x80) == 0) continue;
-          users.emplace(cob | id, describe(n) + " (extended connection set)");
-        }
-      }
-    }
+    for (const auto& n : nodes) add_predefined_transmitters(n, users);
     for (const auto& n : nodes) {
       for (const auto& t : n.explicit_tpdos) {
         auto [it, fresh] =
@@ -368,6 +360,32 @@ class RigReader {
                       hex(t.cob_id, 3) + " is already transmitted by " + it->second +
                           ": one identifier, one transmitter");
         }
+      }
+    }
+  }
+
+  // The identifiers a node transmits on without an explicit cob_id, by who sends them.
+  static void add_predefined_transmitters(const NodeRead& n,
+                                          std::map<std::uint32_t, std::string>& users) {
+    if (!n.node_id || !n.kind) return;
+    const auto id = static_cast<std::uint32_t>(*n.node_id);
+    for (const auto& t : n.spec.tpdos) {
+      if (t.cob_id || t.number > kMaxStandardPdos) continue;
+      const std::uint32_t base = predefined_pdo_base(true, t.number);
+      const std::string who = describe(n) + " TPDO " + std::to_string(t.number);
+      users.emplace(base + id, who);
+      if (*n.kind == NodeKind::fpga) {
+        for (std::uint32_t tc = 0x20; tc <= 0x60; tc += 0x20) {
+          users.emplace(base | tc | id, who + " (PDO Packet fragments)");
+        }
+      }
+    }
+    if (*n.kind == NodeKind::qd) {
+      // Every PDO-range identifier ending in the qd node's id may be one of its 34 TPDOs.
+      // Its own four RPDOs (0x200 + N, ...) are receive identifiers others may send to.
+      for (std::uint32_t cob = 0x180; cob < 0x580; cob += 0x20) {
+        if ((cob & 0x7F) == 0 && (cob & 0x80) == 0) continue;
+        users.emplace(cob | id, describe(n) + " (extended connection set)");
       }
     }
   }
@@ -388,43 +406,9 @@ class RigReader {
         {"name", "kind", "node_id", "device_type", "identity", "heartbeat_ms", "auto_start", "sdo",
          "objects", "tpdos", "rpdos", "traffic", "pdop", "emcy", "loader"});
     if (auto name = in_.string(n, "name", path, false)) spec.name = *name;
-    if (auto kind = in_.string(n, "kind", path, true)) {
-      r.kind = parse_node_kind(*kind);
-      if (!r.kind) {
-        in_.problem(n["kind"], path + ".kind",
-                    "'" + *kind + "' is not a node kind: microcanopen, qd, fpga or cia301");
-      } else {
-        spec.kind = *r.kind;
-      }
-    }
-    const bool short_ids = r.kind == NodeKind::qd || r.kind == NodeKind::fpga;
-    const YAML::Node node_id = n["node_id"];
-    r.node_id_line = line_of(node_id);
-    if (!node_id) {
-      in_.problem(n, path + ".node_id", "missing (required)");
-    } else if (auto id = in_.integer_text(node_id, path + ".node_id")) {
-      const int max = short_ids ? kMaxShortNodeId : canopen::kMaxNodeId;
-      if (!id->fits(1, static_cast<std::uint64_t>(max))) {
-        in_.problem(node_id, path + ".node_id",
-                    node_id.Scalar() + " is out of range 1.." + std::to_string(max) +
-                        (short_ids ? std::string(": ") + to_string(*r.kind) +
-                                         " nodes use ids 1..31 (their identifiers borrow those "
-                                         "of nodes 33..127)"
-                                   : ""));
-      } else {
-        r.node_id = static_cast<int>(id->magnitude);
-        spec.node_id = static_cast<canopen::NodeId>(id->magnitude);
-      }
-    }
-    if (auto v = in_.integer(n, "device_type", path, 0, 0xFFFFFFFF)) {
-      if (r.kind == NodeKind::qd && (*v & 0xFFFF) != 0) {
-        in_.problem(n["device_type"], path + ".device_type",
-                    "a qd node has a manufacturer device profile: profile number 0 in the low 16 "
-                    "bits, the profile version in the high 16 (seeds/003), e.g. 0x00010000");
-      } else {
-        spec.device_type = static_cast<std::uint32_t>(*v);
-      }
-    }
+    read_kind(n, path, r);
+    read_node_id(n, path, r);
+    read_device_type(n, path, r.kind, spec);
     read_identity(n, path, spec.identity);
     if (auto v = in_.integer(n, "heartbeat_ms", path, 0, 65535)) {
       spec.heartbeat_ms = static_cast<std::uint16_t>(*v);
@@ -433,7 +417,13 @@ class RigReader {
     spec.auto_start = r.kind == NodeKind::microcanopen;
     if (auto v = in_.boolean(n, "auto_start", path)) spec.auto_start = *v;
     read_sdo(n, path, r.kind, spec);
+    read_behaviour(n, path, r);
+    return r;
+  }
 
+  // Objects first: PDO maps and traffic are checked against what the node declares.
+  void read_behaviour(const YAML::Node& n, const std::string& path, NodeRead& r) {
+    NodeSpec& spec = r.spec;
     ObjectTable objects;
     read_objects(n, path, r.kind, spec, objects);
     // 1001h is always present and mappable (a TPDO may carry the error register).
@@ -447,7 +437,56 @@ class RigReader {
     read_emcy(n, path, r.kind, spec.emcy);
     read_loader(n, path, r.kind, spec.loader);
     read_traffic(n, path, r.kind, objects, tpdos, pdop_ok, spec);
-    return r;
+  }
+
+  void read_kind(const YAML::Node& n, const std::string& path, NodeRead& r) {
+    auto kind = in_.string(n, "kind", path, true);
+    if (!kind) return;
+    r.kind = parse_node_kind(*kind);
+    if (!r.kind) {
+      in_.problem(n["kind"], path + ".kind",
+                  "'" + *kind + "' is not a node kind: microcanopen, qd, fpga or cia301");
+    } else {
+      r.spec.kind = *r.kind;
+    }
+  }
+
+  // qd and fpga nodes borrow the identifiers of nodes N+32.., so their own ids stop at 31.
+  void read_node_id(const YAML::Node& n, const std::string& path, NodeRead& r) {
+    const bool short_ids = r.kind == NodeKind::qd || r.kind == NodeKind::fpga;
+    const YAML::Node node_id = n["node_id"];
+    r.node_id_line = line_of(node_id);
+    if (!node_id) {
+      in_.problem(n, path + ".node_id", "missing (required)");
+      return;
+    }
+    auto id = in_.integer_text(node_id, path + ".node_id");
+    if (!id) return;
+    const int max = short_ids ? kMaxShortNodeId : canopen::kMaxNodeId;
+    if (!id->fits(1, static_cast<std::uint64_t>(max))) {
+      in_.problem(node_id, path + ".node_id",
+                  node_id.Scalar() + " is out of range 1.." + std::to_string(max) +
+                      (short_ids ? std::string(": ") + to_string(*r.kind) +
+                                       " nodes use ids 1..31 (their identifiers borrow those "
+                                       "of nodes 33..127)"
+                                 : ""));
+      return;
+    }
+    r.node_id = static_cast<int>(id->magnitude);
+    r.spec.node_id = static_cast<canopen::NodeId>(id->magnitude);
+  }
+
+  void read_device_type(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
+                        NodeSpec& spec) {
+    auto v = in_.integer(n, "device_type", path, 0, 0xFFFFFFFF);
+    if (!v) return;
+    if (kind == NodeKind::qd && (*v & 0xFFFF) != 0) {
+      in_.problem(n["device_type"], path + ".device_type",
+                  "a qd node has a manufacturer device profile: profile number 0 in the low 16 "
+                  "bits, the profile version in the high 16 (seeds/003), e.g. 0x00010000");
+      return;
+    }
+    spec.device_type = static_cast<std::uint32_t>(*v);
   }
 
   void read_identity(const YAML::Node& n, const std::string& path, Identity& out) {
@@ -502,68 +541,85 @@ class RigReader {
         in_.problem(o, p, "must be a mapping with index, type and value");
         continue;
       }
-      in_.only_keys(o, p, {"index", "sub", "type", "access", "value", "size"});
-      auto index = in_.integer(o, "index", p, 0, 0xFFFF, true);
-      std::int64_t sub = 0;
-      bool sub_ok = true;
-      if (o["sub"]) {
-        // Sub-index FFh describes the object's structure; it never holds a value.
-        auto s = in_.integer(o, "sub", p, 0, 254);
-        sub_ok = s.has_value();
-        if (s) sub = *s;
-      }
-      std::optional<DataType> type;
-      if (auto t = in_.string(o, "type", p, true)) {
-        type = parse_data_type(*t);
-        if (!type) {
-          in_.problem(o["type"], p + ".type",
-                      "'" + *t +
-                          "' is not a data type: boolean, integer8..64, unsigned8..64, real32, "
-                          "real64, visible_string, octet_string or domain");
-        }
-      }
-      Access access = Access::rw;
-      if (auto a = in_.string(o, "access", p, false)) {
-        static const std::map<std::string, Access> kAccess = {{"ro", Access::ro},
-                                                              {"wo", Access::wo},
-                                                              {"rw", Access::rw},
-                                                              {"const", Access::constant}};
-        if (auto it = kAccess.find(*a); it != kAccess.end()) {
-          access = it->second;
-        } else {
-          in_.problem(o["access"], p + ".access", "'" + *a + "' is not ro, wo, rw or const");
-        }
-      }
-      bool placed = index.has_value() && sub_ok;
-      if (index) {
-        const auto idx = static_cast<std::uint16_t>(*index);
-        if (auto owner = owner_of(idx, kind)) {
-          in_.problem(o["index"], p + ".index", "refused: " + *owner);
-          placed = false;
-        } else if (kind == NodeKind::microcanopen && (idx < 0x2000 || idx > 0x9FFF)) {
-          in_.problem(o["index"], p + ".index",
-                      "microcanopen nodes have only 1000h, 1001h and 1018h plus process data "
-                      "(seeds/002): give process objects 2000h-9FFFh");
-          placed = false;
-        }
-      }
-      std::optional<std::vector<std::uint8_t>> value;
-      if (type) value = read_value(o, p, *type);
-      if (type && value) check_kind_size(o, p, kind, *type, value->size());
-      if (!placed) continue;
-      const auto idx = static_cast<std::uint16_t>(*index);
-      const auto sx = static_cast<std::uint8_t>(sub);
-      const std::size_t bytes = value ? value->size() : type ? fixed_size(*type) : 0;
-      auto [it, fresh] = table.emplace(object_key(idx, sx),
-                                       DeclaredObject{type, access, bytes, line_of(o["index"])});
-      if (!fresh) {
-        in_.problem(o["index"], p + ".index",
-                    object_name(idx, sx) + " is already defined at line " +
-                        std::to_string(it->second.line));
-        continue;
-      }
-      if (type && value) spec.objects.push_back({idx, sx, *type, access, std::move(*value)});
+      read_object(o, p, kind, spec, table);
     }
+  }
+
+  // An object with a bad type or value is still declared in `table` (when its place is valid) so
+  // PDO maps that name it are not also reported as naming a missing object.
+  void read_object(const YAML::Node& o, const std::string& p, std::optional<NodeKind> kind,
+                   NodeSpec& spec, ObjectTable& table) {
+    in_.only_keys(o, p, {"index", "sub", "type", "access", "value", "size"});
+    auto index = in_.integer(o, "index", p, 0, 0xFFFF, true);
+    std::int64_t sub = 0;
+    bool sub_ok = true;
+    if (o["sub"]) {
+      // Sub-index FFh describes the object's structure; it never holds a value.
+      auto s = in_.integer(o, "sub", p, 0, 254);
+      sub_ok = s.has_value();
+      if (s) sub = *s;
+    }
+    const std::optional<DataType> type = read_object_type(o, p);
+    const Access access = read_access(o, p);
+    bool placed = index.has_value() && sub_ok;
+    if (index && !index_allowed(o, p, *index, kind)) placed = false;
+    std::optional<std::vector<std::uint8_t>> value;
+    if (type) value = read_value(o, p, *type);
+    if (type && value) check_kind_size(o, p, kind, *type, value->size());
+    if (!placed) return;
+    const auto idx = static_cast<std::uint16_t>(*index);
+    const auto sx = static_cast<std::uint8_t>(sub);
+    const std::size_t bytes = value ? value->size() : type ? fixed_size(*type) : 0;
+    auto [it, fresh] = table.emplace(object_key(idx, sx),
+                                     DeclaredObject{type, access, bytes, line_of(o["index"])});
+    if (!fresh) {
+      in_.problem(
+          o["index"], p + ".index",
+          object_name(idx, sx) + " is already defined at line " + std::to_string(it->second.line));
+      return;
+    }
+    if (type && value) spec.objects.push_back({idx, sx, *type, access, std::move(*value)});
+  }
+
+  std::optional<DataType> read_object_type(const YAML::Node& o, const std::string& p) {
+    auto t = in_.string(o, "type", p, true);
+    if (!t) return std::nullopt;
+    auto type = parse_data_type(*t);
+    if (!type) {
+      in_.problem(o["type"], p + ".type",
+                  "'" + *t +
+                      "' is not a data type: boolean, integer8..64, unsigned8..64, real32, "
+                      "real64, visible_string, octet_string or domain");
+    }
+    return type;
+  }
+
+  // Read-write unless told otherwise (also after a refused access, which is reported).
+  Access read_access(const YAML::Node& o, const std::string& p) {
+    static const std::map<std::string, Access> kAccess = {
+        {"ro", Access::ro}, {"wo", Access::wo}, {"rw", Access::rw}, {"const", Access::constant}};
+    auto a = in_.string(o, "access", p, false);
+    if (!a) return Access::rw;
+    if (auto it = kAccess.find(*a); it != kAccess.end()) return it->second;
+    in_.problem(o["access"], p + ".access", "'" + *a + "' is not ro, wo, rw or const");
+    return Access::rw;
+  }
+
+  // False (reported) for an index the node builds itself or that its kind cannot hold.
+  bool index_allowed(const YAML::Node& o, const std::string& p, std::int64_t index,
+                     std::optional<NodeKind> kind) {
+    const auto idx = static_cast<std::uint16_t>(index);
+    if (auto owner = owner_of(idx, kind)) {
+      in_.problem(o["index"], p + ".index", "refused: " + *owner);
+      return false;
+    }
+    if (kind == NodeKind::microcanopen && (idx < 0x2000 || idx > 0x9FFF)) {
+      in_.problem(o["index"], p + ".index",
+                  "microcanopen nodes have only 1000h, 1001h and 1018h plus process data "
+                  "(seeds/002): give process objects 2000h-9FFFh");
+      return false;
+    }
+    return true;
   }
 
   // Expedited-only nodes (fpga, microcanopen) cannot move more than 4 bytes in one SDO, and a
@@ -582,42 +638,22 @@ class RigReader {
     }
   }
 
-  std::optional<std::vector<std::uint8_t>> read_value(const YAML::Node& o, const std::string& p,
-                                                      DataType type) {
+  using Bytes = std::vector<std::uint8_t>;
+
+  // An object's initial value: from `value`, or `size` zero bytes (octet_string and domain), or
+  // all zeros when neither is given.
+  std::optional<Bytes> read_value(const YAML::Node& o, const std::string& p, DataType type) {
     const YAML::Node value = o["value"];
     const YAML::Node size = o["size"];
-    const std::string vfield = p + ".value";
-    const std::size_t n = fixed_size(type);
     if (value && size) {
       in_.problem(size, p + ".size", "give value or size, not both");
       return std::nullopt;
     }
-    if (size) {
-      if (type != DataType::octet_string && type != DataType::domain) {
-        in_.problem(size, p + ".size",
-                    "only octet_string and domain objects take a size (a zero-filled value)");
-        return std::nullopt;
-      }
-      auto v = in_.integer(size, p + ".size", 0, static_cast<std::int64_t>(kMaxVariableBytes));
-      if (!v) return std::nullopt;
-      return std::vector<std::uint8_t>(static_cast<std::size_t>(*v), 0);
-    }
-    if (!value) return std::vector<std::uint8_t>(n, 0);
-
+    if (size) return read_zero_filled(size, p + ".size", type);
+    if (!value) return Bytes(fixed_size(type), 0);
+    const std::string vfield = p + ".value";
     if (type == DataType::octet_string || type == DataType::domain) {
-      if (!value.IsSequence()) {
-        in_.problem(value, vfield, "must be a list of byte values, e.g. [0x01, 0x02]");
-        return std::nullopt;
-      }
-      std::vector<std::uint8_t> bytes;
-      bool ok = true;
-      for (std::size_t k = 0; k < value.size(); ++k) {
-        auto b = in_.integer(value[k], vfield + "[" + std::to_string(k) + "]", 0, 255);
-        ok = ok && b.has_value();
-        if (b) bytes.push_back(static_cast<std::uint8_t>(*b));
-      }
-      if (!ok) return std::nullopt;
-      return bytes;
+      return read_byte_list(value, vfield);
     }
     if (!value.IsScalar()) {
       in_.problem(value, vfield,
@@ -626,40 +662,95 @@ class RigReader {
                       : std::string("must be a number for ") + to_string(type));
       return std::nullopt;
     }
-    const std::string& text = value.Scalar();
-    if (type == DataType::visible_string) {
-      if (text.size() > kMaxVariableBytes) {
-        in_.problem(value, vfield, "longer than " + std::to_string(kMaxVariableBytes) + " bytes");
-        return std::nullopt;
-      }
-      return std::vector<std::uint8_t>(text.begin(), text.end());
+    switch (type) {
+      case DataType::visible_string:
+        return read_string_value(value, vfield);
+      case DataType::boolean:
+        return read_boolean_value(value, vfield);
+      case DataType::real32:
+      case DataType::real64:
+        return read_real_value(value, vfield, type);
+      default:
+        return read_integer_value(value, vfield, type);
     }
-    if (type == DataType::boolean) {
-      bool b = false;
-      if (YAML::convert<bool>::decode(value, b) || text == "0" || text == "1") {
-        return std::vector<std::uint8_t>(1, b || text == "1" ? 1 : 0);
-      }
-      in_.problem(value, vfield, "'" + text + "' is not a boolean: true, false, 0 or 1");
+  }
+
+  std::optional<Bytes> read_zero_filled(const YAML::Node& size, const std::string& field,
+                                        DataType type) {
+    if (type != DataType::octet_string && type != DataType::domain) {
+      in_.problem(size, field,
+                  "only octet_string and domain objects take a size (a zero-filled value)");
       return std::nullopt;
     }
-    if (type == DataType::real32 || type == DataType::real64) {
-      auto d = parse_real(text);
-      if (!d) {
-        in_.problem(value, vfield, "'" + text + "' is not a number");
-        return std::nullopt;
-      }
-      if (type == DataType::real64) return le(std::bit_cast<std::uint64_t>(*d), 8);
-      if (std::isfinite(*d) && std::fabs(*d) > std::numeric_limits<float>::max()) {
-        in_.problem(value, vfield, text + " does not fit real32");
-        return std::nullopt;
-      }
-      return le(std::bit_cast<std::uint32_t>(static_cast<float>(*d)), 4);
+    auto v = in_.integer(size, field, 0, static_cast<std::int64_t>(kMaxVariableBytes));
+    if (!v) return std::nullopt;
+    return Bytes(static_cast<std::size_t>(*v), 0);
+  }
+
+  // octet_string and domain values are written as a list of bytes; every bad byte is reported.
+  std::optional<Bytes> read_byte_list(const YAML::Node& value, const std::string& vfield) {
+    if (!value.IsSequence()) {
+      in_.problem(value, vfield, "must be a list of byte values, e.g. [0x01, 0x02]");
+      return std::nullopt;
     }
+    Bytes bytes;
+    bool ok = true;
+    for (std::size_t k = 0; k < value.size(); ++k) {
+      auto b = in_.integer(value[k], vfield + "[" + std::to_string(k) + "]", 0, 255);
+      ok = ok && b.has_value();
+      if (b) bytes.push_back(static_cast<std::uint8_t>(*b));
+    }
+    if (!ok) return std::nullopt;
+    return bytes;
+  }
+
+  std::optional<Bytes> read_string_value(const YAML::Node& value, const std::string& vfield) {
+    const std::string& text = value.Scalar();
+    if (text.size() > kMaxVariableBytes) {
+      in_.problem(value, vfield, "longer than " + std::to_string(kMaxVariableBytes) + " bytes");
+      return std::nullopt;
+    }
+    return Bytes(text.begin(), text.end());
+  }
+
+  // YAML's booleans plus 0 and 1, as EDS files write them.
+  std::optional<Bytes> read_boolean_value(const YAML::Node& value, const std::string& vfield) {
+    const std::string& text = value.Scalar();
+    bool b = false;
+    if (YAML::convert<bool>::decode(value, b) || text == "0" || text == "1") {
+      return Bytes(1, b || text == "1" ? 1 : 0);
+    }
+    in_.problem(value, vfield, "'" + text + "' is not a boolean: true, false, 0 or 1");
+    return std::nullopt;
+  }
+
+  // Infinities and NaN are kept (a node may publish them); a finite real32 must not overflow.
+  std::optional<Bytes> read_real_value(const YAML::Node& value, const std::string& vfield,
+                                       DataType type) {
+    const std::string& text = value.Scalar();
+    auto d = parse_real(text);
+    if (!d) {
+      in_.problem(value, vfield, "'" + text + "' is not a number");
+      return std::nullopt;
+    }
+    if (type == DataType::real64) return le(std::bit_cast<std::uint64_t>(*d), 8);
+    if (std::isfinite(*d) && std::fabs(*d) > std::numeric_limits<float>::max()) {
+      in_.problem(value, vfield, text + " does not fit real32");
+      return std::nullopt;
+    }
+    return le(std::bit_cast<std::uint32_t>(static_cast<float>(*d)), 4);
+  }
+
+  // Range errors name the type's range, in hex when the value was written in hex.
+  std::optional<Bytes> read_integer_value(const YAML::Node& value, const std::string& vfield,
+                                          DataType type) {
+    const std::string& text = value.Scalar();
     auto v = parse_integer(text);
     if (!v) {
       in_.problem(value, vfield, "'" + text + "' is not an integer (decimal or 0x hex)");
       return std::nullopt;
     }
+    const std::size_t n = fixed_size(type);
     const unsigned bits = static_cast<unsigned>(8 * n);
     if (is_unsigned_integer(type)) {
       const std::uint64_t max = bits == 64 ? ~std::uint64_t{0} : (std::uint64_t{1} << bits) - 1;
@@ -694,12 +785,8 @@ class RigReader {
   void read_pdos(const YAML::Node& n, const std::string& path, bool transmit, NodeRead& r,
                  const ObjectTable& objects, std::map<unsigned, DeclaredPdo>& declared) {
     const char* key = transmit ? "tpdos" : "rpdos";
-    const char* what = transmit ? "TPDO" : "RPDO";
     auto pdos = in_.list(n, key, path);
     if (!pdos) return;
-    const auto kind = r.kind;
-    const int max_number =
-        transmit && (kind == NodeKind::qd || !kind) ? kMaxQdTpdos : kMaxStandardPdos;
     for (std::size_t i = 0; i < pdos->size(); ++i) {
       const YAML::Node d = (*pdos)[i];
       const std::string p = item_path(path, key, i);
@@ -707,73 +794,90 @@ class RigReader {
         in_.problem(d, p, "must be a mapping with number and map");
         continue;
       }
-      if (transmit) {
-        in_.only_keys(
-            d, p,
-            {"number", "cob_id", "enabled", "transmission", "inhibit_100us", "event_ms", "map"});
-      } else {
-        for (const char* tx_only : {"inhibit_100us", "event_ms"}) {
-          if (d[tx_only]) {
-            in_.problem(d[tx_only], p + "." + tx_only, "applies to TPDOs only");
-          }
-        }
-        in_.only_keys(
-            d, p,
-            {"number", "cob_id", "enabled", "transmission", "map", "inhibit_100us", "event_ms"});
-      }
-      PdoSpec pdo;
-      const YAML::Node number_at = d["number"];
-      std::optional<std::int64_t> number;
-      if (!number_at) {
-        in_.problem(d, p + ".number", "missing (required)");
-      } else if (auto v = in_.integer_text(number_at, p + ".number")) {
-        if (!v->fits(1, static_cast<std::uint64_t>(max_number))) {
-          std::string why;
-          if (transmit && kind == NodeKind::qd) {
-            why = ": a qd node has 34 TPDOs (extended connection set, seeds/003)";
-          } else if (transmit) {
-            why = std::string(": ") + (kind ? to_string(*kind) : "this") +
-                  " nodes have TPDOs 1..4; only qd nodes have 34";
-          } else {
-            why = ": every kind has RPDOs 1..4";
-          }
-          in_.problem(
-              number_at, p + ".number",
-              number_at.Scalar() + " is out of range 1.." + std::to_string(max_number) + why);
-        } else {
-          number = static_cast<std::int64_t>(v->magnitude);
-        }
-      }
-      if (number) {
-        pdo.number = static_cast<unsigned>(*number);
-        auto [it, fresh] = declared.emplace(pdo.number, DeclaredPdo{true, line_of(number_at)});
-        if (!fresh) {
-          in_.problem(number_at, p + ".number",
-                      std::string(what) + " " + std::to_string(pdo.number) +
-                          " is already defined at line " + std::to_string(it->second.line));
-          number.reset();
-        }
-      }
-      if (const YAML::Node cob = d["cob_id"]) {
-        read_cob_id(cob, p + ".cob_id", transmit, kind, pdo);
-        if (pdo.cob_id && transmit && number) {
-          r.explicit_tpdos.push_back({*pdo.cob_id, pdo.number, cob, p + ".cob_id"});
-        }
-      }
-      if (auto v = in_.boolean(d, "enabled", p)) pdo.enabled = *v;
-      if (number) declared[pdo.number].enabled = pdo.enabled;
-      read_transmission(d, p, transmit, kind, pdo);
-      if (transmit) {
-        if (auto v = in_.integer(d, "inhibit_100us", p, 0, 65535)) {
-          pdo.inhibit_100us = static_cast<std::uint16_t>(*v);
-        }
-        if (auto v = in_.integer(d, "event_ms", p, 0, 65535)) {
-          pdo.event_timer_ms = static_cast<std::uint16_t>(*v);
-        }
-      }
-      read_mapping(d, p, transmit, objects, pdo);
-      if (number) (transmit ? r.spec.tpdos : r.spec.rpdos).push_back(std::move(pdo));
+      read_pdo(d, p, transmit, r, objects, declared);
     }
+  }
+
+  void read_pdo(const YAML::Node& d, const std::string& p, bool transmit, NodeRead& r,
+                const ObjectTable& objects, std::map<unsigned, DeclaredPdo>& declared) {
+    const auto kind = r.kind;
+    check_pdo_keys(d, p, transmit);
+    PdoSpec pdo;
+    // A PDO without a valid, unique number is still read through, so all its problems show.
+    const bool numbered = claim_pdo_number(d, p, transmit, kind, declared, pdo);
+    if (const YAML::Node cob = d["cob_id"]) {
+      read_cob_id(cob, p + ".cob_id", transmit, kind, pdo);
+      if (pdo.cob_id && transmit && numbered) {
+        r.explicit_tpdos.push_back({*pdo.cob_id, pdo.number, cob, p + ".cob_id"});
+      }
+    }
+    if (auto v = in_.boolean(d, "enabled", p)) pdo.enabled = *v;
+    if (numbered) declared[pdo.number].enabled = pdo.enabled;
+    read_transmission(d, p, transmit, kind, pdo);
+    if (transmit) {
+      if (auto v = in_.integer(d, "inhibit_100us", p, 0, 65535)) {
+        pdo.inhibit_100us = static_cast<std::uint16_t>(*v);
+      }
+      if (auto v = in_.integer(d, "event_ms", p, 0, 65535)) {
+        pdo.event_timer_ms = static_cast<std::uint16_t>(*v);
+      }
+    }
+    read_mapping(d, p, transmit, objects, pdo);
+    if (numbered) (transmit ? r.spec.tpdos : r.spec.rpdos).push_back(std::move(pdo));
+  }
+
+  // The timer keys exist for TPDOs only; on an RPDO they get a reason, not "unknown key".
+  void check_pdo_keys(const YAML::Node& d, const std::string& p, bool transmit) {
+    if (!transmit) {
+      for (const char* tx_only : {"inhibit_100us", "event_ms"}) {
+        if (d[tx_only]) in_.problem(d[tx_only], p + "." + tx_only, "applies to TPDOs only");
+      }
+    }
+    in_.only_keys(
+        d, p, {"number", "cob_id", "enabled", "transmission", "inhibit_100us", "event_ms", "map"});
+  }
+
+  // Reads the PDO's number into `pdo` and records it in `declared`; false when it is missing,
+  // out of range for the node's kind, or already taken.
+  bool claim_pdo_number(const YAML::Node& d, const std::string& p, bool transmit,
+                        std::optional<NodeKind> kind, std::map<unsigned, DeclaredPdo>& declared,
+                        PdoSpec& pdo) {
+    const YAML::Node number_at = d["number"];
+    if (!number_at) {
+      in_.problem(d, p + ".number", "missing (required)");
+      return false;
+    }
+    auto v = in_.integer_text(number_at, p + ".number");
+    if (!v) return false;
+    const int max_number =
+        transmit && (kind == NodeKind::qd || !kind) ? kMaxQdTpdos : kMaxStandardPdos;
+    if (!v->fits(1, static_cast<std::uint64_t>(max_number))) {
+      in_.problem(number_at, p + ".number",
+                  number_at.Scalar() + " is out of range 1.." + std::to_string(max_number) +
+                      pdo_numbers_of(transmit, kind));
+      return false;
+    }
+    pdo.number = static_cast<unsigned>(v->magnitude);
+    auto [it, fresh] = declared.emplace(pdo.number, DeclaredPdo{true, line_of(number_at)});
+    if (!fresh) {
+      in_.problem(number_at, p + ".number",
+                  std::string(transmit ? "TPDO" : "RPDO") + " " + std::to_string(pdo.number) +
+                      " is already defined at line " + std::to_string(it->second.line));
+      return false;
+    }
+    return true;
+  }
+
+  // Why the PDO numbers end where they do, for the out-of-range message.
+  static std::string pdo_numbers_of(bool transmit, std::optional<NodeKind> kind) {
+    if (transmit && kind == NodeKind::qd) {
+      return ": a qd node has 34 TPDOs (extended connection set, seeds/003)";
+    }
+    if (transmit) {
+      return std::string(": ") + (kind ? to_string(*kind) : "this") +
+             " nodes have TPDOs 1..4; only qd nodes have 34";
+    }
+    return ": every kind has RPDOs 1..4";
   }
 
   void read_cob_id(const YAML::Node& cob, const std::string& field, bool transmit,
@@ -831,6 +935,13 @@ class RigReader {
     pdo.transmission_type = static_cast<std::uint8_t>(*v);
   }
 
+  // One entry of a PDO map as written, before it is checked against the node's objects.
+  struct MapEntry {
+    std::optional<ObjectRef> ref;
+    std::optional<std::int64_t> bits;  // absent: the whole object
+    bool bits_ok = true;               // false: a length was given but refused
+  };
+
   // map: ["6000:01/16", ...] or [{index: 0x6000, sub: 1, bits: 16}, ...]; bits default to the
   // whole object.
   void read_mapping(const YAML::Node& d, const std::string& p, bool transmit,
@@ -838,95 +949,118 @@ class RigReader {
     auto map = in_.list(d, "map", p);
     if (!map) return;
     int total = 0;
+    // The 64-bit total is only checked when every length is known, so one bad entry does not
+    // also raise a misleading total.
     bool all_known = true;
     for (std::size_t k = 0; k < map->size(); ++k) {
       const YAML::Node e = (*map)[k];
       const std::string f = p + ".map[" + std::to_string(k) + "]";
-      std::optional<ObjectRef> ref;
-      std::optional<std::int64_t> bits;
-      if (e.IsMap()) {
-        in_.only_keys(e, f, {"index", "sub", "bits"});
-        auto index = in_.integer(e, "index", f, 0, 0xFFFF, true);
-        auto sub = e["sub"] ? in_.integer(e, "sub", f, 0, 254) : std::optional<std::int64_t>(0);
-        if (index && sub) {
-          ref = std::pair{static_cast<std::uint16_t>(*index), static_cast<std::uint8_t>(*sub)};
-        }
-        if (e["bits"]) {
-          bits = in_.integer(e, "bits", f, 0, 255);
-          if (!bits) all_known = false;
-        }
-      } else if (e.IsScalar()) {
-        // "6000:01/16": the length after the slash is decimal bits, as in CiA 301 mappings.
-        const std::string& s = e.Scalar();
-        const auto slash = s.find('/');
-        if (slash == std::string::npos) {
-          ref = in_.object_ref(e, f);
-        } else {
-          const std::string ref_text = s.substr(0, slash);
-          const std::string bits_text = s.substr(slash + 1);
-          auto v = parse_integer(bits_text);
-          if (!v || v->negative || v->hex || !v->fits(0, 255)) {
-            in_.problem(e, f, "'" + bits_text + "' after the slash must be a length in bits");
-            all_known = false;
-          } else {
-            bits = static_cast<std::int64_t>(v->magnitude);
-          }
-          ref = parse_object_ref(ref_text);
-          if (!ref) {
-            in_.problem(e, f, "must be index:sub/bits in hex:hex/decimal, e.g. \"6000:01/16\"");
-          }
-        }
-      } else {
-        in_.problem(e, f, "must be \"index:sub/bits\" or {index, sub, bits}");
-      }
-      if (!ref) {
+      const MapEntry entry = read_map_entry(e, f);
+      all_known = all_known && entry.bits_ok;
+      if (!entry.ref) {
         all_known = false;
         continue;
       }
-      const std::string name = object_name(ref->first, ref->second);
-      auto it = objects.find(object_key(ref->first, ref->second));
-      if (it == objects.end()) {
-        in_.problem(e, f,
-                    name +
-                        " is not an object of this node: define it in objects (1001h is the "
-                        "only built-in object a PDO may map)");
+      const auto length = mapped_length(e, f, transmit, objects, *entry.ref, entry.bits);
+      if (!length) {
         all_known = false;
         continue;
       }
-      const DeclaredObject& obj = it->second;
-      if (transmit && obj.access == Access::wo) {
-        in_.problem(e, f, name + " is write-only: a TPDO can only map readable objects");
-      }
-      if (!transmit && (obj.access == Access::ro || obj.access == Access::constant)) {
-        in_.problem(e, f, name + " is read-only: an RPDO can only map writable objects");
-      }
-      if (!obj.type || obj.bytes == 0) {
-        all_known = false;  // its own problem is already reported
-        continue;
-      }
-      const auto object_bits = static_cast<std::int64_t>(8 * obj.bytes);
-      const std::int64_t length = bits.value_or(object_bits);
-      if (length == 0 || length % 8 != 0 || length > kMaxPdoBits) {
-        in_.problem(
-            e, f,
-            std::to_string(length) + " bits: a mapped length is a multiple of 8, from 8 to 64");
-        all_known = false;
-        continue;
-      }
-      if (length > object_bits) {
-        in_.problem(e, f,
-                    std::to_string(length) + " bits is more than " + name + " holds (" +
-                        std::to_string(object_bits) + " bits)");
-        all_known = false;
-        continue;
-      }
-      total += static_cast<int>(length);
-      pdo.mapping.push_back({ref->first, ref->second, static_cast<std::uint8_t>(length)});
+      total += static_cast<int>(*length);
+      pdo.mapping.push_back(
+          {entry.ref->first, entry.ref->second, static_cast<std::uint8_t>(*length)});
     }
     if (all_known && total > kMaxPdoBits) {
       in_.problem(*map, p + ".map",
                   std::to_string(total) + " bits mapped: a PDO carries at most 64 bits");
     }
+  }
+
+  MapEntry read_map_entry(const YAML::Node& e, const std::string& f) {
+    if (e.IsMap()) return read_map_entry_fields(e, f);
+    if (e.IsScalar()) return read_map_entry_text(e, f);
+    in_.problem(e, f, "must be \"index:sub/bits\" or {index, sub, bits}");
+    return {};
+  }
+
+  // {index: 0x6000, sub: 1, bits: 16}
+  MapEntry read_map_entry_fields(const YAML::Node& e, const std::string& f) {
+    MapEntry entry;
+    in_.only_keys(e, f, {"index", "sub", "bits"});
+    auto index = in_.integer(e, "index", f, 0, 0xFFFF, true);
+    auto sub = e["sub"] ? in_.integer(e, "sub", f, 0, 254) : std::optional<std::int64_t>(0);
+    if (index && sub) {
+      entry.ref = std::pair{static_cast<std::uint16_t>(*index), static_cast<std::uint8_t>(*sub)};
+    }
+    if (e["bits"]) {
+      entry.bits = in_.integer(e, "bits", f, 0, 255);
+      entry.bits_ok = entry.bits.has_value();
+    }
+    return entry;
+  }
+
+  // "6000:01/16": the length after the slash is decimal bits, as in CiA 301 mappings.
+  MapEntry read_map_entry_text(const YAML::Node& e, const std::string& f) {
+    MapEntry entry;
+    const std::string& s = e.Scalar();
+    const auto slash = s.find('/');
+    if (slash == std::string::npos) {
+      entry.ref = in_.object_ref(e, f);
+      return entry;
+    }
+    const std::string ref_text = s.substr(0, slash);
+    const std::string bits_text = s.substr(slash + 1);
+    auto v = parse_integer(bits_text);
+    if (!v || v->negative || v->hex || !v->fits(0, 255)) {
+      in_.problem(e, f, "'" + bits_text + "' after the slash must be a length in bits");
+      entry.bits_ok = false;
+    } else {
+      entry.bits = static_cast<std::int64_t>(v->magnitude);
+    }
+    entry.ref = parse_object_ref(ref_text);
+    if (!entry.ref) {
+      in_.problem(e, f, "must be index:sub/bits in hex:hex/decimal, e.g. \"6000:01/16\"");
+    }
+    return entry;
+  }
+
+  // The length in bits the entry maps, once the object exists on this node, may be accessed in
+  // this direction (reported, not fatal) and holds that many bits; nullopt when it cannot be
+  // mapped or its size is unknown (its own problem is reported where it is declared).
+  std::optional<std::int64_t> mapped_length(const YAML::Node& e, const std::string& f,
+                                            bool transmit, const ObjectTable& objects,
+                                            ObjectRef ref, std::optional<std::int64_t> bits) {
+    const std::string name = object_name(ref.first, ref.second);
+    auto it = objects.find(object_key(ref.first, ref.second));
+    if (it == objects.end()) {
+      in_.problem(e, f,
+                  name +
+                      " is not an object of this node: define it in objects (1001h is the "
+                      "only built-in object a PDO may map)");
+      return std::nullopt;
+    }
+    const DeclaredObject& obj = it->second;
+    if (transmit && obj.access == Access::wo) {
+      in_.problem(e, f, name + " is write-only: a TPDO can only map readable objects");
+    }
+    if (!transmit && (obj.access == Access::ro || obj.access == Access::constant)) {
+      in_.problem(e, f, name + " is read-only: an RPDO can only map writable objects");
+    }
+    if (!obj.type || obj.bytes == 0) return std::nullopt;
+    const auto object_bits = static_cast<std::int64_t>(8 * obj.bytes);
+    const std::int64_t length = bits.value_or(object_bits);
+    if (length == 0 || length % 8 != 0 || length > kMaxPdoBits) {
+      in_.problem(
+          e, f, std::to_string(length) + " bits: a mapped length is a multiple of 8, from 8 to 64");
+      return std::nullopt;
+    }
+    if (length > object_bits) {
+      in_.problem(e, f,
+                  std::to_string(length) + " bits is more than " + name + " holds (" +
+                      std::to_string(object_bits) + " bits)");
+      return std::nullopt;
+    }
+    return length;
   }
 
   // Returns false when the section was refused, so traffic does not also check against it.
@@ -991,12 +1125,22 @@ class RigReader {
     if (auto v = in_.boolean(loader, "wait_for_command", p)) out.wait_for_command = *v;
   }
 
+  // What a traffic entry is checked against: the node's kind and what it declared before.
+  struct TrafficContext {
+    std::optional<NodeKind> kind;
+    const ObjectTable& objects;
+    const std::map<unsigned, DeclaredPdo>& tpdos;
+    bool tpdos_known;  // false: tpdos was refused, so a missing TPDO is not reported twice
+    bool pdop_ok;
+  };
+
   void read_traffic(const YAML::Node& n, const std::string& path, std::optional<NodeKind> kind,
                     const ObjectTable& objects, const std::map<unsigned, DeclaredPdo>& tpdos,
                     bool pdop_ok, NodeSpec& spec) {
     auto traffic = in_.list(n, "traffic", path);
     if (!traffic) return;
-    const bool tpdos_known = !n["tpdos"] || n["tpdos"].IsSequence();
+    const TrafficContext context{kind, objects, tpdos, !n["tpdos"] || n["tpdos"].IsSequence(),
+                                 pdop_ok};
     for (std::size_t i = 0; i < traffic->size(); ++i) {
       const YAML::Node t = (*traffic)[i];
       const std::string p = item_path(path, "traffic", i);
@@ -1005,67 +1149,72 @@ class RigReader {
         continue;
       }
       TrafficSpec out;
-      bool ok = true;
-      std::optional<TrafficSpec::Kind> tk;
-      if (auto k = in_.string(t, "kind", p, true)) {
-        static const std::map<std::string, TrafficSpec::Kind> kTrafficKinds = {
-            {"counter", TrafficSpec::Kind::counter},
-            {"pdop_sample", TrafficSpec::Kind::pdop_sample},
-            {"subsystem_event", TrafficSpec::Kind::subsystem_event}};
-        if (auto it = kTrafficKinds.find(*k); it != kTrafficKinds.end()) {
-          tk = it->second;
-        } else {
-          in_.problem(t["kind"], p + ".kind",
-                      "'" + *k +
-                          "' is not a traffic kind: counter, pdop_sample or "
-                          "subsystem_event");
-        }
-      }
-      ok = tk.has_value();
-      if (auto v = in_.integer(t, "period_ms", p, 1, 3600000, true)) {
-        out.period = std::chrono::milliseconds(*v);
-      } else {
-        ok = false;
-      }
-      if (!tk) {
-        in_.only_keys(t, p, {"kind", "period_ms", "object", "step", "pdo", "bytes", "subsystem"});
-        continue;
-      }
-      out.kind = *tk;
-      switch (*tk) {
-        case TrafficSpec::Kind::counter:
-          in_.only_keys(t, p, {"kind", "period_ms", "object", "step"});
-          ok = read_counter(t, p, objects, out) && ok;
-          break;
-        case TrafficSpec::Kind::pdop_sample:
-          in_.only_keys(t, p, {"kind", "period_ms", "pdo", "bytes"});
-          if (kind && kind != NodeKind::fpga) {
-            in_.problem(t["kind"], p + ".kind",
-                        "pdop_sample is for fpga nodes, the ones that send PDO Packets "
-                        "(seeds/000)");
-            ok = false;
-            break;
-          }
-          ok = read_pdop_sample(t, p, tpdos, tpdos_known, pdop_ok, spec.pdop, out) && ok;
-          break;
-        case TrafficSpec::Kind::subsystem_event:
-          in_.only_keys(t, p, {"kind", "period_ms", "subsystem"});
-          if (kind && kind != NodeKind::qd) {
-            in_.problem(t["kind"], p + ".kind",
-                        "subsystem_event is for qd nodes, whose EMCY codes F000h-FFFFh flag "
-                        "subsystem state changes (seeds/003)");
-            ok = false;
-            break;
-          }
-          if (auto v = in_.integer(t, "subsystem", p, 0, 11, true)) {
-            out.subsystem = static_cast<unsigned>(*v);
-          } else {
-            ok = false;
-          }
-          break;
-      }
-      if (ok) spec.traffic.push_back(out);
+      if (read_traffic_entry(t, p, context, spec.pdop, out)) spec.traffic.push_back(out);
     }
+  }
+
+  // Every field is read even after a problem, so one pass reports them all.
+  bool read_traffic_entry(const YAML::Node& t, const std::string& p, const TrafficContext& context,
+                          const PdopSpec& pdop, TrafficSpec& out) {
+    const std::optional<TrafficSpec::Kind> tk = read_traffic_kind(t, p);
+    bool ok = tk.has_value();
+    if (auto v = in_.integer(t, "period_ms", p, 1, 3600000, true)) {
+      out.period = std::chrono::milliseconds(*v);
+    } else {
+      ok = false;
+    }
+    if (!tk) {
+      in_.only_keys(t, p, {"kind", "period_ms", "object", "step", "pdo", "bytes", "subsystem"});
+      return false;
+    }
+    out.kind = *tk;
+    switch (*tk) {
+      case TrafficSpec::Kind::counter:
+        in_.only_keys(t, p, {"kind", "period_ms", "object", "step"});
+        return read_counter(t, p, context.objects, out) && ok;
+      case TrafficSpec::Kind::pdop_sample:
+        in_.only_keys(t, p, {"kind", "period_ms", "pdo", "bytes"});
+        if (context.kind && context.kind != NodeKind::fpga) {
+          in_.problem(t["kind"], p + ".kind",
+                      "pdop_sample is for fpga nodes, the ones that send PDO Packets "
+                      "(seeds/000)");
+          return false;
+        }
+        return read_pdop_sample(t, p, context.tpdos, context.tpdos_known, context.pdop_ok, pdop,
+                                out) &&
+               ok;
+      case TrafficSpec::Kind::subsystem_event:
+        in_.only_keys(t, p, {"kind", "period_ms", "subsystem"});
+        return read_subsystem_event(t, p, context.kind, out) && ok;
+    }
+    return false;  // every kind is handled above
+  }
+
+  std::optional<TrafficSpec::Kind> read_traffic_kind(const YAML::Node& t, const std::string& p) {
+    static const std::map<std::string, TrafficSpec::Kind> kTrafficKinds = {
+        {"counter", TrafficSpec::Kind::counter},
+        {"pdop_sample", TrafficSpec::Kind::pdop_sample},
+        {"subsystem_event", TrafficSpec::Kind::subsystem_event}};
+    auto k = in_.string(t, "kind", p, true);
+    if (!k) return std::nullopt;
+    if (auto it = kTrafficKinds.find(*k); it != kTrafficKinds.end()) return it->second;
+    in_.problem(t["kind"], p + ".kind",
+                "'" + *k + "' is not a traffic kind: counter, pdop_sample or subsystem_event");
+    return std::nullopt;
+  }
+
+  bool read_subsystem_event(const YAML::Node& t, const std::string& p, std::optional<NodeKind> kind,
+                            TrafficSpec& out) {
+    if (kind && kind != NodeKind::qd) {
+      in_.problem(t["kind"], p + ".kind",
+                  "subsystem_event is for qd nodes, whose EMCY codes F000h-FFFFh flag "
+                  "subsystem state changes (seeds/003)");
+      return false;
+    }
+    auto v = in_.integer(t, "subsystem", p, 0, 11, true);
+    if (!v) return false;
+    out.subsystem = static_cast<unsigned>(*v);
+    return true;
   }
 
   bool read_counter(const YAML::Node& t, const std::string& p, const ObjectTable& objects,

@@ -64,6 +64,60 @@ void add_identity(ObjectDictionary& od, const NodeSpec& spec, std::uint32_t devi
   od.add_unsigned(SimNode::kIdentity, 4, Access::ro, spec.identity.serial, 4);
 }
 
+// Process values (2000h..9FFFh), which survive a reset communication.
+std::vector<OdEntry> process_values(const ObjectDictionary* od) {
+  std::vector<OdEntry> kept;
+  if (od == nullptr) return kept;
+  for (const auto& [key, entry] : od->entries()) {
+    if (entry.index >= 0x2000) kept.push_back(entry);
+  }
+  return kept;
+}
+
+// The application's dictionary without its PDO objects: identity, error register, heartbeat,
+// the kind's own objects and the rig's objects.
+std::unique_ptr<ObjectDictionary> application_dictionary(const NodeSpec& spec,
+                                                         std::uint32_t application_checksum) {
+  auto od = std::make_unique<ObjectDictionary>();
+  add_identity(*od, spec, spec.device_type);
+  od->add_unsigned(SimNode::kErrorRegister, 0, Access::ro, 0, 1);
+  od->add_unsigned(SimNode::kHeartbeatTime, 0, Access::rw, spec.heartbeat_ms, 2);
+  if (spec.kind == NodeKind::qd) {
+    // Writing 0 (stop program) hands the node back to its loader, the way a master starts a
+    // firmware update; 1 is the running application.
+    od->add_unsigned(SimNode::kProgramControl, 0, Access::constant, 1, 1);
+    od->add_unsigned(SimNode::kProgramControl, 1, Access::rw, 1, 1);
+    od->add_unsigned(SimNode::kProgramIdentification, 0, Access::constant, 1, 1);
+    od->add_unsigned(SimNode::kProgramIdentification, 1, Access::ro, application_checksum, 4);
+  }
+  if (spec.kind == NodeKind::fpga) {
+    od->add_unsigned(SimNode::kRpdopPacketCount, 0, Access::constant, 4, 1);
+    for (std::uint8_t n = 1; n <= 4; ++n) {
+      od->add_unsigned(SimNode::kRpdopPacketCount, n, Access::ro, 0, 4);
+    }
+  }
+  for (const auto& object : spec.objects) {
+    od->add(object.index, object.sub, object.access, object.type, object.value);
+  }
+  return od;
+}
+
+// qd and fpga PDOs always use their kind's COB-IDs; others only when the rig gives none. The
+// defaults derive from `id`, the node's current id.
+std::vector<PdoSpec> with_default_cob_ids(std::vector<PdoSpec> pdos, NodeKind kind,
+                                          canopen::NodeId id, bool transmit) {
+  for (auto& pdo : pdos) {
+    const bool fixed = kind == NodeKind::qd || kind == NodeKind::fpga;
+    if (fixed || !pdo.cob_id) {
+      const auto cob = transmit ? default_tpdo_cob_id(kind, id, pdo.number)
+                                : default_rpdo_cob_id(kind, id, pdo.number);
+      if (!cob) throw std::invalid_argument("PDO number out of range for the node's kind");
+      pdo.cob_id = *cob;
+    }
+  }
+  return pdos;
+}
+
 }  // namespace
 
 SimNode::SimNode(const NodeSpec& spec) : spec_(spec), id_(spec.node_id) {
@@ -90,51 +144,16 @@ std::chrono::milliseconds SimNode::heartbeat_period() const {
 }
 
 void SimNode::build_application(bool keep_process_values) {
-  // Process values (2000h..9FFFh) survive a reset communication; everything else is rebuilt so
-  // that id-derived COB-IDs follow the current node id.
-  std::vector<OdEntry> kept;
-  if (keep_process_values && od_) {
-    for (const auto& [key, entry] : od_->entries()) {
-      if (entry.index >= 0x2000) kept.push_back(entry);
-    }
-  }
-  auto od = std::make_unique<ObjectDictionary>();
-  add_identity(*od, spec_, spec_.device_type);
-  od->add_unsigned(kErrorRegister, 0, Access::ro, 0, 1);
-  od->add_unsigned(kHeartbeatTime, 0, Access::rw, spec_.heartbeat_ms, 2);
-  if (spec_.kind == NodeKind::qd) {
-    // Writing 0 (stop program) hands the node back to its loader, the way a master starts a
-    // firmware update; 1 is the running application.
-    od->add_unsigned(kProgramControl, 0, Access::constant, 1, 1);
-    od->add_unsigned(kProgramControl, 1, Access::rw, 1, 1);
-    od->add_unsigned(kProgramIdentification, 0, Access::constant, 1, 1);
-    od->add_unsigned(kProgramIdentification, 1, Access::ro, application_checksum_, 4);
-  }
-  if (spec_.kind == NodeKind::fpga) {
-    od->add_unsigned(kRpdopPacketCount, 0, Access::constant, 4, 1);
-    for (std::uint8_t n = 1; n <= 4; ++n) od->add_unsigned(kRpdopPacketCount, n, Access::ro, 0, 4);
-  }
-  for (const auto& object : spec_.objects) {
-    od->add(object.index, object.sub, object.access, object.type, object.value);
-  }
-
-  auto fill_defaults = [&](std::vector<PdoSpec> pdos, bool transmit) {
-    for (auto& pdo : pdos) {
-      const bool fixed = spec_.kind == NodeKind::qd || spec_.kind == NodeKind::fpga;
-      if (fixed || !pdo.cob_id) {
-        const auto cob = transmit ? default_tpdo_cob_id(spec_.kind, id_, pdo.number)
-                                  : default_rpdo_cob_id(spec_.kind, id_, pdo.number);
-        if (!cob) throw std::invalid_argument("PDO number out of range for the node's kind");
-        pdo.cob_id = *cob;
-      }
-    }
-    return pdos;
-  };
+  // Process values survive a reset communication; everything else is rebuilt so that
+  // id-derived COB-IDs follow the current node id.
+  const std::vector<OdEntry> kept =
+      keep_process_values ? process_values(od_.get()) : std::vector<OdEntry>{};
+  auto od = application_dictionary(spec_, application_checksum_);
   PdoEngine::InstallOptions install;
   install.fixed_cob_ids = spec_.kind == NodeKind::qd || spec_.kind == NodeKind::fpga;
   install.fixed_mapping = install.fixed_cob_ids;
-  PdoEngine::install(*od, fill_defaults(spec_.tpdos, true), fill_defaults(spec_.rpdos, false),
-                     install);
+  PdoEngine::install(*od, with_default_cob_ids(spec_.tpdos, spec_.kind, id_, true),
+                     with_default_cob_ids(spec_.rpdos, spec_.kind, id_, false), install);
 
   for (const auto& entry : kept) od->set_bytes(entry.index, entry.sub, entry.value);
 
