@@ -16,10 +16,10 @@ namespace asio = boost::asio;
 
 MemoryLinkPair make_memory_link_pair(asio::any_io_executor executor, MemoryLinkOptions options) {
   MemoryLinkPair pair;
-  pair.a = std::make_shared<MemoryLink>(MemoryLink::Private{}, executor, options.name + "/b",
-                                        options);
-  pair.b = std::make_shared<MemoryLink>(MemoryLink::Private{}, executor, options.name + "/a",
-                                        options);
+  pair.a =
+      std::make_shared<MemoryLink>(MemoryLink::Private{}, executor, options.name + "/b", options);
+  pair.b =
+      std::make_shared<MemoryLink>(MemoryLink::Private{}, executor, options.name + "/a", options);
   pair.a->peer_ = pair.b;
   pair.b->peer_ = pair.a;
   return pair;
@@ -190,7 +190,8 @@ void MemoryLink::deliver_turn() {
     far->writer_blocked_ = false;
     far->schedule_write();
   }
-  if (!reading_paused_ && unread_bytes() == 0 && peer_gone_) end(make_error_code(errc::peer_closed));
+  if (!reading_paused_ && unread_bytes() == 0 && peer_gone_)
+    end(make_error_code(errc::peer_closed));
 }
 
 void MemoryLink::handler_failed(const char* which) {

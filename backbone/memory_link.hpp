@@ -105,8 +105,8 @@ class MemoryLink final : public MessageLink, public std::enable_shared_from_this
   ClosedHandler on_closed_;
   LinkCounters counters_;
   bool started_ = false;
-  bool closing_ = false;             // end() ran
-  bool finished_ = false;            // on_closed ran (or was posted, when closed before start)
+  bool closing_ = false;   // end() ran
+  bool finished_ = false;  // on_closed ran (or was posted, when closed before start)
   bool reading_paused_ = false;
   bool write_scheduled_ = false;     // a write_turn is posted
   bool delivery_scheduled_ = false;  // a deliver_turn is posted

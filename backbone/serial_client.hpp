@@ -11,8 +11,8 @@
 #include <memory>
 #include <string>
 
-#include "backbone/stream_link.hpp"
 #include "backbone/reconnect_backoff.hpp"
+#include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
 

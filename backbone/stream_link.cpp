@@ -44,7 +44,7 @@ std::shared_ptr<StreamLink> StreamLink::create(tcp::socket socket, StreamLinkOpt
 }
 
 std::shared_ptr<StreamLink> StreamLink::create(asio::serial_port port, std::string name,
-                                                 StreamLinkOptions options) {
+                                               StreamLinkOptions options) {
   return std::shared_ptr<StreamLink>(new StreamLink(std::move(port), std::move(name), options));
 }
 

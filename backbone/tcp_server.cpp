@@ -63,12 +63,13 @@ std::error_code TcpServer::start(const tcp::endpoint& endpoint, AcceptedHandler 
   spdlog::info("backbone: listening on {}:{}", endpoint.address().to_string(), port_);
   // The loop holds the server alive until stop() lets it finish; if it fails (a handler threw),
   // the server says why and stops: its links close, and nothing is left half-listening.
-  coro::spawn_owned(executor_, accept_loop(), [self = shared_from_this()](const std::string& failure) {
-    if (failure.empty()) return;
-    spdlog::error("backbone: server on port {} stopped: {}", self->port_, failure);
-    self->stop();
-    self->on_accepted_ = nullptr;
-  });
+  coro::spawn_owned(
+      executor_, accept_loop(), [self = shared_from_this()](const std::string& failure) {
+        if (failure.empty()) return;
+        spdlog::error("backbone: server on port {} stopped: {}", self->port_, failure);
+        self->stop();
+        self->on_accepted_ = nullptr;
+      });
   return {};
 }
 

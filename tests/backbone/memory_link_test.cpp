@@ -174,9 +174,11 @@ TEST_F(MemoryLinkTest, AsyncWaitClosedCompletesWithTheReason) {
   std::string why = "pending";
   std::error_code waited;
   coro::spawn_owned(
-      io, [](std::shared_ptr<MemoryLink> link, std::error_code& out) -> asio::awaitable<void> {
+      io,
+      [](std::shared_ptr<MemoryLink> link, std::error_code& out) -> asio::awaitable<void> {
         out = co_await link->async_wait_closed();
-      }(b, waited), [&](const std::string& failure) { why = failure; });
+      }(b, waited),
+      [&](const std::string& failure) { why = failure; });
   io.poll();
   EXPECT_EQ(why, "pending");
   a->close();
@@ -194,12 +196,13 @@ TEST_F(MemoryLinkTest, PausedReaderBacksUpTheFarWriterUntilItDrains) {
   constexpr std::uint32_t kCount = 2000;
   std::uint32_t next = 0;
   int source_calls = 0;
-  a->start(a_in.on_message(),
-           [&](std::string& out) {  // a producer with plenty queued: 8 messages per write
-             ++source_calls;
-             for (int k = 0; k < 8 && next < kCount; ++k) append_delimited(out, bytes(numbered(next++)));
-           },
-           a_in.on_closed());
+  a->start(
+      a_in.on_message(),
+      [&](std::string& out) {  // a producer with plenty queued: 8 messages per write
+        ++source_calls;
+        for (int k = 0; k < 8 && next < kCount; ++k) append_delimited(out, bytes(numbered(next++)));
+      },
+      a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   b->pause_reading(true);
   EXPECT_TRUE(settle());  // the writer stopped by itself: nothing is left to run

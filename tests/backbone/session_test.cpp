@@ -314,7 +314,8 @@ TEST_F(SessionTest, SerialLinkOverAPtyCarriesTheStreamAndSurvivesGarbage) {
   EXPECT_EQ(surface.corrupt, 0u);
   const auto serial = surface.links.front()->message_link()->counters().deframer;
   EXPECT_GT(serial.discarded_bytes, 0u);
-  EXPECT_TRUE(std::dynamic_pointer_cast<StreamLink>(surface.links.front()->message_link())->is_serial());
+  EXPECT_TRUE(
+      std::dynamic_pointer_cast<StreamLink>(surface.links.front()->message_link())->is_serial());
   ::close(raw_fd);
 }
 
