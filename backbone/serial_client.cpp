@@ -4,9 +4,10 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/serial_port.hpp>
 #include <boost/asio/use_awaitable.hpp>
+
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
 
@@ -50,11 +51,14 @@ void SerialClient::start(ConnectedHandler on_connected) {
   if (started_ || stopped_) return;
   started_ = true;
   on_connected_ = std::move(on_connected);
-  asio::co_spawn(
-      executor_, [self = shared_from_this()] { return self->run(); },
-      [](std::exception_ptr error) {
-        if (error) std::rethrow_exception(error);
-      });
+  // The loop holds the client alive until stop() lets it finish; if it fails (a handler threw),
+  // the client says why and stops rather than leave a line that is never reopened.
+  coro::spawn_owned(executor_, run(), [self = shared_from_this()](const std::string& failure) {
+    if (failure.empty()) return;
+    spdlog::error("backbone: serial line {} stopped: {}", self->options_.device, failure);
+    self->stop();
+    self->on_connected_ = nullptr;
+  });
 }
 
 void SerialClient::stop() {
@@ -79,7 +83,7 @@ asio::awaitable<void> SerialClient::run() {
       ++counters_.opens;
       failing_ = false;
       spdlog::info("backbone: serial line {} open at {} bit/s", options_.device, options_.baud);
-      auto link = MessageLink::create(std::move(port), options_.device, options_.link);
+      auto link = StreamLink::create(std::move(port), options_.device, options_.link);
       link_ = link;
       if (on_connected_) on_connected_(link);
       if (!link->started()) link->close();

@@ -1,4 +1,4 @@
-// Keeps one serial backbone line open: opens and configures the tty, hands each new MessageLink to
+// Keeps one serial backbone line open: opens and configures the tty, hands each new StreamLink to
 // the user, and reopens with backoff whenever the link ends (dead line, device gone, error).
 #pragma once
 
@@ -11,8 +11,8 @@
 #include <memory>
 #include <string>
 
-#include "backbone/message_link.hpp"
 #include "backbone/reconnect_backoff.hpp"
+#include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
 
@@ -24,7 +24,7 @@ struct SerialOptions {
   // Between opens: backoff_min, doubling after failed opens and refused links up to backoff_max.
   std::chrono::milliseconds backoff_min{100};
   std::chrono::milliseconds backoff_max{5000};
-  LinkOptions link;
+  StreamLinkOptions link;
 };
 
 struct SerialCounters {
@@ -39,7 +39,7 @@ std::error_code open_serial_port(boost::asio::serial_port& port, const SerialOpt
 class SerialClient : public std::enable_shared_from_this<SerialClient> {
  public:
   // Called with every new link; the handler must call link->start(...).
-  using ConnectedHandler = std::function<void(std::shared_ptr<MessageLink> link)>;
+  using ConnectedHandler = std::function<void(std::shared_ptr<StreamLink> link)>;
 
   static std::shared_ptr<SerialClient> create(boost::asio::any_io_executor executor,
                                               SerialOptions options);
@@ -51,7 +51,7 @@ class SerialClient : public std::enable_shared_from_this<SerialClient> {
   void stop();                                // closes the current link; idempotent
 
   SerialCounters counters() const { return counters_; }
-  std::shared_ptr<MessageLink> link() const { return link_; }
+  std::shared_ptr<StreamLink> link() const { return link_; }
 
  private:
   SerialClient(boost::asio::any_io_executor executor, SerialOptions options);
@@ -62,7 +62,7 @@ class SerialClient : public std::enable_shared_from_this<SerialClient> {
   boost::asio::steady_timer backoff_timer_;
   ReconnectBackoff backoff_;
   ConnectedHandler on_connected_;
-  std::shared_ptr<MessageLink> link_;
+  std::shared_ptr<StreamLink> link_;
   SerialCounters counters_;
   bool started_ = false;
   bool stopped_ = false;

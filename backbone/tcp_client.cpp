@@ -4,10 +4,10 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/connect.hpp>
 #include <boost/asio/use_awaitable.hpp>
-#include <exception>
+
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
 
@@ -42,13 +42,14 @@ void TcpClient::start(ConnectedHandler on_connected) {
   if (started_ || stopped_) return;
   started_ = true;
   on_connected_ = std::move(on_connected);
-  // The loop holds the client alive until stop() lets it finish.
-  // A throwing handler is a programming error: let it surface from io_context::run().
-  asio::co_spawn(
-      executor_, [self = shared_from_this()] { return self->run(); },
-      [](std::exception_ptr error) {
-        if (error) std::rethrow_exception(error);
-      });
+  // The loop holds the client alive until stop() lets it finish; if it fails (a handler threw),
+  // the client says why and stops rather than leave a process that never reconnects.
+  coro::spawn_owned(executor_, run(), [self = shared_from_this()](const std::string& failure) {
+    if (failure.empty()) return;
+    spdlog::error("backbone: client for {}:{} stopped: {}", self->host_, self->port_, failure);
+    self->stop();
+    self->on_connected_ = nullptr;
+  });
 }
 
 void TcpClient::stop() {
@@ -81,7 +82,7 @@ asio::awaitable<void> TcpClient::run() {
 
     ++counters_.connects;
     failing_ = false;
-    auto link = MessageLink::create(std::move(socket_), options_.link);
+    auto link = StreamLink::create(std::move(socket_), options_.link);
     socket_ = tcp::socket(executor_);
     // While refused, each attempt connects: the refusal (logged once) is the news, not that.
     spdlog::log(refused_ ? spdlog::level::debug : spdlog::level::info,

@@ -1,4 +1,4 @@
-// Keeps one outgoing backbone connection up: connects, hands each new MessageLink to the user,
+// Keeps one outgoing backbone connection up: connects, hands each new StreamLink to the user,
 // and reconnects with exponential backoff whenever the link or the connection attempt fails.
 #pragma once
 
@@ -12,8 +12,8 @@
 #include <memory>
 #include <string>
 
-#include "backbone/message_link.hpp"
 #include "backbone/reconnect_backoff.hpp"
+#include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
 
@@ -25,7 +25,7 @@ struct ClientOptions {
   std::chrono::milliseconds backoff_max{5000};
   // Bounds resolve + connect, so a silently dropped SYN does not stall reconnection for minutes.
   std::chrono::milliseconds connect_timeout{5000};
-  LinkOptions link;
+  StreamLinkOptions link;
 };
 
 struct ClientCounters {
@@ -39,7 +39,7 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
  public:
   // Called with every new link; the handler must call link->start(...) (a link it does not start
   // is closed). The client reconnects once that link has closed.
-  using ConnectedHandler = std::function<void(std::shared_ptr<MessageLink> link)>;
+  using ConnectedHandler = std::function<void(std::shared_ptr<StreamLink> link)>;
 
   static std::shared_ptr<TcpClient> create(boost::asio::any_io_executor executor, std::string host,
                                            std::uint16_t port, ClientOptions options = {});
@@ -56,7 +56,7 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
 
   ClientCounters counters() const { return counters_; }
   // The current link, or null while disconnected.
-  std::shared_ptr<MessageLink> link() const { return link_; }
+  std::shared_ptr<StreamLink> link() const { return link_; }
 
  private:
   TcpClient(boost::asio::any_io_executor executor, std::string host, std::uint16_t port,
@@ -76,7 +76,7 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
   boost::asio::steady_timer backoff_timer_;
   ReconnectBackoff backoff_;
   ConnectedHandler on_connected_;
-  std::shared_ptr<MessageLink> link_;
+  std::shared_ptr<StreamLink> link_;
   ClientCounters counters_;
   std::uint64_t attempt_ = 0;  // tells a stale deadline expiry from the current one
   bool started_ = false;

@@ -4,9 +4,9 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/use_awaitable.hpp>
-#include <exception>
+
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
 
@@ -61,11 +61,14 @@ std::error_code TcpServer::start(const tcp::endpoint& endpoint, AcceptedHandler 
   started_ = true;
   on_accepted_ = std::move(on_accepted);
   spdlog::info("backbone: listening on {}:{}", endpoint.address().to_string(), port_);
-  // A throwing handler is a programming error: let it surface from io_context::run().
-  asio::co_spawn(
-      executor_, [self = shared_from_this()] { return self->accept_loop(); },
-      [](std::exception_ptr error) {
-        if (error) std::rethrow_exception(error);
+  // The loop holds the server alive until stop() lets it finish; if it fails (a handler threw),
+  // the server says why and stops: its links close, and nothing is left half-listening.
+  coro::spawn_owned(
+      executor_, accept_loop(), [self = shared_from_this()](const std::string& failure) {
+        if (failure.empty()) return;
+        spdlog::error("backbone: server on port {} stopped: {}", self->port_, failure);
+        self->stop();
+        self->on_accepted_ = nullptr;
       });
   return {};
 }
@@ -82,8 +85,8 @@ void TcpServer::stop() {
   links_.clear();
 }
 
-std::vector<std::shared_ptr<MessageLink>> TcpServer::links() const {
-  std::vector<std::shared_ptr<MessageLink>> live;
+std::vector<std::shared_ptr<StreamLink>> TcpServer::links() const {
+  std::vector<std::shared_ptr<StreamLink>> live;
   for (const auto& weak : links_) {
     if (auto link = weak.lock(); link && link->is_open()) live.push_back(std::move(link));
   }
@@ -102,10 +105,9 @@ asio::awaitable<void> TcpServer::accept_loop() {
       continue;
     }
     ++counters_.accepted;
-    auto link = MessageLink::create(std::move(socket), options_.link);
-    spdlog::info("backbone: accepted {}:{}", link->remote_endpoint().address().to_string(),
-                 link->remote_endpoint().port());
-    std::erase_if(links_, [](const std::weak_ptr<MessageLink>& weak) {
+    auto link = StreamLink::create(std::move(socket), options_.link);
+    spdlog::info("backbone: accepted {}", link->peer_name());
+    std::erase_if(links_, [](const std::weak_ptr<StreamLink>& weak) {
       auto live = weak.lock();
       return !live || !live->is_open();
     });

@@ -1,4 +1,4 @@
-// Accepts backbone connections on one address and hands each as a MessageLink to the user.
+// Accepts backbone connections on one address and hands each as a StreamLink to the user.
 #pragma once
 
 #include <boost/asio/any_io_executor.hpp>
@@ -13,12 +13,12 @@
 #include <system_error>
 #include <vector>
 
-#include "backbone/message_link.hpp"
+#include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
 
 struct ServerOptions {
-  LinkOptions link;
+  StreamLinkOptions link;
   // Pause after a failed accept (e.g. EMFILE), which would otherwise fail again at once.
   std::chrono::milliseconds accept_retry_delay{100};
 };
@@ -33,7 +33,7 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
  public:
   // Called with every accepted link; the handler must call link->start(...) (a link it does not
   // start is closed).
-  using AcceptedHandler = std::function<void(std::shared_ptr<MessageLink> link)>;
+  using AcceptedHandler = std::function<void(std::shared_ptr<StreamLink> link)>;
 
   static std::shared_ptr<TcpServer> create(boost::asio::any_io_executor executor,
                                            ServerOptions options = {});
@@ -55,7 +55,7 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   std::uint16_t port() const noexcept { return port_; }
   ServerCounters counters() const { return counters_; }
   // Links accepted and not yet closed.
-  std::vector<std::shared_ptr<MessageLink>> links() const;
+  std::vector<std::shared_ptr<StreamLink>> links() const;
 
  private:
   TcpServer(boost::asio::any_io_executor executor, ServerOptions options);
@@ -67,7 +67,7 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   boost::asio::ip::tcp::acceptor acceptor_;
   boost::asio::steady_timer retry_timer_;
   AcceptedHandler on_accepted_;
-  std::vector<std::weak_ptr<MessageLink>> links_;
+  std::vector<std::weak_ptr<StreamLink>> links_;
   ServerCounters counters_;
   std::uint16_t port_ = 0;
   bool started_ = false;

@@ -13,6 +13,7 @@
 
 #include "backbone/delimited_codec.hpp"
 #include "backbone/serial_client.hpp"
+#include "backbone/stream_link.hpp"
 #include "tests/backbone/session_peers.hpp"
 #include "tests/backbone/test_support.hpp"
 
@@ -59,13 +60,13 @@ class SessionTest : public ::testing::Test {
  protected:
   void connect_tcp() {
     auto [client, server] = connected_sockets(io);
-    gateway.attach(MessageLink::create(std::move(client)));
-    surface.attach(MessageLink::create(std::move(server)));
+    gateway.attach(StreamLink::create(std::move(client)));
+    surface.attach(StreamLink::create(std::move(server)));
   }
   void connect_pty() {
     auto [a, b] = pty_pair(io);
-    gateway.attach(MessageLink::create(std::move(a), "pty-master"));
-    surface.attach(MessageLink::create(std::move(b), "pty-slave"));
+    gateway.attach(StreamLink::create(std::move(a), "pty-master"));
+    surface.attach(StreamLink::create(std::move(b), "pty-slave"));
   }
   void cut() {
     for (auto& l : gateway.links) l->close();
@@ -157,8 +158,8 @@ TEST_F(SessionTest, APeerThatRestartsStartsAFreshStreamAndIsCounted) {
   // The same gateway name from a new process: a new session id, its stream starts at 1 again.
   SessionEnd restarted{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1, 2}};
   auto [client, server] = connected_sockets(io);
-  restarted.attach(MessageLink::create(std::move(client)));
-  surface.attach(MessageLink::create(std::move(server)));
+  restarted.attach(StreamLink::create(std::move(client)));
+  surface.attach(StreamLink::create(std::move(server)));
   restarted.send_up_to(50);
   ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 150; }));
   EXPECT_EQ(surface.counters.peer_restarts, 1u);
@@ -180,7 +181,7 @@ TEST_F(SessionTest, KeepalivesHoldAnIdleLinkUp) {
 
 TEST_F(SessionTest, APeerThatGoesSilentIsDeclaredDeadWithinDeadAfter) {
   auto [client, server] = connected_sockets(io);
-  surface.attach(MessageLink::create(std::move(server)));
+  surface.attach(StreamLink::create(std::move(server)));
   // A raw peer: a valid hello, then nothing (a half-open connection).
   v1::Envelope hello;
   hello.mutable_hello()->set_protocol_major(kProtocolMajor);
@@ -209,7 +210,7 @@ TEST_F(SessionTest, IncompatibleMajorIsRefusedWithTheReasonOnBothSides) {
   hello.mutable_hello()->set_name("future-gw");
   std::string bytes;
   append_message(bytes, hello);
-  surface.attach(MessageLink::create(std::move(server)));
+  surface.attach(StreamLink::create(std::move(server)));
   asio::write(client, asio::buffer(bytes));
   // The refusal arrives before the close.
   std::string got;
@@ -239,8 +240,8 @@ TEST_F(SessionTest, TwoGatewaysRefuseEachOthersRoleAndNeitherComesUp) {
   // Two gateways talking to each other: each refuses the other's role.
   SessionEnd other{"gw2", v1::Hello::ROLE_GATEWAY, fast_options(), {3}};
   auto [client, server] = connected_sockets(io);
-  gateway.attach(MessageLink::create(std::move(client)));
-  other.attach(MessageLink::create(std::move(server)));
+  gateway.attach(StreamLink::create(std::move(client)));
+  other.attach(StreamLink::create(std::move(server)));
   ASSERT_TRUE(run_until(io, [&] {
     return gateway.links.front()->message_link()->is_open() == false &&
            other.links.front()->message_link()->is_open() == false;
@@ -251,7 +252,7 @@ TEST_F(SessionTest, TwoGatewaysRefuseEachOthersRoleAndNeitherComesUp) {
 
 TEST_F(SessionTest, DataInTheSameReadAsThePeersHelloIsDelivered) {
   auto [client, server] = connected_sockets(io);
-  gateway.attach(MessageLink::create(std::move(client)));
+  gateway.attach(StreamLink::create(std::move(client)));
   // A raw surface: its hello and two reliable payloads in one write, as a real surface sends them
   // when it has data queued for a gateway that reconnects.
   v1::Envelope hello;
@@ -285,7 +286,7 @@ TEST_F(SessionTest, DataInTheSameReadAsThePeersHelloIsDelivered) {
 
 TEST_F(SessionTest, DataBeforeHelloIsAProtocolError) {
   auto [client, server] = connected_sockets(io);
-  surface.attach(MessageLink::create(std::move(server)));
+  surface.attach(StreamLink::create(std::move(server)));
   v1::Envelope data;
   data.set_seq(1);
   data.set_payload("12345678");
@@ -299,8 +300,8 @@ TEST_F(SessionTest, DataBeforeHelloIsAProtocolError) {
 TEST_F(SessionTest, SerialLinkOverAPtyCarriesTheStreamAndSurvivesGarbage) {
   auto [a, b] = pty_pair(io);
   const int raw_fd = ::dup(a.native_handle());  // to inject noise into the line
-  gateway.attach(MessageLink::create(std::move(a), "pty-master"));
-  surface.attach(MessageLink::create(std::move(b), "pty-slave"));
+  gateway.attach(StreamLink::create(std::move(a), "pty-master"));
+  surface.attach(StreamLink::create(std::move(b), "pty-slave"));
   ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
   gateway.payload_size = surface.payload_size = 40;
   gateway.send_up_to(3000);
@@ -313,7 +314,8 @@ TEST_F(SessionTest, SerialLinkOverAPtyCarriesTheStreamAndSurvivesGarbage) {
   EXPECT_EQ(surface.corrupt, 0u);
   const auto serial = surface.links.front()->message_link()->counters().deframer;
   EXPECT_GT(serial.discarded_bytes, 0u);
-  EXPECT_TRUE(surface.links.front()->message_link()->is_serial());
+  EXPECT_TRUE(
+      std::dynamic_pointer_cast<StreamLink>(surface.links.front()->message_link())->is_serial());
   ::close(raw_fd);
 }
 
@@ -333,12 +335,12 @@ struct ReopenablePty {
     slave_path = name;
   }
   ~ReopenablePty() { ::close(keep_slave_open); }
-  std::shared_ptr<MessageLink> open_slave(asio::io_context& io) {
+  std::shared_ptr<StreamLink> open_slave(asio::io_context& io) {
     asio::serial_port port(io);
     SerialOptions options;
     options.device = slave_path;
     if (open_serial_port(port, options)) throw std::runtime_error("open " + slave_path);
-    return MessageLink::create(std::move(port), slave_path);
+    return StreamLink::create(std::move(port), slave_path);
   }
   asio::serial_port master;
   int keep_slave_open = -1;
@@ -347,7 +349,7 @@ struct ReopenablePty {
 
 TEST_F(SessionTest, SurfaceReopeningItsSerialPortAsksTheGatewayForANewHello) {
   ReopenablePty pty(io);
-  gateway.attach(MessageLink::create(std::move(pty.master), "pty-master"));
+  gateway.attach(StreamLink::create(std::move(pty.master), "pty-master"));
   surface.attach(pty.open_slave(io));
   ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
   gateway.send_up_to(500);
@@ -369,7 +371,7 @@ TEST_F(SessionTest, SurfaceReopeningItsSerialPortAsksTheGatewayForANewHello) {
 
 TEST_F(SessionTest, GatewayReopeningItsSerialPortIsAnsweredOnTheSurfacesOldLink) {
   ReopenablePty pty(io);
-  surface.attach(MessageLink::create(std::move(pty.master), "pty-master"));
+  surface.attach(StreamLink::create(std::move(pty.master), "pty-master"));
   gateway.attach(pty.open_slave(io));
   ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
   surface.send_up_to(300);
@@ -401,8 +403,8 @@ struct JumpingClock {
 
 void connect(asio::io_context& io, SessionEnd& gateway, SessionEnd& surface) {
   auto [client, server] = connected_sockets(io);
-  gateway.attach(MessageLink::create(std::move(client)));
-  surface.attach(MessageLink::create(std::move(server)));
+  gateway.attach(StreamLink::create(std::move(client)));
+  surface.attach(StreamLink::create(std::move(server)));
 }
 
 void close_links(SessionEnd& end) {

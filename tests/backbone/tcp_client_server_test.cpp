@@ -32,7 +32,7 @@ ClientOptions fast_client() {
 }
 
 // Starts a link that only records what it receives; `sent` is sent once at start.
-void start_recording(const std::shared_ptr<MessageLink>& link, std::vector<std::string>& received,
+void start_recording(const std::shared_ptr<StreamLink>& link, std::vector<std::string>& received,
                      std::string sent = {}) {
   link->start([&received](std::span<const std::uint8_t> m) { received.push_back(to_string(m)); },
               [sent = std::move(sent), once = true](std::string& out) mutable {
@@ -46,7 +46,7 @@ class ClientServerTest : public ::testing::Test {
  protected:
   void SetUp() override {
     server = TcpServer::create(io.get_executor());
-    const auto ec = server->start("127.0.0.1", 0, [this](std::shared_ptr<MessageLink> link) {
+    const auto ec = server->start("127.0.0.1", 0, [this](std::shared_ptr<StreamLink> link) {
       accepted.push_back(link);
       start_recording(link, server_received, "welcome");
       if (drop_next_accept) {
@@ -66,7 +66,7 @@ class ClientServerTest : public ::testing::Test {
   std::shared_ptr<TcpClient> make_client(std::uint16_t port,
                                          ClientOptions options = fast_client()) {
     client = TcpClient::create(io.get_executor(), "127.0.0.1", port, options);
-    client->start([this](std::shared_ptr<MessageLink> link) {
+    client->start([this](std::shared_ptr<StreamLink> link) {
       connected.push_back(link);
       start_recording(link, client_received, "hello " + std::to_string(connected.size()));
     });
@@ -76,7 +76,7 @@ class ClientServerTest : public ::testing::Test {
   asio::io_context io;
   std::shared_ptr<TcpServer> server;
   std::shared_ptr<TcpClient> client;
-  std::vector<std::shared_ptr<MessageLink>> accepted, connected;
+  std::vector<std::shared_ptr<StreamLink>> accepted, connected;
   std::vector<std::string> server_received, client_received;
   bool drop_next_accept = false;
 };
@@ -106,7 +106,7 @@ TEST_F(ClientServerTest, ServerAcceptsManyClients) {
   for (int i = 0; i < 5; ++i) {
     clients.push_back(TcpClient::create(io.get_executor(), "127.0.0.1", server->port()));
     clients.back()->start(
-        [this](std::shared_ptr<MessageLink> link) { start_recording(link, client_received); });
+        [this](std::shared_ptr<StreamLink> link) { start_recording(link, client_received); });
   }
   ASSERT_TRUE(run_until(io, [&] { return client_received.size() == 5; }));
   EXPECT_EQ(server->links().size(), 5u);
@@ -144,7 +144,7 @@ TEST_F(ClientServerTest, AClientThePeerRefusesWaitsTwiceAsLongEachTimeUpToTheMax
   // new connection must not count as a success: the same hello is refused again.
   std::vector<std::chrono::steady_clock::time_point> at;
   client = TcpClient::create(io.get_executor(), "127.0.0.1", server->port(), fast_client());
-  client->start([&](std::shared_ptr<MessageLink> link) {
+  client->start([&](std::shared_ptr<StreamLink> link) {
     at.push_back(std::chrono::steady_clock::now());
     start_recording(link, client_received);
     link->close(make_error_code(errc::refused_by_peer));
@@ -164,7 +164,7 @@ TEST_F(ClientServerTest, ClientConnectsOnceTheServerAppears) {
   ASSERT_TRUE(run_until(io, [&] { return client->counters().connect_failures >= 2; }));
   auto late = TcpServer::create(io.get_executor());
   std::vector<std::string> late_received;
-  ASSERT_FALSE(late->start("127.0.0.1", port, [&](std::shared_ptr<MessageLink> link) {
+  ASSERT_FALSE(late->start("127.0.0.1", port, [&](std::shared_ptr<StreamLink> link) {
     start_recording(link, late_received);
   }));
   ASSERT_TRUE(run_until(io, [&] { return late_received.size() == 1; }));
@@ -177,7 +177,7 @@ TEST_F(ClientServerTest, StopOfClientAndServerLeavesNothingPending) {
   ASSERT_TRUE(run_until(io, [&] { return server_received.size() == 1; }));
   std::weak_ptr<TcpClient> weak_client = client;
   std::weak_ptr<TcpServer> weak_server = server;
-  std::weak_ptr<MessageLink> weak_link = connected.at(0);
+  std::weak_ptr<StreamLink> weak_link = connected.at(0);
   connected.clear();
   accepted.clear();
 

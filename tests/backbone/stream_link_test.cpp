@@ -1,4 +1,4 @@
-#include "backbone/message_link.hpp"
+#include "backbone/stream_link.hpp"
 
 #include <gtest/gtest.h>
 #include <netinet/in.h>
@@ -14,6 +14,7 @@
 #include <deque>
 #include <stdexcept>
 
+#include "tests/backbone/link_test_support.hpp"
 #include "tests/backbone/test_support.hpp"
 
 namespace canbridge::backbone {
@@ -22,44 +23,11 @@ namespace {
 namespace asio = boost::asio;
 using namespace std::chrono_literals;
 using testing::bytes;
+using testing::Inbox;
+using testing::numbered;
+using testing::Outbox;
 using testing::run_until;
 using testing::to_string;
-
-// Message i of a test stream: its index, then a deterministic, variable-length body.
-std::string numbered(std::uint32_t i) {
-  std::string s(4 + i % 300, '\0');
-  for (int b = 0; b < 4; ++b) s[static_cast<std::size_t>(b)] = static_cast<char>(i >> (8 * b));
-  for (std::size_t k = 4; k < s.size(); ++k) s[k] = static_cast<char>((i * 7 + k) & 0xFF);
-  return s;
-}
-
-// A sender side: messages queued here go out through the link's pull-model source.
-struct Outbox {
-  std::deque<std::string> pending;
-  int source_calls = 0;
-  MessageLink::Source source() {
-    return [this](std::string& out) {
-      ++source_calls;
-      for (const auto& m : pending) append_delimited(out, bytes(m));
-      pending.clear();
-    };
-  }
-};
-
-struct Inbox {
-  std::vector<std::string> messages;
-  int closed_calls = 0;
-  std::error_code reason;
-  MessageLink::MessageHandler on_message() {
-    return [this](std::span<const std::uint8_t> m) { messages.push_back(to_string(m)); };
-  }
-  MessageLink::ClosedHandler on_closed() {
-    return [this](std::error_code ec) {
-      ++closed_calls;
-      reason = ec;
-    };
-  }
-};
 
 int tcp_nodelay(int fd) {
   int value = 0;
@@ -68,12 +36,12 @@ int tcp_nodelay(int fd) {
   return value;
 }
 
-class MessageLinkTest : public ::testing::Test {
+class StreamLinkTest : public ::testing::Test {
  protected:
   void SetUp() override {
     auto sockets = testing::connected_sockets(io);
-    a = MessageLink::create(std::move(sockets.client));
-    b = MessageLink::create(std::move(sockets.server));
+    a = StreamLink::create(std::move(sockets.client));
+    b = StreamLink::create(std::move(sockets.server));
   }
   void TearDown() override {
     if (a) a->close();
@@ -82,13 +50,13 @@ class MessageLinkTest : public ::testing::Test {
   }
 
   asio::io_context io;
-  std::shared_ptr<MessageLink> a;
-  std::shared_ptr<MessageLink> b;
+  std::shared_ptr<StreamLink> a;
+  std::shared_ptr<StreamLink> b;
   Outbox a_out, b_out;
   Inbox a_in, b_in;
 };
 
-TEST_F(MessageLinkTest, TenThousandMessagesArriveInOrderAndIntact) {
+TEST_F(StreamLinkTest, TenThousandMessagesArriveInOrderAndIntact) {
   constexpr std::uint32_t kCount = 10'000;
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
@@ -109,7 +77,7 @@ TEST_F(MessageLinkTest, TenThousandMessagesArriveInOrderAndIntact) {
   EXPECT_EQ(b_in.closed_calls, 0);
 }
 
-TEST_F(MessageLinkTest, MessagesQueuedDuringAWriteGoOutInOneWrite) {
+TEST_F(StreamLinkTest, MessagesQueuedDuringAWriteGoOutInOneWrite) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle, nothing to send
@@ -132,7 +100,7 @@ TEST_F(MessageLinkTest, MessagesQueuedDuringAWriteGoOutInOneWrite) {
   for (std::uint32_t i = 0; i <= 100; ++i) EXPECT_EQ(b_in.messages[i], numbered(i));
 }
 
-TEST_F(MessageLinkTest, AnIdleWriterSendsFromWakeWriterWithoutATurnOfTheLoop) {
+TEST_F(StreamLinkTest, AnIdleWriterSendsFromWakeWriterWithoutATurnOfTheLoop) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle
@@ -144,7 +112,7 @@ TEST_F(MessageLinkTest, AnIdleWriterSendsFromWakeWriterWithoutATurnOfTheLoop) {
   EXPECT_EQ(b_in.messages[0], "now");
 }
 
-TEST_F(MessageLinkTest, SourceThrowingInsideWakeWriterDropsTheLinkOnce) {
+TEST_F(StreamLinkTest, SourceThrowingInsideWakeWriterDropsTheLinkOnce) {
   int calls = 0;
   a->start(
       a_in.on_message(),
@@ -163,7 +131,7 @@ TEST_F(MessageLinkTest, SourceThrowingInsideWakeWriterDropsTheLinkOnce) {
   EXPECT_EQ(calls, 2);
 }
 
-TEST_F(MessageLinkTest, BothDirectionsAtOnce) {
+TEST_F(StreamLinkTest, BothDirectionsAtOnce) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   for (std::uint32_t i = 0; i < 1000; ++i) {
@@ -178,7 +146,7 @@ TEST_F(MessageLinkTest, BothDirectionsAtOnce) {
   EXPECT_EQ(a_in.messages.back(), numbered(5999));
 }
 
-TEST_F(MessageLinkTest, SourceIsCalledOnStartSoQueuedMessagesGoOut) {
+TEST_F(StreamLinkTest, SourceIsCalledOnStartSoQueuedMessagesGoOut) {
   a_out.pending.push_back("hello");
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());  // no wake_writer()
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
@@ -186,7 +154,7 @@ TEST_F(MessageLinkTest, SourceIsCalledOnStartSoQueuedMessagesGoOut) {
   EXPECT_EQ(b_in.messages[0], "hello");
 }
 
-TEST_F(MessageLinkTest, ZeroLengthMessagesAreDelivered) {
+TEST_F(StreamLinkTest, ZeroLengthMessagesAreDelivered) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   a_out.pending = {"", "x", ""};
@@ -195,7 +163,7 @@ TEST_F(MessageLinkTest, ZeroLengthMessagesAreDelivered) {
   EXPECT_EQ(b_in.messages, (std::vector<std::string>{"", "x", ""}));
 }
 
-TEST_F(MessageLinkTest, PeerCloseEndsTheLinkOnceWithPeerClosed) {
+TEST_F(StreamLinkTest, PeerCloseEndsTheLinkOnceWithPeerClosed) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   std::error_code waited;
@@ -226,7 +194,7 @@ TEST_F(MessageLinkTest, PeerCloseEndsTheLinkOnceWithPeerClosed) {
   EXPECT_EQ(b->counters().close_reason, errc::peer_closed);  // the first reason sticks
 }
 
-TEST_F(MessageLinkTest, CloseFromInsideTheMessageHandlerStopsDelivery) {
+TEST_F(StreamLinkTest, CloseFromInsideTheMessageHandlerStopsDelivery) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   int delivered = 0;
   b->start(
@@ -245,7 +213,7 @@ TEST_F(MessageLinkTest, CloseFromInsideTheMessageHandlerStopsDelivery) {
 
 // A receiver that cannot take more (its bus is backed up) pauses: what was already read waits,
 // nothing more is read, and its own writes go on; on resume everything follows in order.
-TEST_F(MessageLinkTest, PauseFromInsideTheHandlerHoldsTheRestUntilResumed) {
+TEST_F(StreamLinkTest, PauseFromInsideTheHandlerHoldsTheRestUntilResumed) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start(
       [&](std::span<const std::uint8_t> m) {
@@ -272,7 +240,7 @@ TEST_F(MessageLinkTest, PauseFromInsideTheHandlerHoldsTheRestUntilResumed) {
   EXPECT_TRUE(b->is_open());
 }
 
-TEST_F(MessageLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
+TEST_F(StreamLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   b->close();
   ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
@@ -284,7 +252,7 @@ TEST_F(MessageLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
   EXPECT_EQ(waited, errc::closed);
 }
 
-TEST_F(MessageLinkTest, ClosingBeforeStartStillReportsOnce) {
+TEST_F(StreamLinkTest, ClosingBeforeStartStillReportsOnce) {
   b->close();
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
@@ -292,7 +260,7 @@ TEST_F(MessageLinkTest, ClosingBeforeStartStillReportsOnce) {
   EXPECT_EQ(b_out.source_calls, 0);
 }
 
-TEST_F(MessageLinkTest, ThrowingHandlerDropsTheLink) {
+TEST_F(StreamLinkTest, ThrowingHandlerDropsTheLink) {
   a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
   b->start([](std::span<const std::uint8_t>) { throw std::runtime_error("parse failed"); },
            b_out.source(), b_in.on_closed());
@@ -303,8 +271,8 @@ TEST_F(MessageLinkTest, ThrowingHandlerDropsTheLink) {
   EXPECT_EQ(a_in.reason, errc::peer_closed);
 }
 
-TEST_F(MessageLinkTest, HandlersCapturingTheLinkDoNotKeepItAlive) {
-  std::weak_ptr<MessageLink> weak = b;
+TEST_F(StreamLinkTest, HandlersCapturingTheLinkDoNotKeepItAlive) {
+  std::weak_ptr<StreamLink> weak = b;
   b->start([link = b](std::span<const std::uint8_t>) { link->wake_writer(); },
            [link = b](std::string&) {}, [link = b](std::error_code) {});
   b->close();
@@ -312,20 +280,20 @@ TEST_F(MessageLinkTest, HandlersCapturingTheLinkDoNotKeepItAlive) {
   EXPECT_TRUE(run_until(io, [&] { return weak.expired(); }));
 }
 
-TEST_F(MessageLinkTest, TcpNoDelayIsSetOnBothEnds) {
+TEST_F(StreamLinkTest, TcpNoDelayIsSetOnBothEnds) {
   EXPECT_NE(tcp_nodelay(a->native_handle()), 0);
   EXPECT_NE(tcp_nodelay(b->native_handle()), 0);
 }
 
-// A raw peer talks to a MessageLink that has a small maximum message size.
+// A raw peer talks to a StreamLink that has a small maximum message size.
 class RawPeerTest : public ::testing::Test {
  protected:
   void SetUp() override {
     auto sockets = testing::connected_sockets(io);
     raw = std::make_unique<asio::ip::tcp::socket>(std::move(sockets.client));
-    LinkOptions options;
+    StreamLinkOptions options;
     options.max_message_size = 1024;
-    link = MessageLink::create(std::move(sockets.server), options);
+    link = StreamLink::create(std::move(sockets.server), options);
     link->start(in.on_message(), out.source(), in.on_closed());
   }
   void TearDown() override {
@@ -354,7 +322,7 @@ class RawPeerTest : public ::testing::Test {
 
   asio::io_context io;
   std::unique_ptr<asio::ip::tcp::socket> raw;
-  std::shared_ptr<MessageLink> link;
+  std::shared_ptr<StreamLink> link;
   Outbox out;
   Inbox in;
 };

@@ -1,4 +1,4 @@
-#include "backbone/message_link.hpp"
+#include "backbone/stream_link.hpp"
 
 #include <fcntl.h>
 #include <spdlog/spdlog.h>
@@ -6,7 +6,6 @@
 #include <unistd.h>
 
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/error.hpp>
 #include <boost/asio/post.hpp>
 #include <boost/asio/this_coro.hpp>
@@ -14,6 +13,8 @@
 #include <boost/asio/write.hpp>
 #include <cerrno>
 #include <exception>
+
+#include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
 
@@ -33,21 +34,21 @@ std::string describe(const tcp::endpoint& endpoint) {
 
 }  // namespace
 
-std::shared_ptr<MessageLink> MessageLink::create(tcp::socket socket, LinkOptions options) {
+std::shared_ptr<StreamLink> StreamLink::create(tcp::socket socket, StreamLinkOptions options) {
   boost::system::error_code ec;
   const tcp::endpoint remote = socket.remote_endpoint(ec);
   auto link =
-      std::shared_ptr<MessageLink>(new MessageLink(std::move(socket), describe(remote), options));
+      std::shared_ptr<StreamLink>(new StreamLink(std::move(socket), describe(remote), options));
   link->remote_ = remote;
   return link;
 }
 
-std::shared_ptr<MessageLink> MessageLink::create(asio::serial_port port, std::string name,
-                                                 LinkOptions options) {
-  return std::shared_ptr<MessageLink>(new MessageLink(std::move(port), std::move(name), options));
+std::shared_ptr<StreamLink> StreamLink::create(asio::serial_port port, std::string name,
+                                               StreamLinkOptions options) {
+  return std::shared_ptr<StreamLink>(new StreamLink(std::move(port), std::move(name), options));
 }
 
-MessageLink::MessageLink(Stream stream, std::string peer_name, LinkOptions options)
+StreamLink::StreamLink(Stream stream, std::string peer_name, StreamLinkOptions options)
     : stream_(std::move(stream)),
       options_(options),
       peer_name_(std::move(peer_name)),
@@ -77,15 +78,15 @@ MessageLink::MessageLink(Stream stream, std::string peer_name, LinkOptions optio
   }
 }
 
-int MessageLink::native_handle() {
+int StreamLink::native_handle() {
   return std::visit([](auto& s) { return static_cast<int>(s.native_handle()); }, stream_);
 }
 
-MessageLink::~MessageLink() = default;
+StreamLink::~StreamLink() = default;
 
-void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler on_closed) {
+void StreamLink::start(MessageHandler on_message, Source source, ClosedHandler on_closed) {
   if (started_) {
-    spdlog::error("backbone: MessageLink::start called twice on {}", peer_name_);
+    spdlog::error("backbone: StreamLink::start called twice on {}", peer_name_);
     return;
   }
   started_ = true;
@@ -101,13 +102,13 @@ void MessageLink::start(MessageHandler on_message, Source source, ClosedHandler 
   source_ = std::move(source);
   on_closed_ = std::move(on_closed);
   loops_running_ = 2;
-  auto self = shared_from_this();
-  auto done = [self](std::exception_ptr error) { self->loop_done(error); };
-  asio::co_spawn(wake_.get_executor(), read_loop(), done);
-  asio::co_spawn(wake_.get_executor(), write_loop(), done);
+  // Each loop holds the link alive until it ends, and reports why it ended.
+  auto done = [self = shared_from_this()](const std::string& failure) { self->loop_done(failure); };
+  coro::spawn_owned(wake_.get_executor(), read_loop(), done);
+  coro::spawn_owned(wake_.get_executor(), write_loop(), done);
 }
 
-void MessageLink::wake_writer() {
+void StreamLink::wake_writer() {
   wake_requested_ = true;
   if (!writer_sleeping_) return;  // busy: it calls the source again once its write completes
   writer_sleeping_ = false;       // one wake per sleep, however many wakes
@@ -121,7 +122,7 @@ void MessageLink::wake_writer() {
 // what the socket did not take and calls the source again, so that wakes until then coalesce
 // into its next write exactly as they do behind any write. Returns true when the source had
 // nothing (the writer may sleep on) or the link ended.
-bool MessageLink::write_inline() {
+bool StreamLink::write_inline() {
   write_buffer_.clear();
   write_offset_ = 0;
   wake_requested_ = false;
@@ -130,7 +131,7 @@ bool MessageLink::write_inline() {
   } catch (...) {
     // What the coroutine writer would report through loop_done(); on_closed still comes once,
     // after both loops have stopped.
-    report_handler_error(std::current_exception());
+    report_handler_error(coro::describe_exception(std::current_exception()));
     end(make_error_code(errc::handler_failed));
     return true;
   }
@@ -156,7 +157,7 @@ bool MessageLink::write_inline() {
 
 // Asks the source for what is queued; on a serial link, re-frames it for the line. Returns
 // whether there is anything to send.
-bool MessageLink::fill_write_buffer() {
+bool StreamLink::fill_write_buffer() {
   if (!crc_framed_) {
     if (source_) source_(write_buffer_);
     return !write_buffer_.empty();
@@ -167,7 +168,7 @@ bool MessageLink::fill_write_buffer() {
   return !write_buffer_.empty();
 }
 
-void MessageLink::frame_staged_for_serial() {
+void StreamLink::frame_staged_for_serial() {
   if (!leading_delimiter_sent_) {
     // Ends whatever partial frame the receiver holds from before this link (noise, a cut), so
     // our first frame is not discarded with it.
@@ -181,7 +182,7 @@ void MessageLink::frame_staged_for_serial() {
 }
 
 // The whole write buffer has reached the socket.
-void MessageLink::write_done() {
+void StreamLink::write_done() {
   ++counters_.tx_writes;
   counters_.tx_bytes += write_buffer_.size();
   if (write_buffer_.capacity() > kRetainedWriteCapacity) {
@@ -192,22 +193,18 @@ void MessageLink::write_done() {
   write_offset_ = 0;
 }
 
-void MessageLink::close() {
-  end(make_error_code(errc::closed));
-}
-
-void MessageLink::pause_reading(bool paused) {
+void StreamLink::pause_reading(bool paused) {
   if (reading_paused_ == paused) return;
   reading_paused_ = paused;
   if (!paused) resume_.cancel();
 }
 
-void MessageLink::close(std::error_code reason) {
+void StreamLink::close(std::error_code reason) {
   end(reason);
 }
 
-asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
-  auto self = shared_from_this();
+asio::awaitable<std::error_code> StreamLink::async_wait_closed() {
+  auto self = shared_from_this();  // the link outlives the wait
   while (!finished_) {
     co_await closed_.async_wait(kNoError);
     // The timer is a condition variable: cancel() means "finished". A cancellation requested by
@@ -220,7 +217,7 @@ asio::awaitable<std::error_code> MessageLink::async_wait_closed() {
   co_return counters_.close_reason;
 }
 
-asio::awaitable<void> MessageLink::read_loop() {
+asio::awaitable<void> StreamLink::read_loop() {
   while (!closing_) {
     if (reading_paused_) {
       co_await resume_.async_wait(kNoError);  // cancel(): resumed or closing
@@ -260,7 +257,7 @@ asio::awaitable<void> MessageLink::read_loop() {
 }
 
 // Pulls one message at a time so that a handler calling close() stops delivery at once.
-void MessageLink::deliver() {
+void StreamLink::deliver() {
   while (!closing_ && !reading_paused_) {
     auto message = crc_framed_ ? deframer_.next(unread_) : decoder_.next(unread_);
     if (!message) {
@@ -273,7 +270,7 @@ void MessageLink::deliver() {
   if (crc_framed_) counters_.deframer = deframer_.counters();
 }
 
-asio::awaitable<void> MessageLink::write_loop() {
+asio::awaitable<void> StreamLink::write_loop() {
   while (!closing_) {
     if (write_buffer_.empty()) {  // else: the rest of an inline send (write_inline) is pending
       write_offset_ = 0;
@@ -303,17 +300,11 @@ asio::awaitable<void> MessageLink::write_loop() {
   }
 }
 
-void MessageLink::report_handler_error(std::exception_ptr error) {
-  try {
-    std::rethrow_exception(error);
-  } catch (const std::exception& e) {
-    spdlog::error("backbone: handler on link {} threw: {}", peer_name_, e.what());
-  } catch (...) {
-    spdlog::error("backbone: handler on link {} threw", peer_name_);
-  }
+void StreamLink::report_handler_error(const std::string& what) {
+  spdlog::error("backbone: handler on link {} threw: {}", peer_name_, what);
 }
 
-void MessageLink::report_decode_error(std::error_code error) {
+void StreamLink::report_decode_error(std::error_code error) {
   const bool malformed = error == errc::malformed_length;
   ++(malformed ? counters_.malformed : counters_.oversize);
   // Once per link and kind (counters keep the exact numbers); later ones go to debug.
@@ -327,7 +318,7 @@ void MessageLink::report_decode_error(std::error_code error) {
   }
 }
 
-void MessageLink::end(std::error_code reason) {
+void StreamLink::end(std::error_code reason) {
   if (closing_) return;
   closing_ = true;
   counters_.close_reason = reason;
@@ -340,15 +331,15 @@ void MessageLink::end(std::error_code reason) {
   if (loops_running_ == 0) finish();  // never started
 }
 
-void MessageLink::loop_done(std::exception_ptr error) {
-  if (error) {
-    report_handler_error(error);
+void StreamLink::loop_done(const std::string& failure) {
+  if (!failure.empty()) {
+    report_handler_error(failure);
     end(make_error_code(errc::handler_failed));
   }
   if (--loops_running_ == 0) finish();
 }
 
-void MessageLink::finish() {
+void StreamLink::finish() {
   if (finished_) return;
   finished_ = true;
   // Both loops are gone, so no handler is executing and dropping them is safe; this also breaks

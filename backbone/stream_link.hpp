@@ -1,0 +1,141 @@
+// The MessageLink over a byte stream (a TCP connection or a serial line): a reader loop that
+// splits the stream into messages and a writer loop that batches whatever the source has queued,
+// sending inline from wake_writer() when idle. TCP frames messages by length prefix; a serial
+// line, which can corrupt, lose or cut bytes, frames them with COBS + CRC-32C and resynchronises
+// after damage.
+#pragma once
+
+#include <boost/asio/awaitable.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/serial_port.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <system_error>
+#include <variant>
+#include <vector>
+
+#include "backbone/delimited_codec.hpp"
+#include "backbone/message_link.hpp"
+#include "backbone/serial_framing.hpp"
+
+namespace canbridge::backbone {
+
+// How messages are delimited on the byte stream.
+enum class LinkFraming {
+  automatic,    // length prefix on TCP, COBS + CRC-32C on serial lines
+  delimited,    // varint length prefix: for transports that never corrupt bytes
+  cobs_crc32c,  // COBS + CRC-32C per message: for anything that can corrupt, lose or cut bytes
+};
+
+struct StreamLinkOptions {
+  LinkFraming framing = LinkFraming::automatic;
+  std::size_t max_message_size = kDefaultMaxMessageSize;
+  std::size_t read_buffer_size = 64 * 1024;
+  // SO_SNDBUF/SO_RCVBUF in bytes; 0 keeps the kernel's autotuning. A fixed, moderate size bounds
+  // how much data can queue in the kernel, so a slow link pushes back on the source (which can
+  // then coalesce or drop) instead of hiding seconds of latency in socket buffers.
+  int socket_buffer_size = 256 * 1024;
+};
+
+// Not thread-safe: every member must be called on the stream's executor (one io_context thread).
+class StreamLink final : public MessageLink, public std::enable_shared_from_this<StreamLink> {
+ public:
+  // Takes over a connected socket; sets TCP_NODELAY and the socket buffer sizes.
+  static std::shared_ptr<StreamLink> create(boost::asio::ip::tcp::socket socket,
+                                            StreamLinkOptions options = {});
+  // Takes over an open, configured serial port (or pty); `name` is the device, for logs.
+  static std::shared_ptr<StreamLink> create(boost::asio::serial_port port, std::string name,
+                                            StreamLinkOptions options = {});
+  ~StreamLink() override;
+
+  // Starts the reader and writer loops; on_closed comes after both loops have stopped.
+  void start(MessageHandler on_message, Source source, ClosedHandler on_closed) override;
+
+  // Tells an idle writer that the source has something. Cheap; call it as often as you like.
+  // When the writer is idle this calls the source and sends right away (one non-blocking send);
+  // further wakes coalesce until that write has "completed" on a later turn of the loop.
+  void wake_writer() override;
+
+  // While paused the socket is not read: the peer's writes back up in the kernel buffers.
+  void pause_reading(bool paused) override;
+  bool reading_paused() const noexcept override { return reading_paused_; }
+
+  using MessageLink::close;
+  void close(std::error_code reason) override;
+
+  boost::asio::awaitable<std::error_code> async_wait_closed() override;
+
+  boost::asio::any_io_executor executor() override { return wake_.get_executor(); }
+  bool started() const noexcept override { return started_; }
+  bool is_open() const noexcept override { return !closing_; }
+  LinkCounters counters() const override { return counters_; }
+  // "address:port" or the serial device.
+  const std::string& peer_name() const noexcept override { return peer_name_; }
+  // COBS + CRC-32C framed: serial lines, or TCP across a lossy path (LinkFraming::cobs_crc32c).
+  bool crc_framed() const noexcept override { return crc_framed_; }
+
+  // The TCP peer (an empty endpoint on a serial link).
+  const boost::asio::ip::tcp::endpoint& remote_endpoint() const noexcept { return remote_; }
+  bool is_serial() const noexcept {
+    return std::holds_alternative<boost::asio::serial_port>(stream_);
+  }
+  // For socket options and diagnostics only; never read or write through it.
+  int native_handle();
+
+ private:
+  using Stream = std::variant<boost::asio::ip::tcp::socket, boost::asio::serial_port>;
+  StreamLink(Stream stream, std::string peer_name, StreamLinkOptions options);
+
+  // Turns the delimited messages the source appended to staging_ into serial frames.
+  void frame_staged_for_serial();
+  bool fill_write_buffer();
+  // Hands the messages in unread_ to on_message until it is empty, paused or closing.
+  void deliver();
+
+  boost::asio::awaitable<void> read_loop();
+  boost::asio::awaitable<void> write_loop();
+  // Both loops end here (coro::spawn_owned): `failure` is what a handler threw, else empty.
+  void loop_done(const std::string& failure);
+  void end(std::error_code reason);
+  void finish();
+  void report_decode_error(std::error_code error);
+  void report_handler_error(const std::string& what);
+  bool write_inline();
+  void write_done();
+
+  Stream stream_;
+  StreamLinkOptions options_;
+  boost::asio::ip::tcp::endpoint remote_;
+  std::string peer_name_;
+  DelimitedDecoder decoder_;  // TCP framing
+  SerialDeframer deframer_;   // serial framing
+  std::string staging_;       // serial: the source's delimited messages before framing
+  bool crc_framed_ = false;
+  bool leading_delimiter_sent_ = false;
+  std::vector<std::uint8_t> read_buffer_;
+  std::span<const std::uint8_t> unread_;  // read but not yet decoded (paused mid-buffer)
+  std::string write_buffer_;
+  std::size_t write_offset_ = 0;      // bytes of write_buffer_ already sent by an inline send
+  boost::asio::steady_timer wake_;    // condition variable for the idle writer
+  boost::asio::steady_timer closed_;  // condition variable for async_wait_closed()
+  boost::asio::steady_timer resume_;  // condition variable for the paused reader
+  MessageHandler on_message_;
+  Source source_;
+  ClosedHandler on_closed_;
+  LinkCounters counters_;
+  int loops_running_ = 0;
+  bool started_ = false;
+  bool warned_malformed_ = false;  // report_decode_error() said it once already
+  bool warned_oversize_ = false;
+  bool closing_ = false;          // end() ran: loops are stopping
+  bool finished_ = false;         // loops stopped and on_closed ran
+  bool writer_sleeping_ = false;  // the writer waits on wake_
+  bool wake_requested_ = false;   // wake_writer() since the source was last called
+  bool reading_paused_ = false;
+};
+
+}  // namespace canbridge::backbone
