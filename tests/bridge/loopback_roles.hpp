@@ -1,11 +1,13 @@
-// Starts one Gateway and one Surface and links them over loopback TCP, as the in-process role
-// tests need: the surface listens on an ephemeral port, the gateway's client reconnects quickly.
+// Starts one Gateway and one Surface and links them, as the in-process role tests need: over
+// loopback TCP (the surface listens on an ephemeral port, the gateway's client reconnects
+// quickly), or over an in-memory link pair when the test is not about the transport.
 #pragma once
 
 #include <boost/asio/io_context.hpp>
 #include <chrono>
 #include <memory>
 
+#include "backbone/memory_link.hpp"
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
 #include "bridge/gateway.hpp"
@@ -29,6 +31,27 @@ inline bool start_linked_over_loopback(boost::asio::io_context& io, Surface& sur
   options.backoff_max = 50ms;
   client = backbone::TcpClient::create(io.get_executor(), "127.0.0.1", server->port(), options);
   client->start([g = &gateway](auto link) { g->attach(std::move(link)); });
+  return test::run_until(io, [&] { return surface.gateways_ready() == 1 && gateway.connected(); });
+}
+
+// Links two started roles over a new in-memory pair (end a the gateway's, end b the surface's);
+// closing either end cuts the link, and a later call links them again.
+inline backbone::MemoryLinkPair link_in_memory(boost::asio::io_context& io, Surface& surface,
+                                               Gateway& gateway) {
+  backbone::MemoryLinkOptions options;
+  options.name = "backbone";
+  auto pair = backbone::make_memory_link_pair(io.get_executor(), options);
+  surface.attach(pair.b);
+  gateway.attach(pair.a);
+  return pair;
+}
+
+// Starts both roles and links them in memory; true once both report the link ready.
+inline bool start_linked_in_memory(boost::asio::io_context& io, Surface& surface,
+                                   Gateway& gateway) {
+  surface.start();
+  gateway.start();
+  link_in_memory(io, surface, gateway);
   return test::run_until(io, [&] { return surface.gateways_ready() == 1 && gateway.connected(); });
 }
 
