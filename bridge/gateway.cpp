@@ -178,29 +178,11 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       pdop_timer_(executor_),
       tuning_(tuning),
       outbox_(tuning_.outbox),
-      stream_(tuning_.session,
-              backbone::PeerStream::Handlers{
-                  [this](backbone::PayloadSink& sink) { produce(sink); },
-                  [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
-                  [this](const v1::Hello&) {
-                    // The surface may be a new process: it learns the pdop nodes on every link.
-                    announce_pdop_nodes_ = !pdop_.empty();
-                  },
-                  [this] {
-                    // The master has seen its transfers aborted (surface link guard): whatever
-                    // the nodes still send belongs to no transfer the trackers should follow.
-                    for (auto& module : sdo_trackers_) {
-                      for (auto& tracker : module) tracker.reset();
-                    }
-                    withdraw_sdo_requests_to_buses();
-                  },
-                  // A new surface process: what was queued for the old one is not replayed.
-                  [this](const v1::Hello&) { outbox_.discard_queued(); }}) {
+      stream_(tuning_.session, stream_handlers()) {
   identity_.role = v1::Hello::ROLE_GATEWAY;
   identity_.expected_peer = v1::Hello::ROLE_SURFACE;
   identity_.name = name_;
   identity_.session_id = backbone::random_session_id();
-  sdo_trackers_.resize(modules_.size());
   bool any_pdop = false;
   for (std::size_t m = 0; m < modules_.size(); ++m) {
     if (map_.modules()[m].profile == IdProfile::pdop) any_pdop = true;
@@ -211,52 +193,32 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       pdop_[m].reassembler = std::make_unique<PdopReassembler>(modules_[m].pdop_reassembly);
       pdop_[m].segmenter = std::make_unique<PdopSegmenter>(modules_[m].pdop_segmentation);
     }
-    node_table_.add_module(map_.modules()[m].profile, modules_[m].heartbeat_lost_after);
-    writers_.push_back(std::make_unique<BusWriter>(
-        executor_, *modules_[m].bus, BusWriteQueue::Options{},
-        [this, m](std::span<const can::Frame> frames) { on_written(m, frames); },
-        [this](bool) { on_backlog_changed(); }));
-    identity_.module_ids.push_back(modules_[m].id);
-    if (modules_[m].lss) translator_.route_lss_to(m);
-    // A value may only name this module's own ids: a COB-ID or node of another bus is not
-    // something this node can reach.
-    to_local_.push_back({[this, m](std::uint32_t cob) -> std::optional<std::uint32_t> {
-                           auto owner = map_.owner_of_surface_cob(cob);
-                           if (!owner || owner->module_index != m) return std::nullopt;
-                           return owner->local_cob;
-                         },
-                         [this, m](canopen::NodeId node) -> std::optional<canopen::NodeId> {
-                           auto owner = map_.owner_of_surface(node);
-                           if (!owner || owner->module_index != m) return std::nullopt;
-                           return owner->local;
-                         }});
-    to_surface_.push_back({[this, m](std::uint32_t cob) -> std::optional<std::uint32_t> {
-                             const std::uint16_t surface = map_.surface_cob_of(m, cob);
-                             if (surface == 0) return std::nullopt;
-                             return surface;
-                           },
-                           [this, m](canopen::NodeId node) -> std::optional<canopen::NodeId> {
-                             const canopen::NodeId surface = map_.surface_of(m, node);
-                             if (surface == 0) return std::nullopt;
-                             return surface;
-                           }});
+    add_module_bus(m);
   }
   // The surface checks these against every other gateway's and routes its frames by them.
   identity_.application = encode_claims(claims_of(map_));
 }
 
-canopen::NodeId Gateway::sdo_node(std::size_t module_index, const can::Frame& frame,
-                                  std::uint16_t base) const {
-  if (frame.is_extended() || frame.id <= base) return 0;
-  const std::uint32_t node = frame.id - base;
-  return node <= max_node_id(map_.modules()[module_index].profile)
-             ? static_cast<canopen::NodeId>(node)
-             : canopen::NodeId{0};
+backbone::PeerStream::Handlers Gateway::stream_handlers() {
+  return {[this](backbone::PayloadSink& sink) { produce(sink); },
+          [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
+          [this](const v1::Hello&) {
+            // The surface may be a new process: it learns the pdop nodes on every link.
+            announce_pdop_nodes_ = !pdop_.empty();
+          },
+          [this] { on_link_dead(); },
+          // A new surface process: what was queued for the old one is not replayed.
+          [this](const v1::Hello&) { outbox_.discard_queued(); }};
 }
 
-void Gateway::count(canopen::sdo::ValueRewrite rewrite) {
-  if (rewrite == canopen::sdo::ValueRewrite::rewritten) ++counters_.sdo_values_rewritten;
-  if (rewrite == canopen::sdo::ValueRewrite::no_counterpart) ++counters_.sdo_values_unmapped;
+void Gateway::add_module_bus(std::size_t m) {
+  node_table_.add_module(map_.modules()[m].profile, modules_[m].heartbeat_lost_after);
+  writers_.push_back(std::make_unique<BusWriter>(
+      executor_, *modules_[m].bus, BusWriteQueue::Options{},
+      [this, m](std::span<const can::Frame> frames) { on_written(m, frames); },
+      [this](bool) { on_backlog_changed(); }));
+  identity_.module_ids.push_back(modules_[m].id);
+  if (modules_[m].lss) translator_.route_lss_to(m);
 }
 
 Gateway::~Gateway() = default;
@@ -520,12 +482,7 @@ void Gateway::queue_node_events() {
   for (const NodeEvent& e : node_events_) {
     spdlog::info("gateway {}: {}", name_, to_string(e));
     const auto m = e.module_index;
-    // A node that booted or was renamed starts with no SDO transfer open.
-    if (e.kind == NodeEvent::Kind::booted || e.kind == NodeEvent::Kind::renamed ||
-        e.kind == NodeEvent::Kind::loader_booted) {
-      sdo_trackers_[m][e.local].reset();
-      if (e.previous_local != 0) sdo_trackers_[m][e.previous_local].reset();
-    }
+    sdo_.on_node_event(e);
     v1::NodeEvent& o = *out.add_events();
     o.set_kind(to_proto(e.kind));
     o.set_module_id(modules_[m].id);
@@ -615,93 +572,99 @@ void Gateway::stop() {
 }
 
 asio::awaitable<std::error_code> Gateway::read_bus(std::size_t module_index) {
-  GatewayModule& module = modules_[module_index];
-  can::Bus& bus = *module.bus;
+  can::Bus& bus = *modules_[module_index].bus;
   std::vector<can::Frame> batch;
   batch.reserve(512);
-  PdopReassembler* reassembler = pdop_.empty() ? nullptr : pdop_[module_index].reassembler.get();
-  PdopSegmenter* segmenter = pdop_.empty() ? nullptr : pdop_[module_index].segmenter.get();
-  // A pdop module without reassembly: its TPDO fragments cross as frames, kept in bus order.
-  const bool fragments_as_frames =
-      map_.modules()[module_index].profile == IdProfile::pdop && !reassembler;
   for (;;) {
     batch.clear();
     if (std::error_code ec = co_await bus.receive_batch(batch)) co_return ec;
-    counters_.from_buses += batch.size();
-    const auto now = LoopGuard::Clock::now();
-    const auto clock_offset = steady_to_unix_offset();
-    std::optional<PdopSink> pdop_sink;
-    if (reassembler) pdop_sink.emplace(*this, module_index, clock_offset);
-    for (const can::Frame& frame : batch) {
-      if (frame.is_error()) continue;  // bus state, counted by the bus itself
-      // A frame this gateway wrote, coming back (another bridge, a gateway daemon, a loop in
-      // the wiring): forwarding it again would start a storm.
-      if (loop_guards_[module_index].is_echo(frame, now)) {
-        ++counters_.echoes_dropped;
+    on_bus_batch(module_index, batch);
+  }
+}
+
+void Gateway::on_bus_batch(std::size_t module_index, std::span<const can::Frame> batch) {
+  counters_.from_buses += batch.size();
+  PdopReassembler* reassembler = pdop_.empty() ? nullptr : pdop_[module_index].reassembler.get();
+  PdopSegmenter* segmenter = pdop_.empty() ? nullptr : pdop_[module_index].segmenter.get();
+  const auto now = LoopGuard::Clock::now();
+  const auto clock_offset = steady_to_unix_offset();
+  std::optional<PdopSink> pdop_sink;
+  if (reassembler) pdop_sink.emplace(*this, module_index, clock_offset);
+  for (const can::Frame& frame : batch) {
+    // Error frames: bus state, counted by the bus itself.
+    if (frame.is_error() || drop_echo(module_index, frame, now)) continue;
+    const std::size_t events_before = node_events_.size();
+    note_bus_frame(module_index, frame, now);
+    if (reassembler) {
+      // In bus order: a boot-up ends the node's packets before its next fragment arrives.
+      for (std::size_t e = events_before; e < node_events_.size(); ++e) {
+        on_node_restart(node_events_[e], now);
+      }
+      const auto at = steady_time_of(frame, now, clock_offset);
+      if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
+      // Frames of nodes without a surface id go on to the translator, which counts them.
+      // The nodes' RPDOP acknowledgements are the segmenter's: the surface acknowledges its
+      // master itself.
+      if (map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0 &&
+          (reassembler->on_frame(frame, at, *pdop_sink) ||
+           segmenter->on_frame(frame, now, segmenter_out_))) {
+        flush_segmenter(module_index);
         continue;
       }
-      const std::size_t events_before = node_events_.size();
-      node_table_.on_bus_frame(module_index, frame, now, node_events_);
-      if (frame.id == canopen::cob::nmt && !frame.is_extended()) {  // a master on the module bus
-        node_table_.on_nmt_to_bus(module_index, frame, now, node_events_);
-      }
-      follow_node_events();  // a confirming boot-up crosses under the node's new surface id
-      if (reassembler) {
-        // In bus order: a boot-up ends the node's packets before its next fragment arrives.
-        for (std::size_t e = events_before; e < node_events_.size(); ++e) {
-          on_node_restart(node_events_[e], now);
-        }
-        const auto at = steady_time_of(frame, now, clock_offset);
-        if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
-        // Frames of nodes without a surface id go on to the translator, which counts them.
-        // The nodes' RPDOP acknowledgements are the segmenter's: the surface acknowledges its
-        // master itself.
-        if (map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0 &&
-            (reassembler->on_frame(frame, at, *pdop_sink) ||
-             segmenter->on_frame(frame, now, segmenter_out_))) {
-          flush_segmenter(module_index);
-          continue;
-        }
-      }
-      auto surface = translator_.to_surface(module_index, frame);
-      if (!surface) continue;
-      if (const canopen::NodeId node = sdo_node(module_index, frame, canopen::cob::sdo_tx)) {
-        auto& tracker = sdo_trackers_[module_index][node];
-        count(tracker.on_response(*surface, to_surface_[module_index]));
-        // The node's heartbeat period, from the write it confirmed (issue 14): never one gap.
-        if (const auto& w = tracker.confirmed_write();
-            w && w->mux.index == 0x1017 && w->mux.sub == 0) {
-          node_table_.note_heartbeat_time(module_index, node,
-                                          std::chrono::milliseconds(w->value & 0xFFFF));
-        }
-      } else if (const canopen::NodeId client =
-                     sdo_node(module_index, frame, canopen::cob::sdo_rx)) {
-        // A master on the module bus: its writes are seen, its transfer's frames followed.
-        can::Frame observed = frame;
-        sdo_trackers_[module_index][client].on_request(observed, {});
-      }
-      // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
-      if (!outbox_.push(
-              module.id, *surface,
-              {.conflate_pdos = module.conflate_pdos, .pdop_fragments = fragments_as_frames},
-              now)) {
-        warn_.warn(Warn::kRefused,
-                   "gateway: backbone queue full: frames refused (counted per lane; reliable "
-                   "ones as reliable-refused; the link is too slow or down too long)");
-      }
     }
-    after_node_input();
-    after_pdop_input();
-    stream_.wake();
+    queue_for_surface(module_index, frame, now);
+  }
+  after_node_input();
+  after_pdop_input();
+  stream_.wake();
+}
+
+// A frame this gateway wrote, coming back (another bridge, a gateway daemon, a loop in the
+// wiring): forwarding it again would start a storm.
+bool Gateway::drop_echo(std::size_t module_index, const can::Frame& frame,
+                        LoopGuard::Clock::time_point now) {
+  if (!loop_guards_[module_index].is_echo(frame, now)) return false;
+  ++counters_.echoes_dropped;
+  return true;
+}
+
+void Gateway::note_bus_frame(std::size_t module_index, const can::Frame& frame,
+                             LoopGuard::Clock::time_point now) {
+  node_table_.on_bus_frame(module_index, frame, now, node_events_);
+  if (frame.id == canopen::cob::nmt && !frame.is_extended()) {  // a master on the module bus
+    node_table_.on_nmt_to_bus(module_index, frame, now, node_events_);
+  }
+  follow_node_events();  // a confirming boot-up crosses under the node's new surface id
+}
+
+void Gateway::queue_for_surface(std::size_t module_index, const can::Frame& frame,
+                                LoopGuard::Clock::time_point now) {
+  auto surface = translator_.to_surface(module_index, frame);
+  if (!surface) return;
+  if (const auto heartbeat = sdo_.from_bus(module_index, frame, *surface)) {
+    // The node's heartbeat period, from the write it confirmed (issue 14): never one gap.
+    node_table_.note_heartbeat_time(module_index, heartbeat->node, heartbeat->period);
+  }
+  // A pdop module without reassembly: its TPDO fragments cross as frames, kept in bus order.
+  const bool fragments_as_frames = map_.modules()[module_index].profile == IdProfile::pdop &&
+                                   (pdop_.empty() || !pdop_[module_index].reassembler);
+  const GatewayModule& module = modules_[module_index];
+  // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
+  if (!outbox_.push(module.id, *surface,
+                    {.conflate_pdos = module.conflate_pdos, .pdop_fragments = fragments_as_frames},
+                    now)) {
+    warn_.warn(Warn::kRefused,
+               "gateway: backbone queue full: frames refused (counted per lane; reliable "
+               "ones as reliable-refused; the link is too slow or down too long)");
   }
 }
 
 // The surface aborts every SDO request in flight when it declares the link dead: one still
 // waiting here for its bus must never reach the node.
-void Gateway::withdraw_sdo_requests_to_buses() {
+void Gateway::on_link_dead() {
+  sdo_.on_link_dead();
   for (auto& writer : writers_) {
-    counters_.sdo_requests_withdrawn +=
-        writer->withdraw([](const can::Frame& f) { return is_sdo_request(f); });
+    sdo_.withdrew(writer->withdraw(ModuleSdoTracking::withdrawn_at_link_loss));
   }
 }
 
@@ -742,13 +705,15 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
       return;
     }
   }
+  write_to_buses(only);
+}
+
+void Gateway::write_to_buses(std::optional<std::size_t> only) {
   for (const can::Frame& frame : decoded_) {
     const std::uint64_t renames_refused = translator_.dropped(DropReason::rename_refused);
     translator_.to_modules(frame, [&](std::size_t m, can::Frame local) {
       if (only && *only != m) return;
-      if (const canopen::NodeId node = sdo_node(m, local, canopen::cob::sdo_rx)) {
-        count(sdo_trackers_[m][node].on_request(local, to_local_[m]));
-      }
+      sdo_.to_bus(m, local);
       // In order behind what waits for the bus; only process data may be dropped (counted).
       if (!writers_[m]->write(local, bus_lane_of(local))) {
         warn_.warn(Warn::kBusRefused,
@@ -796,6 +761,9 @@ GatewayCounters Gateway::counters() const {
     c.bus_refused += w->queue().dropped() + w->refused();
   }
   c.translation = translator_.drops();
+  c.sdo_values_rewritten = sdo_.counters().values_rewritten;
+  c.sdo_values_unmapped = sdo_.counters().values_unmapped;
+  c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;
   c.outbox = outbox_.counters();
   c.process_lost_on_line = line_loss_.lost();
   c.framing = old_links_framing_;

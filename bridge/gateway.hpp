@@ -21,9 +21,9 @@
 #include "bridge/frame_outbox.hpp"
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
+#include "bridge/module_sdo_tracking.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
-#include "canopen/sdo_transaction_tracker.hpp"
 #include "routing/cob_id_translator.hpp"
 #include "routing/node_map.hpp"
 #include "routing/node_table.hpp"
@@ -119,8 +119,23 @@ class Gateway {
   std::string stats_line() const;
 
  private:
+  backbone::PeerStream::Handlers stream_handlers();
+  // Module `m`'s node table, bus writer, announcement and LSS route.
+  void add_module_bus(std::size_t m);
   // Returns the bus's error when the bus ends (closed, or gone for good).
   boost::asio::awaitable<std::error_code> read_bus(std::size_t module_index);
+  // One batch read on a module bus, in bus order: echoes dropped, the node table fed, PDO
+  // Packets reassembled, everything else queued for the surface.
+  void on_bus_batch(std::size_t module_index, std::span<const can::Frame> batch);
+  // True (counted) when `frame` is one this gateway wrote to the bus, read back.
+  bool drop_echo(std::size_t module_index, const can::Frame& frame,
+                 LoopGuard::Clock::time_point now);
+  // The node table (and the live map's renames) see every frame of a module bus first.
+  void note_bus_frame(std::size_t module_index, const can::Frame& frame,
+                      LoopGuard::Clock::time_point now);
+  // Translated, SDO values rewritten, into the outbox (the link may be down).
+  void queue_for_surface(std::size_t module_index, const can::Frame& frame,
+                         LoopGuard::Clock::time_point now);
   // Every loop the gateway spawns ends here: one that ends while the gateway runs stops it.
   void on_task_end(const std::string& task, const std::string& why);
   // Frames one module's BusWriter put on its bus.
@@ -128,12 +143,11 @@ class Gateway {
   // Input from the surface waits while any module bus is backed up (BusWriteQueue::backlogged).
   void on_backlog_changed();
   void on_payload(std::span<const std::uint8_t> payload);
-  void withdraw_sdo_requests_to_buses();
-  // Default SDO channel of a node of `module_index`: the node id if `frame` is its request
-  // (0x600 + n) or response (0x580 + n) under the module's profile, else 0.
-  canopen::NodeId sdo_node(std::size_t module_index, const can::Frame& frame,
-                           std::uint16_t base) const;
-  void count(canopen::sdo::ValueRewrite rewrite);
+  // The decoded frames of one batch from the surface, translated to the buses of the modules
+  // they address (only module `only`'s when set), SDO values rewritten.
+  void write_to_buses(std::optional<std::size_t> only);
+  // The surface declared the link dead (its master saw every SDO transfer aborted).
+  void on_link_dead();
   // Node table: one timer at its next deadline; events go to the surface as reliable payloads.
   boost::asio::awaitable<void> watch_nodes();
   void after_node_input();
@@ -187,10 +201,7 @@ class Gateway {
   std::vector<GatewayModule> modules_;
   std::vector<LoopGuard> loop_guards_;               // one per module bus, same order
   std::vector<std::unique_ptr<BusWriter>> writers_;  // one per module bus, same order
-  // Per module (same order): the id mappings SDO values are rewritten with, and one tracker per
-  // node's default SDO channel, which knows the object of every frame of a transfer.
-  std::vector<canopen::sdo::IdMapping> to_local_, to_surface_;
-  std::vector<std::array<canopen::sdo::ValueTransferTracker, 128>> sdo_trackers_;
+  ModuleSdoTracking sdo_{map_};                      // every node's default SDO channel, per module
   NodeTable node_table_;
   boost::asio::steady_timer node_timer_;
   std::vector<NodeEvent> node_events_;  // of the input being handled
