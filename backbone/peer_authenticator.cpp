@@ -40,7 +40,8 @@ struct MacFreer {
 }
 
 // HMAC-SHA-256 under one key, keyed once and re-initialised per message: keying and fetching
-// the algorithm cost more than hashing a 64-byte message.
+// the algorithm cost more than hashing a 64-byte message. (A hand-made HMAC from copied SHA-256
+// states measured 270 against 330 ns per 64-byte seal; not worth leaving OpenSSL's HMAC.)
 class HmacSha256 {
  public:
   explicit HmacSha256(std::span<const std::uint8_t> key) {
