@@ -4,6 +4,8 @@ find_package(Boost 1.81 REQUIRED)
 find_package(Protobuf 3.21 REQUIRED)
 find_package(yaml-cpp REQUIRED)
 find_package(spdlog REQUIRED)
+# libcrypto only (HMAC, HKDF, RAND) for the backbone's peer authentication.
+find_package(OpenSSL 3.0 REQUIRED)
 if(CANBRIDGE_BUILD_TESTS)
   find_package(GTest 1.12 REQUIRED)
 endif()
