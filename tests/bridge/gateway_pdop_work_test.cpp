@@ -110,7 +110,7 @@ TEST_F(GatewayPdopWorkTest, SmallPacketsShareAPayloadUpToTheBatchSize) {
   EXPECT_EQ(work.queued_payloads(), 2u);
   const v1::Payload* first = work.next_payload();
   ASSERT_NE(first, nullptr);
-  EXPECT_EQ(first->pdop_packets().packets_size(), 64);
+  ASSERT_EQ(first->pdop_packets().packets_size(), 64);
   EXPECT_EQ(first->pdop_packets().packets(63).data(), std::string(1, '\x3f') + "@ABCDEF");
   work.pop_payload();
   EXPECT_EQ(work.next_payload()->pdop_packets().packets_size(), 36);
