@@ -3,9 +3,6 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <boost/asio/as_tuple.hpp>
-#include <boost/asio/use_awaitable.hpp>
-#include <limits>
 
 #include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
@@ -19,65 +16,12 @@ namespace canbridge::bridge {
 namespace asio = boost::asio;
 
 namespace {
-v1::PdopDiscard::Reason to_proto(PdopReassembler::Reason reason) {
-  using R = PdopReassembler::Reason;
-  switch (reason) {
-    case R::missing_fragment:
-      return v1::PdopDiscard::MISSING_FRAGMENT;
-    case R::duplicate:
-      return v1::PdopDiscard::DUPLICATE;
-    case R::timeout:
-      return v1::PdopDiscard::TIMEOUT;
-    case R::oversize:
-      return v1::PdopDiscard::OVERSIZE;
-    case R::short_fragment:
-      return v1::PdopDiscard::SHORT_FRAGMENT;
-    case R::empty_frame:
-      return v1::PdopDiscard::EMPTY_FRAME;
-    case R::node_restart:
-      return v1::PdopDiscard::NODE_RESTART;
-    case R::frames_lost:
-      return v1::PdopDiscard::FRAMES_LOST;
-  }
-  return v1::PdopDiscard::REASON_UNSPECIFIED;
-}
-
-v1::RpdopOutcome::Result to_proto(PdopResult result) {
-  switch (result) {
-    case PdopResult::complete:
-      return v1::RpdopOutcome::COMPLETE;
-    case PdopResult::receiver_abort:
-      return v1::RpdopOutcome::RECEIVER_ABORT;
-    case PdopResult::timeout:
-      return v1::RpdopOutcome::TIMEOUT;
-    case PdopResult::cancelled:
-      return v1::RpdopOutcome::CANCELLED;
-    case PdopResult::refused_busy:
-      return v1::RpdopOutcome::REFUSED_BUSY;
-    case PdopResult::refused_size:
-      return v1::RpdopOutcome::REFUSED_SIZE;
-    case PdopResult::refused_address:
-      return v1::RpdopOutcome::REFUSED_ADDRESS;
-  }
-  return v1::RpdopOutcome::RESULT_UNSPECIFIED;
-}
-
 // Unix time minus steady time, now: converts kernel receive times (Unix) to the steady clock.
 std::chrono::nanoseconds steady_to_unix_offset() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
       std::chrono::system_clock::now().time_since_epoch() -
       std::chrono::steady_clock::now().time_since_epoch());
 }
-
-std::int64_t unix_us(std::chrono::nanoseconds since_epoch) {
-  return std::chrono::duration_cast<std::chrono::microseconds>(since_epoch).count();
-}
-
-// Bytes of TPDOP packets and reports waiting for the link, per gateway: a link down for long
-// refuses new ones (counted) rather than grow without bound; queued ones are never dropped.
-constexpr std::size_t kMaxQueuedPdopBytes = std::size_t{8} << 20;
-// Packets are batched into one payload up to this size while the link is behind.
-constexpr std::size_t kPdopBatchBytes = 2048;
 
 v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
   switch (kind) {
@@ -100,72 +44,15 @@ v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
   }
   return v1::NodeEvent::KIND_UNSPECIFIED;
 }
-}  // namespace
 
-// Reassembled packets and discards of one module, into the backbone queue.
-class Gateway::PdopSink final : public PdopReassembler::Sink {
- public:
-  PdopSink(Gateway& gateway, std::size_t module_index, std::chrono::nanoseconds clock_offset)
-      : gateway_(gateway), module_index_(module_index), clock_offset_(clock_offset) {}
-
-  void on_packet(const PdopReassembler::Packet& packet) override {
-    Gateway& g = gateway_;
-    const std::size_t bytes = packet.data.size() + 24;
-    v1::Payload* payload = g.pdop_payload_for(v1::Payload::kPdopPackets, bytes);
-    if (!payload) return;
-    v1::PdopPacket& p = *payload->mutable_pdop_packets()->add_packets();
-    p.set_module_id(g.modules_[module_index_].id);
-    p.set_local_node(packet.node);
-    p.set_surface_node(g.map_.surface_of(module_index_, packet.node));
-    p.set_pdo(packet.tpdo);
-    p.set_data(packet.data.data(), packet.data.size());
-    p.set_first_fragment_us(unix_us(clock_offset_ + packet.first.time_since_epoch()));
-    p.set_duration_us(static_cast<std::uint32_t>(std::min<std::int64_t>(
-        std::chrono::duration_cast<std::chrono::microseconds>(packet.last - packet.first).count(),
-        std::numeric_limits<std::uint32_t>::max())));
-    p.set_probable_repeat(packet.probable_repeat);
-    ++g.counters_.pdop_packets;
-    g.counters_.pdop_packet_bytes += packet.data.size();
-    g.counters_.pdop_fragments += packet.fragments;
+std::vector<GatewayPdopWork::Module> pdop_modules_of(const std::vector<GatewayModule>& modules) {
+  std::vector<GatewayPdopWork::Module> pdop;
+  for (const GatewayModule& m : modules) {
+    pdop.push_back({m.id, m.reassemble_pdop, m.pdop_reassembly, m.pdop_segmentation});
   }
-
-  void on_discard(const PdopReassembler::Discard& discard) override {
-    Gateway& g = gateway_;
-    ++g.counters_.pdop_discards;
-    g.warn_.warn(Warn::kPdopDiscard,
-                 "gateway: module {} {}: reported to the surface (counted; later ones only in "
-                 "the counters)",
-                 g.modules_[module_index_].id, to_string(discard));
-    v1::Payload* payload = g.pdop_payload_for(v1::Payload::kPdopReports, 24);
-    if (!payload) return;
-    v1::PdopDiscard& d = *payload->mutable_pdop_reports()->add_discards();
-    d.set_module_id(g.modules_[module_index_].id);
-    d.set_local_node(discard.node);
-    d.set_surface_node(g.map_.surface_of(module_index_, discard.node));
-    d.set_tpdo(discard.tpdo);
-    d.set_reason(to_proto(discard.reason));
-    d.set_fragments(discard.fragments);
-    d.set_bytes(static_cast<std::uint32_t>(discard.bytes));
-  }
-
- private:
-  Gateway& gateway_;
-  std::size_t module_index_;
-  // Steady clock -> Unix time, for the packet's timestamps.
-  std::chrono::nanoseconds clock_offset_;
-};
-
-// Kernel receive time of `frame` on the steady clock (the batch's time when it has none, or when
-// the wall clock moved): fragment gaps are measured as they were on the bus, not as the reader
-// loop happened to see them.
-static PdopReassembler::TimePoint steady_time_of(const can::Frame& frame,
-                                                 PdopReassembler::TimePoint now,
-                                                 std::chrono::nanoseconds clock_offset) {
-  if (frame.timestamp.count() == 0) return now;
-  const auto at = PdopReassembler::TimePoint(
-      std::chrono::duration_cast<PdopReassembler::Clock::duration>(frame.timestamp - clock_offset));
-  return at <= now && now - at < std::chrono::seconds(1) ? at : now;
+  return pdop;
 }
+}  // namespace
 
 Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
                  std::vector<GatewayModule> modules, BackboneTuning tuning)
@@ -174,8 +61,8 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       map_(std::move(map)),
       modules_(std::move(modules)),
       loop_guards_(modules_.size()),
-      node_timer_(executor_),
-      pdop_timer_(executor_),
+      deadlines_(executor_),
+      pdop_(map_, pdop_modules_of(modules_), name_),
       tuning_(tuning),
       outbox_(tuning_.outbox),
       stream_(tuning_.session, stream_handlers()) {
@@ -183,20 +70,24 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
   identity_.expected_peer = v1::Hello::ROLE_SURFACE;
   identity_.name = name_;
   identity_.session_id = backbone::random_session_id();
-  bool any_pdop = false;
-  for (std::size_t m = 0; m < modules_.size(); ++m) {
-    if (map_.modules()[m].profile == IdProfile::pdop) any_pdop = true;
-  }
-  if (any_pdop) pdop_.resize(modules_.size());
-  for (std::size_t m = 0; m < modules_.size(); ++m) {
-    if (any_pdop && map_.modules()[m].profile == IdProfile::pdop && modules_[m].reassemble_pdop) {
-      pdop_[m].reassembler = std::make_unique<PdopReassembler>(modules_[m].pdop_reassembly);
-      pdop_[m].segmenter = std::make_unique<PdopSegmenter>(modules_[m].pdop_segmentation);
-    }
-    add_module_bus(m);
-  }
+  for (std::size_t m = 0; m < modules_.size(); ++m) add_module_bus(m);
   // The surface checks these against every other gateway's and routes its frames by them.
   identity_.application = encode_claims(claims_of(map_));
+  deadlines_.add(
+      "node table", [this] { return node_table_.next_deadline(); },
+      [this](DeadlineDriver::TimePoint now) {
+        node_table_.tick(now, node_events_);
+        queue_node_events();
+      });
+  if (pdop_.active()) {
+    deadlines_.add(
+        "PDO Packets", [this] { return pdop_.next_deadline(); },
+        [this](DeadlineDriver::TimePoint now) {
+          pdop_.tick(now, steady_to_unix_offset());
+          write_pdop_frames();
+          stream_.wake();
+        });
+  }
 }
 
 backbone::PeerStream::Handlers Gateway::stream_handlers() {
@@ -204,7 +95,7 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
           [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
           [this](const v1::Hello&) {
             // The surface may be a new process: it learns the pdop nodes on every link.
-            announce_pdop_nodes_ = !pdop_.empty();
+            pdop_.announce_nodes();
           },
           [this] { on_link_dead(); },
           // A new surface process: what was queued for the old one is not replayed.
@@ -233,12 +124,8 @@ void Gateway::start() {
     });
     writers_[m]->start();
   }
-  coro::spawn_owned(executor_, watch_nodes(),
-                    [this](const std::string& why) { on_task_end("node table timer", why); });
-  if (!pdop_.empty()) {
-    coro::spawn_owned(executor_, watch_pdop(),
-                      [this](const std::string& why) { on_task_end("PDO Packet timer", why); });
-  }
+  coro::spawn_owned(executor_, deadlines_.run(),
+                    [this](const std::string& why) { on_task_end("deadline driver", why); });
 }
 
 // A gateway with one loop gone is up but deaf to a bus (or blind to its node table): worse than
@@ -251,179 +138,21 @@ void Gateway::on_task_end(const std::string& task, const std::string& why) {
   if (on_failure_) on_failure_(failure_);
 }
 
-PdopReassembler::TimePoint Gateway::pdop_deadline() const {
-  auto deadline = PdopReassembler::TimePoint::max();
-  for (const PdopModule& p : pdop_) {
-    if (!p.reassembler) continue;
-    deadline = std::min(deadline, p.reassembler->next_deadline().value_or(deadline));
-    deadline = std::min(deadline, p.segmenter->next_deadline().value_or(deadline));
-  }
-  return deadline;
-}
-
-asio::awaitable<void> Gateway::watch_pdop() {
-  while (!stopped_) {
-    pdop_timer_.expires_at(pdop_deadline());
-    auto [ec] = co_await pdop_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
-    if (stopped_) co_return;
-    if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
-    const auto now = PdopReassembler::Clock::now();
-    for (std::size_t m = 0; m < pdop_.size(); ++m) {
-      if (!pdop_[m].reassembler) continue;
-      PdopSink sink(*this, m, steady_to_unix_offset());
-      pdop_[m].reassembler->tick(now, sink);
-      pdop_[m].segmenter->tick(now, segmenter_out_);
-      flush_segmenter(m);
-    }
-    stream_.wake();
-  }
-}
-
-void Gateway::after_pdop_input() {
-  if (!pdop_.empty() && pdop_deadline() < pdop_timer_.expiry()) pdop_timer_.cancel();
-}
-
-v1::RpdopOutcome* Gateway::add_outcome_report() {
-  v1::Payload* payload = pdop_payload_for(v1::Payload::kPdopReports, 40);
-  return payload ? payload->mutable_pdop_reports()->add_outcomes() : nullptr;
-}
-
-v1::Payload* Gateway::pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes) {
-  if (pdop_out_bytes_ + adding_bytes > kMaxQueuedPdopBytes) {
-    ++counters_.pdop_refused;
-    warn_.warn(Warn::kPdopRefused,
-               "gateway: PDO Packet queue full ({} bytes): packets and reports refused (counted "
-               "as pdop-refused; the link is too slow or down too long)",
-               pdop_out_bytes_);
-    return nullptr;
-  }
-  pdop_out_bytes_ += adding_bytes;
-  if (!pdop_out_.empty() && pdop_out_.back().payload.body_case() == kind &&
-      pdop_out_.back().bytes + adding_bytes <= kPdopBatchBytes) {
-    pdop_out_.back().bytes += adding_bytes;
-    return &pdop_out_.back().payload;
-  }
-  pdop_out_.push_back({v1::Payload(), adding_bytes});
-  return &pdop_out_.back().payload;
-}
-
-void Gateway::queue_pdop_nodes() {
-  v1::Payload payload;
-  v1::PdopNodes& nodes = *payload.mutable_pdop_nodes();
-  for (std::size_t m = 0; m < pdop_.size(); ++m) {
-    if (map_.modules()[m].profile != IdProfile::pdop) continue;
-    for (NodeId local = 1; local <= canopen::pdop::kMaxNode; ++local) {
-      const NodeId surface = map_.surface_of(m, local);
-      if (surface == 0) continue;
-      v1::PdopNodes::Node& n = *nodes.add_nodes();
-      n.set_module_id(modules_[m].id);
-      n.set_local_node(local);
-      n.set_surface_node(surface);
-      n.set_whole(pdop_[m].reassembler != nullptr);
+void Gateway::write_pdop_frames() {
+  for (GatewayPdopWork::BusFrames& out : pdop_.bus_frames()) {
+    // Whole, behind what waits for the bus: a gap inside a window the node might not see at all.
+    if (!writers_[out.module_index]->write(out.frames, BusWriteQueue::Lane::reliable)) {
+      warn_.warn(Warn::kBusRefused,
+                 "gateway: bus {} cannot take {} RPDOP fragments at once: dropped (counted)",
+                 modules_[out.module_index].bus->name(), out.frames.size());
     }
   }
-  pdop_out_.push_front({std::move(payload), 0});
-}
-
-void Gateway::flush_segmenter(std::size_t m) {
-  if (segmenter_out_.frames.empty() && segmenter_out_.outcomes.empty()) return;
-  // Whole, behind what waits for the bus: a gap inside a window the node might not see at all.
-  if (!writers_[m]->write(segmenter_out_.frames, BusWriteQueue::Lane::reliable)) {
-    warn_.warn(Warn::kBusRefused,
-               "gateway: bus {} cannot take {} RPDOP fragments at once: dropped (counted)",
-               modules_[m].bus->name(), segmenter_out_.frames.size());
-  }
-  segmenter_out_.frames.clear();
-  for (const PdopOutcome& o : segmenter_out_.outcomes) {
-    if (o.result == PdopResult::complete) {
-      ++counters_.rpdop_complete;
-    } else {
-      ++counters_.rpdop_failed;
-      spdlog::info("gateway {}: module {} RPDOP {}", name_, modules_[m].id, to_string(o));
-    }
-    v1::RpdopOutcome* r = add_outcome_report();
-    if (!r) continue;
-    r->set_request_id(o.request_id);
-    r->set_module_id(modules_[m].id);
-    r->set_surface_node(map_.surface_of(m, o.node));
-    r->set_rpdo(o.rpdo);
-    r->set_result(to_proto(o.result));
-    r->set_status(static_cast<std::uint32_t>(o.status));
-    r->set_fragments(o.fragments);
-    r->set_fragments_sent(o.fragments_sent);
-    r->set_ack_requests(o.ack_requests);
-    r->set_elapsed_us(static_cast<std::uint64_t>(
-        std::chrono::duration_cast<std::chrono::microseconds>(o.elapsed).count()));
-  }
-  segmenter_out_.outcomes.clear();
-}
-
-// A node that booted (or took another id) has no packet open in either direction.
-void Gateway::on_node_restart(const NodeEvent& e, PdopReassembler::TimePoint now) {
-  if (pdop_.empty() || !pdop_[e.module_index].reassembler) return;
-  if (e.kind != NodeEvent::Kind::booted && e.kind != NodeEvent::Kind::renamed &&
-      e.kind != NodeEvent::Kind::loader_booted) {
-    return;
-  }
-  PdopModule& p = pdop_[e.module_index];
-  PdopSink sink(*this, e.module_index, steady_to_unix_offset());
-  for (NodeId node : {e.local, e.previous_local}) {
-    if (node == 0 || node > canopen::pdop::kMaxNode) continue;
-    p.reassembler->on_node_restart(node, now, sink);
-    p.segmenter->cancel_node(node, now, segmenter_out_);
-  }
-  flush_segmenter(e.module_index);
-}
-
-void Gateway::on_rpdop_packets(const v1::PdopPackets& packets) {
-  const auto now = PdopSegmenter::Clock::now();
-  for (const v1::PdopPacket& p : packets.packets()) {
-    ++counters_.rpdop_packets;
-    std::optional<NodeOwner> owner;
-    if (p.surface_node() >= 1 && p.surface_node() <= canopen::pdop::kMaxNode) {
-      owner = map_.owner_of_surface(static_cast<NodeId>(p.surface_node()));
-    }
-    if (!owner || pdop_.empty() || !pdop_[owner->module_index].reassembler ||
-        (p.module_id() != kAnyModule && p.module_id() != modules_[owner->module_index].id)) {
-      warn_.warn(Warn::kRpdopUnknown,
-                 "gateway: RPDOP packet for surface node {} of module {}, which is no pdop node "
-                 "of this gateway: refused (counted)",
-                 p.surface_node(), p.module_id());
-      ++counters_.rpdop_failed;
-      if (v1::RpdopOutcome* r = add_outcome_report()) {
-        r->set_request_id(p.request_id());
-        r->set_module_id(p.module_id());
-        r->set_surface_node(p.surface_node());
-        r->set_rpdo(p.pdo());
-        r->set_result(v1::RpdopOutcome::REFUSED_ADDRESS);
-      }
-      continue;
-    }
-    const std::size_t m = owner->module_index;
-    const std::string& data = p.data();
-    pdop_[m].segmenter->submit(owner->local, p.pdo(),
-                               std::vector<std::uint8_t>(data.begin(), data.end()), p.request_id(),
-                               now, segmenter_out_);
-    flush_segmenter(m);
-  }
-  stream_.wake();
-}
-
-asio::awaitable<void> Gateway::watch_nodes() {
-  while (!stopped_) {
-    node_timer_.expires_at(node_table_.next_deadline().value_or(NodeTable::TimePoint::max()));
-    auto [ec] = co_await node_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
-    if (stopped_) co_return;
-    if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
-    node_table_.tick(NodeTable::Clock::now(), node_events_);
-    queue_node_events();
-  }
+  pdop_.bus_frames().clear();
 }
 
 void Gateway::after_node_input() {
   queue_node_events();
-  const auto deadline = node_table_.next_deadline();
-  if (deadline && *deadline < node_timer_.expiry()) node_timer_.cancel();
+  deadlines_.reschedule();
 }
 
 void Gateway::follow_node_events() {
@@ -437,7 +166,7 @@ void Gateway::follow_node_events() {
                    modules_[e.module_index].id, e.local, map_.surface_of(e.module_index, e.local),
                    e.previous_surface);
       // The surface's PDO Packet relay learns the pdop nodes' surface ids from PdopNodes.
-      if (!pdop_.empty() && pdop_[e.module_index].reassembler) announce_pdop_nodes_ = true;
+      if (pdop_.reassembles(e.module_index)) pdop_.announce_nodes();
     } else if (followed.change == RenameFollowed::Change::refused) {
       ++counters_.node_moves_refused;
       warn_.warn(Warn::kRenameRefused,
@@ -513,31 +242,19 @@ void Gateway::queue_node_events() {
 }
 
 void Gateway::produce(backbone::PayloadSink& sink) {
-  if (announce_pdop_nodes_) {
-    queue_pdop_nodes();
-    announce_pdop_nodes_ = false;
-  }
   // PDO Packets and their reports: reliable, in order, ahead of frames (a packet is data that
   // already waited for all its fragments).
-  while (!pdop_out_.empty()) {
+  while (const v1::Payload* front = pdop_.next_payload()) {
     // A packet larger than one write still goes: the session writes any message it takes.
-    const v1::Payload& front = pdop_out_.front().payload;
-    const std::size_t size = front.ByteSizeLong();
+    const std::size_t size = front->ByteSizeLong();
     if (size > tuning_.session.resend_buffer_bytes) {
       // Never accepted by the resend buffer (config validation prevents it): do not block.
-      ++counters_.pdop_refused;
-      warn_.warn(Warn::kPdopRefused,
-                 "gateway: a PDO Packet payload of {} bytes exceeds the resend buffer: refused "
-                 "(counted as pdop-refused)",
-                 size);
-      pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
-      pdop_out_.pop_front();
+      pdop_.refuse_payload(size);
       continue;
     }
     if (sink.room() == 0 || !sink.reliable_room(size)) break;  // serialized only when it goes
-    sink.send_reliable(front.SerializeAsString());
-    pdop_out_bytes_ -= std::min(pdop_out_bytes_, pdop_out_.front().bytes);
-    pdop_out_.pop_front();
+    sink.send_reliable(front->SerializeAsString());
+    pdop_.pop_payload();
   }
   // Events first: they are few, and a master's view of a node should not lag its frames.
   while (!events_out_.empty()) {
@@ -563,8 +280,7 @@ void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
 
 void Gateway::stop() {
   stopped_ = true;
-  node_timer_.cancel();
-  pdop_timer_.cancel();
+  deadlines_.stop();
   if (link_) link_->close();
   stream_.close_link();
   for (auto& w : writers_) w->stop();
@@ -584,38 +300,26 @@ asio::awaitable<std::error_code> Gateway::read_bus(std::size_t module_index) {
 
 void Gateway::on_bus_batch(std::size_t module_index, std::span<const can::Frame> batch) {
   counters_.from_buses += batch.size();
-  PdopReassembler* reassembler = pdop_.empty() ? nullptr : pdop_[module_index].reassembler.get();
-  PdopSegmenter* segmenter = pdop_.empty() ? nullptr : pdop_[module_index].segmenter.get();
+  const bool reassembles = pdop_.reassembles(module_index);
   const auto now = LoopGuard::Clock::now();
-  const auto clock_offset = steady_to_unix_offset();
-  std::optional<PdopSink> pdop_sink;
-  if (reassembler) pdop_sink.emplace(*this, module_index, clock_offset);
+  const auto clock_offset = reassembles ? steady_to_unix_offset() : std::chrono::nanoseconds{};
   for (const can::Frame& frame : batch) {
     // Error frames: bus state, counted by the bus itself.
     if (frame.is_error() || drop_echo(module_index, frame, now)) continue;
     const std::size_t events_before = node_events_.size();
     note_bus_frame(module_index, frame, now);
-    if (reassembler) {
+    if (reassembles) {
       // In bus order: a boot-up ends the node's packets before its next fragment arrives.
       for (std::size_t e = events_before; e < node_events_.size(); ++e) {
-        on_node_restart(node_events_[e], now);
+        pdop_.on_node_event(node_events_[e], now);
       }
-      const auto at = steady_time_of(frame, now, clock_offset);
-      if (frame.follows_loss()) reassembler->on_frames_lost(at, *pdop_sink);
-      // Frames of nodes without a surface id go on to the translator, which counts them.
-      // The nodes' RPDOP acknowledgements are the segmenter's: the surface acknowledges its
-      // master itself.
-      if (map_.surface_of(module_index, frame.id & canopen::pdop::kMaxNode) != 0 &&
-          (reassembler->on_frame(frame, at, *pdop_sink) ||
-           segmenter->on_frame(frame, now, segmenter_out_))) {
-        flush_segmenter(module_index);
-        continue;
-      }
+      const bool taken = pdop_.on_bus_frame(module_index, frame, now, clock_offset);
+      write_pdop_frames();
+      if (taken) continue;
     }
     queue_for_surface(module_index, frame, now);
   }
-  after_node_input();
-  after_pdop_input();
+  after_node_input();  // reschedules the deadline driver for the PDOP work too
   stream_.wake();
 }
 
@@ -646,8 +350,8 @@ void Gateway::queue_for_surface(std::size_t module_index, const can::Frame& fram
     node_table_.note_heartbeat_time(module_index, heartbeat->node, heartbeat->period);
   }
   // A pdop module without reassembly: its TPDO fragments cross as frames, kept in bus order.
-  const bool fragments_as_frames = map_.modules()[module_index].profile == IdProfile::pdop &&
-                                   (pdop_.empty() || !pdop_[module_index].reassembler);
+  const bool fragments_as_frames =
+      map_.modules()[module_index].profile == IdProfile::pdop && !pdop_.reassembles(module_index);
   const GatewayModule& module = modules_[module_index];
   // Queued whether or not the link is up: reliable frames wait (bounded) for the next link.
   if (!outbox_.push(module.id, *surface,
@@ -679,8 +383,10 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
     return;
   }
   if (inbound_.has_pdop_packets()) {
-    on_rpdop_packets(inbound_.pdop_packets());
-    after_pdop_input();
+    pdop_.on_rpdop_packets(inbound_.pdop_packets(), DeadlineDriver::Clock::now());
+    write_pdop_frames();
+    deadlines_.reschedule();
+    stream_.wake();
     return;
   }
   if (const BatchError error = decode_frame_batch(inbound_.frames(), decoded_);
@@ -766,6 +472,15 @@ GatewayCounters Gateway::counters() const {
   c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;
   c.outbox = outbox_.counters();
   c.process_lost_on_line = line_loss_.lost();
+  const GatewayPdopWork::Counters& pdop = pdop_.counters();
+  c.pdop_packets = pdop.packets;
+  c.pdop_packet_bytes = pdop.packet_bytes;
+  c.pdop_fragments = pdop.fragments;
+  c.pdop_discards = pdop.discards;
+  c.pdop_refused = pdop.refused;
+  c.rpdop_packets = pdop.rpdop_packets;
+  c.rpdop_complete = pdop.rpdop_complete;
+  c.rpdop_failed = pdop.rpdop_failed;
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {
@@ -811,11 +526,8 @@ std::string Gateway::stats_line() const {
       "queued-total {} sdo-requests-withdrawn {}; {}",
       c.from_buses, c.frames_received, c.unknown_module, c.process_lost_on_line, c.outbox.queued,
       c.outbox.sdo_requests_withdrawn, session_counters_text(c.session));
-  if (!pdop_.empty() || c.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
-    std::uint64_t dropped_frames = 0;
-    for (const PdopModule& p : pdop_) {
-      if (p.reassembler) dropped_frames += p.reassembler->counters().dropped_frames;
-    }
+  if (pdop_.active() || c.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
+    const std::uint64_t dropped_frames = pdop_.dropped_frames();
     s += fmt::format(
         "; pdop packets {} ({} bytes, {} fragments) discarded {} dropped-frames {} refused {}, "
         "rpdop packets {} complete {} failed {}",

@@ -6,7 +6,6 @@
 #include <array>
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
-#include <boost/asio/steady_timer.hpp>
 #include <chrono>
 #include <deque>
 #include <functional>
@@ -18,7 +17,9 @@
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/bus_writer.hpp"
+#include "bridge/deadline_driver.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/gateway_pdop_work.hpp"
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/module_sdo_tracking.hpp"
@@ -27,8 +28,6 @@
 #include "routing/cob_id_translator.hpp"
 #include "routing/node_map.hpp"
 #include "routing/node_table.hpp"
-#include "routing/pdop_reassembler.hpp"
-#include "routing/pdop_segmenter.hpp"
 
 namespace canbridge::bridge {
 
@@ -148,8 +147,7 @@ class Gateway {
   void write_to_buses(std::optional<std::size_t> only);
   // The surface declared the link dead (its master saw every SDO transfer aborted).
   void on_link_dead();
-  // Node table: one timer at its next deadline; events go to the surface as reliable payloads.
-  boost::asio::awaitable<void> watch_nodes();
+  // Node table events go to the surface as reliable payloads; the deadline driver re-arms.
   void after_node_input();
   // Moves renamed nodes in the live map (rename_follower.hpp), for the events not yet followed:
   // before the frame that confirmed a rename is translated.
@@ -160,26 +158,8 @@ class Gateway {
   void queue_node_events();
   void produce(backbone::PayloadSink& sink);
 
-  // PDO Packets. One reassembler and one segmenter per pdop module with reassembly on.
-  struct PdopModule {
-    std::unique_ptr<PdopReassembler> reassembler;
-    std::unique_ptr<PdopSegmenter> segmenter;
-  };
-  class PdopSink;
-  boost::asio::awaitable<void> watch_pdop();
-  void after_pdop_input();
-  void on_rpdop_packets(const v1::PdopPackets& packets);
-  // Hands the segmenter's frames to the module's BusWriter, whole, and reports its outcomes.
-  void flush_segmenter(std::size_t module_index);
-  // The earliest deadline of every reassembler and segmenter (max when none).
-  PdopReassembler::TimePoint pdop_deadline() const;
-  // A new RPDOP outcome in the report queue; nullptr when the queue is full (counted).
-  v1::RpdopOutcome* add_outcome_report();
-  // Appends to the newest queued payload of `kind` while it is small (batches small packets
-  // when the link is slower than the bus), else queues a new one. False when the queue is full.
-  v1::Payload* pdop_payload_for(v1::Payload::BodyCase kind, std::size_t adding_bytes);
-  void queue_pdop_nodes();
-  void on_node_restart(const NodeEvent& event, PdopReassembler::TimePoint now);
+  // Hands the PDOP work's fragments to their modules' BusWriters, each batch whole.
+  void write_pdop_frames();
 
   enum Warn : std::size_t {
     kUnknownModule,
@@ -187,9 +167,6 @@ class Gateway {
     kRefused,
     kBusRefused,
     kEventsDropped,
-    kPdopRefused,
-    kPdopDiscard,
-    kRpdopUnknown,
     kRenameRefused,
     kWarnKinds
   };
@@ -203,7 +180,8 @@ class Gateway {
   std::vector<std::unique_ptr<BusWriter>> writers_;  // one per module bus, same order
   ModuleSdoTracking sdo_{map_};                      // every node's default SDO channel, per module
   NodeTable node_table_;
-  boost::asio::steady_timer node_timer_;
+  // One timer for every core with deadlines: the node table and the PDOP work.
+  DeadlineDriver deadlines_;
   std::vector<NodeEvent> node_events_;  // of the input being handled
   std::size_t events_followed_ = 0;     // node_events_[0, this) went through follow_rename
   struct QueuedEvents {
@@ -211,16 +189,7 @@ class Gateway {
     std::size_t events;
   };
   std::deque<QueuedEvents> events_out_;  // oldest first
-  std::vector<PdopModule> pdop_;         // per module, same order; empty for other modules
-  boost::asio::steady_timer pdop_timer_;
-  struct QueuedPdop {
-    v1::Payload payload;  // PdopPackets, PdopReports or PdopNodes
-    std::size_t bytes;    // estimate of the serialized size, for the bound and batching
-  };
-  std::deque<QueuedPdop> pdop_out_;  // oldest first
-  std::size_t pdop_out_bytes_ = 0;
-  bool announce_pdop_nodes_ = false;  // a link came up: PdopNodes goes first
-  PdopSegmenter::Output segmenter_out_;
+  GatewayPdopWork pdop_;
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;
   FrameOutbox outbox_;

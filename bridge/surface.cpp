@@ -3,8 +3,6 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <boost/asio/as_tuple.hpp>
-#include <boost/asio/use_awaitable.hpp>
 #include <deque>
 
 #include "bridge/counter_text.hpp"
@@ -71,7 +69,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       conflate_pdos_(conflate_pdos),
       table_(name_),
       relay_(rpdop_relay),
-      relay_timer_(executor_),
+      deadlines_(executor_),
       writer_(
           executor_, *bus_, BusWriteQueue::Options{},
           [this](std::span<const can::Frame> frames) {
@@ -84,6 +82,12 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
   identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
   identity_.name = name_;
   identity_.session_id = backbone::random_session_id();
+  deadlines_.add(
+      "RPDOP relay", [this] { return relay_.next_deadline(); },
+      [this](DeadlineDriver::TimePoint now) {
+        relay_.tick(now, relay_out_);
+        flush_relay();
+      });
 }
 
 Surface::~Surface() = default;
@@ -92,8 +96,8 @@ void Surface::start() {
   coro::spawn_owned(executor_, read_bus(), [this](const std::string& why) {
     on_task_end("reader of bus " + bus_->name(), why);
   });
-  coro::spawn_owned(executor_, watch_relay(),
-                    [this](const std::string& why) { on_task_end("RPDOP relay timer", why); });
+  coro::spawn_owned(executor_, deadlines_.run(),
+                    [this](const std::string& why) { on_task_end("deadline driver", why); });
   writer_.on_end(
       [this](const std::string& why) { on_task_end("writer of bus " + bus_->name(), why); });
   writer_.start();
@@ -107,22 +111,6 @@ void Surface::on_task_end(const std::string& task, const std::string& why) {
   spdlog::error("surface {}: {}; stopping the surface", name_, failure_);
   stop();
   if (on_failure_) on_failure_(failure_);
-}
-
-asio::awaitable<void> Surface::watch_relay() {
-  while (!stopped_) {
-    relay_timer_.expires_at(relay_.next_deadline().value_or(RpdopRelay::TimePoint::max()));
-    auto [ec] = co_await relay_timer_.async_wait(asio::as_tuple(asio::use_awaitable));
-    if (stopped_) co_return;
-    if (ec) continue;  // cancelled: an earlier deadline appeared; re-arm
-    relay_.tick(RpdopRelay::Clock::now(), relay_out_);
-    flush_relay();
-  }
-}
-
-void Surface::after_relay_input() {
-  const auto deadline = relay_.next_deadline();
-  if (deadline && *deadline < relay_timer_.expiry()) relay_timer_.cancel();
 }
 
 void Surface::flush_relay() {
@@ -153,7 +141,7 @@ void Surface::flush_relay() {
   }
   for (const can::Frame& ack : relay_out_.frames) send_to_bus(ack);
   relay_out_.frames.clear();
-  after_relay_input();
+  deadlines_.reschedule();
 }
 
 void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
@@ -205,7 +193,7 @@ void Surface::stop() {
   stopped_ = true;
   for (auto& l : std::vector(links_)) l->close();
   for (auto& [name, g] : gateways_) g->stream.close_link();
-  relay_timer_.cancel();
+  deadlines_.stop();
   writer_.stop();
   bus_->close();
 }

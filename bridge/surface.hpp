@@ -5,7 +5,6 @@
 #include <array>
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
-#include <boost/asio/steady_timer.hpp>
 #include <deque>
 #include <functional>
 #include <map>
@@ -16,6 +15,7 @@
 #include "backbone/session.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/bus_writer.hpp"
+#include "bridge/deadline_driver.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/gateway_table.hpp"
 #include "bridge/loop_guard.hpp"
@@ -136,9 +136,8 @@ class Surface {
   void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);
   void on_pdop_reports(Gateway& from, const v1::PdopReports& reports);
   // Sends the relay's acknowledgements to the bus and its packets to their gateways.
+  // Also re-arms the deadline driver: the relay's deadline may have moved earlier.
   void flush_relay();
-  boost::asio::awaitable<void> watch_relay();
-  void after_relay_input();
 
   enum Warn : std::size_t {
     kUnknownModule,
@@ -166,7 +165,8 @@ class Surface {
   SdoLinkGuard guard_;
   RpdopRelay relay_;
   RpdopRelay::Output relay_out_;
-  boost::asio::steady_timer relay_timer_;
+  // One timer for every core with deadlines (today the RPDOP relay).
+  DeadlineDriver deadlines_;
   // Surface node id -> the gateway (SdoLinkGuard id) and module of its pdop node; -1: none.
   struct PdopOwner {
     int gateway = -1;

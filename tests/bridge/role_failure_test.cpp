@@ -98,7 +98,7 @@ TEST(RoleFailure, ASurfaceBusReaderThatThrowsStopsTheSurfaceAndSaysWhy) {
                                    : std::make_error_code(std::errc::no_such_device).message()));
     EXPECT_EQ(surface.failure(), reports[0]);
     EXPECT_TRUE(raw->closed());
-    EXPECT_TRUE(io.stopped());  // the relay timer ended too: the surface stopped in order
+    EXPECT_TRUE(io.stopped());  // the deadline driver ended too: the surface stopped in order
   }
 }
 
