@@ -19,6 +19,109 @@ can::Frame SdoLinkGuard::abort_for(canopen::NodeId node, const Node& n) {
        static_cast<std::uint8_t>(kLinkDownAbort >> 24)});
 }
 
+void SdoLinkGuard::note_request(Node& n, const can::Frame& frame) {
+  const std::uint8_t first = frame.data[0];
+  // Inside a block download sub-block every master frame is a segment (its first byte a
+  // sequence number): the transfer goes on, nothing to note.
+  if (n.expect == Expect::block_download) return;
+  const auto note_object = [&] {
+    n.mux[0] = frame.data[1];
+    n.mux[1] = frame.data[2];
+    n.mux[2] = frame.data[3];
+  };
+  switch (first >> 5) {
+    case 0:  // download segment
+      n.expect = Expect::download_segment;
+      n.toggle = first & 0x10;
+      return;
+    case 1:
+      note_object();
+      n.expect = Expect::download_initiate;
+      return;
+    case 2:
+      note_object();
+      n.expect = Expect::upload_initiate;
+      return;
+    case 3:  // upload segment
+      n.expect = Expect::upload_segment;
+      n.toggle = first & 0x10;
+      return;
+    case 5:  // block upload: initiate, start (3), acknowledge a sub-block (2), end (1)
+      switch (first & 0x03) {
+        case 0:
+          note_object();
+          n.expect = Expect::block_upload_initiate;
+          return;
+        case 1:
+          n.expect = Expect::nothing;  // the server does not answer the end
+          return;
+        default:
+          n.expect = Expect::block_upload;
+          return;
+      }
+    case 6:  // block download: initiate (cs 0); the end request (cs 1) follows the last ack
+      if ((first & 0x01) == 0) {
+        note_object();
+        n.expect = Expect::block_download_initiate;
+      } else {
+        n.expect = Expect::block_download;
+      }
+      return;
+    default:  // not a valid request: the server's abort answers it
+      n.expect = Expect::untracked;
+      return;
+  }
+}
+
+bool SdoLinkGuard::can_answer(Node& n, const can::Frame& response) {
+  const std::uint8_t first = response.data[0];
+  const std::uint8_t scs = first >> 5;
+  const bool same_object =
+      response.data[1] == n.mux[0] && response.data[2] == n.mux[1] && response.data[3] == n.mux[2];
+  switch (n.expect) {
+    case Expect::untracked:
+      return true;
+    case Expect::nothing:
+      return false;
+    case Expect::block_upload:  // segments: any first byte
+      return true;
+    default:
+      break;
+  }
+  if (first == 0x80) {  // an abort ends whatever was in flight
+    n.expect = Expect::nothing;
+    return true;
+  }
+  switch (n.expect) {
+    case Expect::download_initiate:
+      return scs == 3 && same_object;
+    case Expect::upload_initiate:
+      return scs == 2 && same_object;
+    case Expect::download_segment:
+      return scs == 1 && (first & 0x10) == n.toggle;
+    case Expect::upload_segment:
+      return scs == 0 && (first & 0x10) == n.toggle;
+    case Expect::block_download_initiate:
+      if (scs != 5 || (first & 0x03) != 0 || !same_object) return false;
+      n.expect = Expect::block_download;
+      return true;
+    case Expect::block_upload_initiate:
+      if (scs == 2 && same_object) {  // the server switched to the upload protocol
+        n.expect = Expect::upload_initiate;
+        return true;
+      }
+      if (scs != 6 || (first & 0x01) != 0 || !same_object) return false;  // ss: bit 0
+      n.expect = Expect::block_upload;
+      return true;
+    case Expect::block_download:  // sub-block acknowledgements, the end response
+      if (scs != 5) return false;
+      if ((first & 0x03) == 1) n.expect = Expect::nothing;
+      return true;
+    default:
+      return false;
+  }
+}
+
 bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) {
   if (frame.is_extended()) return true;
   const auto address = canopen::split_predefined(frame.id);
@@ -31,7 +134,16 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
     ++counters_.late_responses_dropped;
     return false;
   }
+  if (!can_answer(n, frame)) {
+    ++counters_.stale_responses_dropped;
+    return false;
+  }
   n.pending = false;
+  // A step answered: nothing more may come, except inside block transfers.
+  if (n.expect != Expect::block_download && n.expect != Expect::block_upload &&
+      n.expect != Expect::untracked) {
+    n.expect = Expect::nothing;
+  }
   return true;
 }
 
@@ -53,6 +165,7 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   Node& n = nodes_[node];
   n.pending = false;
   n.aborted = true;
+  n.expect = Expect::nothing;
   ++counters_.aborted_not_forwarded;
   return abort_for(node, n);
 }
@@ -64,6 +177,7 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
     if (!n.owned || n.gateway != gateway || !n.pending) continue;
     n.pending = false;
     n.aborted = true;
+    n.expect = Expect::nothing;
     ++counters_.aborted_in_flight;
     aborts.push_back(abort_for(node, n));
   }
@@ -85,6 +199,7 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   }
   n.pending = false;
   n.aborted = n.owned;
+  if (n.owned) n.expect = Expect::nothing;
   ++counters_.aborted_discarded;
   return abort_for(node, answer);
 }

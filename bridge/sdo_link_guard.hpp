@@ -26,6 +26,10 @@ class SdoLinkGuard {
     std::uint64_t aborted_at_once = 0;         // requests to a node whose gateway was down
     std::uint64_t aborted_in_flight = 0;       // requests pending when their gateway went down
     std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
+    // Answers that cannot answer the master's pending request (another command class, object
+    // or toggle): the answer to an older request, executed just before a link cut and aborted
+    // toward the master, arriving once the master has sent a newer one.
+    std::uint64_t stale_responses_dropped = 0;
     std::uint64_t aborted_discarded = 0;  // requests the backbone gave up (too old, old process)
     std::uint64_t aborted_not_forwarded = 0;  // requests the surface could not queue
   };
@@ -35,6 +39,9 @@ class SdoLinkGuard {
   // transfer step in flight for that node. False for an SDO response that must not reach the
   // master: it answers a request the master was told had failed (aborted when the link dropped,
   // delivered once the link came back), and could be taken for the answer to a newer request.
+  // Once the master has sent a request to the node, only a response that can answer it passes:
+  // an abort, or the response class of the request (download/upload initiate, segment, block)
+  // naming the same object (initiates) or carrying the same toggle (segments).
   [[nodiscard]] bool on_gateway_frame(GatewayId gateway, const can::Frame& frame);
   // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
   // even before the node has sent anything through it.
@@ -70,13 +77,33 @@ class SdoLinkGuard {
   const Counters& counters() const { return counters_; }
 
  private:
+  // The answer the node's pending request expects (set by the master's last request).
+  enum class Expect : std::uint8_t {
+    untracked,                // the master never sent a request: nothing to match against
+    nothing,                  // no request pending: any SDO response is stale or late
+    download_initiate,        // scs 3 + same object
+    upload_initiate,          // scs 2 + same object
+    download_segment,         // scs 1 + same toggle
+    upload_segment,           // scs 0 + same toggle
+    block_download_initiate,  // scs 5 ss 0 + same object
+    block_upload_initiate,    // scs 6 ss 0 + same object (or scs 2: protocol switch)
+    block_download,           // sub-blocks: master frames are segments; scs 5 answers
+    block_upload,             // server frames are segments: every response passes
+  };
   struct Node {
     bool owned = false;
     GatewayId gateway = 0;
     bool pending = false;             // a request went out and no response came back yet
     bool aborted = false;             // the guard aborted a request; no newer one went out
     std::uint8_t mux[3] = {0, 0, 0};  // index (LE) and sub-index of the transfer in progress
+    Expect expect = Expect::untracked;
+    std::uint8_t toggle = 0;  // segments: bit 4 of the master's segment request
   };
+  // Notes the master's request on a node the guard follows.
+  static void note_request(Node& n, const can::Frame& frame);
+  // True if `response` can answer the request `n` has pending.
+  static bool can_answer(Node& n, const can::Frame& response);
+
   static can::Frame abort_for(canopen::NodeId node, const Node& n);
   // The node of an SDO request on the default server channel (0x601..0x67F), or 0.
   static canopen::NodeId request_node(const can::Frame& frame);
@@ -92,24 +119,23 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (node == 0) return {};
   Node& n = nodes_[node];
   if (!n.owned) return {};
-  const std::uint8_t command = frame.data[0] >> 5;
-  // Initiate and block commands name the object; segments continue the one already noted.
-  if (command == 1 || command == 2 || command == 5 || command == 6) {
-    n.mux[0] = frame.data[1];
-    n.mux[1] = frame.data[2];
-    n.mux[2] = frame.data[3];
-  }
-  if (command == 4) {  // the master aborts: nothing is in flight any more
+  const bool master_abort =
+      frame.data[0] == 0x80 || (n.expect != Expect::block_download && frame.data[0] >> 5 == 4);
+  if (master_abort) {  // nothing is in flight any more
     n.pending = false;
+    n.expect = Expect::nothing;
     return {};
   }
+  note_request(n, frame);
   if (!gateway_up(n.gateway)) {
     ++counters_.aborted_at_once;
     n.pending = false;
+    n.expect = Expect::nothing;
     n.aborted = true;
     return {false, abort_for(node, n)};
   }
-  n.pending = true;
+  // The end of a block upload gets no answer.
+  n.pending = n.expect != Expect::nothing;
   n.aborted = false;
   return {};
 }

@@ -49,7 +49,8 @@ struct SurfaceCounters {
   // SDO requests never sent because the master got an abort when their link went down: queued
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
-  std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
+  std::uint64_t sdo_late_responses_dropped = 0;   // answers to requests the master saw aborted
+  std::uint64_t sdo_stale_responses_dropped = 0;  // answers that cannot answer the pending request
   // Reliable frames for a gateway given up before it acknowledged them, by reason (queued ones
   // and sent ones); SDO requests among them were answered with an abort if still open.
   std::uint64_t reliable_dropped_too_old = 0;

@@ -279,5 +279,109 @@ TEST(SdoRequestFate, WithoutClaimsRequestsToSilentNodesVanishAtACut) {
   EXPECT_GT(model.waiting(), 0u);
 }
 
+// Issue 14, "no SDO request vanishes": an answer to a request executed just before a link cut
+// (aborted toward the master) must not pass as the answer to the master's next request.
+class SdoLinkGuardStale : public ::testing::Test {
+ protected:
+  void SetUp() override { (void)guard.on_gateway_frame(1, kHeartbeat34); }
+  bool send(std::initializer_list<std::uint8_t> data) {
+    return guard.on_surface_frame(can::Frame::standard(0x622, data), up).forward;
+  }
+  bool answer(std::initializer_list<std::uint8_t> data) {
+    return guard.on_gateway_frame(1, can::Frame::standard(0x5A2, data));
+  }
+  SdoLinkGuard guard;
+  static bool up(SdoLinkGuard::GatewayId /*gateway*/) { return true; }
+};
+
+TEST_F(SdoLinkGuardStale, AnUploadAnswerWhileADownloadOfTheSameObjectIsPendingIsDropped) {
+  ASSERT_TRUE(send({0x40, 0x00, 0x20, 0x00, 0, 0, 0, 0}));     // upload 2000h
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);              // aborted toward the master
+  ASSERT_TRUE(send({0x23, 0x00, 0x20, 0x00, 7, 0, 0, 0}));     // download 2000h, link back
+  EXPECT_FALSE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));  // the upload's late answer
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 1u);
+  EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));   // the download's answer
+  EXPECT_FALSE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));  // a second one: no request
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 2u);
+}
+
+TEST_F(SdoLinkGuardStale, ADownloadAnswerWhileAnUploadIsPendingIsDropped) {
+  ASSERT_TRUE(send({0x40, 0x00, 0x20, 0x00, 0, 0, 0, 0}));
+  EXPECT_FALSE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));
+}
+
+TEST_F(SdoLinkGuardStale, AnAnswerNamingAnotherObjectIsDropped) {
+  ASSERT_TRUE(send({0x40, 0x00, 0x20, 0x01, 0, 0, 0, 0}));     // upload 2000h sub 1
+  EXPECT_FALSE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));  // sub 0
+  EXPECT_FALSE(answer({0x43, 0x01, 0x20, 0x01, 1, 2, 3, 4}));  // 2001h
+  EXPECT_TRUE(answer({0x43, 0x00, 0x20, 0x01, 1, 2, 3, 4}));   // its own
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 2u);
+}
+
+TEST_F(SdoLinkGuardStale, AnAbortAlwaysAnswersThePendingRequest) {
+  ASSERT_TRUE(send({0x23, 0x00, 0x20, 0x00, 7, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x02, 0x06}));
+  EXPECT_FALSE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));  // the transfer ended
+}
+
+TEST_F(SdoLinkGuardStale, ANodeTheMasterNeverAskedPassesEverything) {
+  EXPECT_TRUE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));
+  EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));
+}
+
+TEST_F(SdoLinkGuardStale, SegmentAnswersPassOnlyForTheOpenSegmentedTransferAndItsToggle) {
+  // Segmented upload of 1008h: initiate, segments toggling 0, 1.
+  ASSERT_TRUE(send({0x40, 0x08, 0x10, 0x00, 0, 0, 0, 0}));
+  EXPECT_FALSE(answer({0x00, 'a', 'b', 'c', 'd', 'e', 'f', 'g'}));  // a segment: none asked
+  EXPECT_TRUE(answer({0x41, 0x08, 0x10, 0x00, 10, 0, 0, 0}));
+  ASSERT_TRUE(send({0x60, 0, 0, 0, 0, 0, 0, 0}));
+  EXPECT_FALSE(answer({0x20, 0x08, 0x10, 0x00, 0, 0, 0, 0}));       // download segment class
+  EXPECT_FALSE(answer({0x10, 'a', 'b', 'c', 'd', 'e', 'f', 'g'}));  // wrong toggle
+  EXPECT_TRUE(answer({0x00, 'a', 'b', 'c', 'd', 'e', 'f', 'g'}));
+  ASSERT_TRUE(send({0x70, 0, 0, 0, 0, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x17, 'h', 'i', 'j', 0, 0, 0, 0}));
+  // Segmented download: initiate answered by scs 3, segments by scs 1.
+  ASSERT_TRUE(send({0x21, 0x00, 0x21, 0x00, 9, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x60, 0x00, 0x21, 0x00, 0, 0, 0, 0}));
+  ASSERT_TRUE(send({0x00, 1, 2, 3, 4, 5, 6, 7}));
+  EXPECT_FALSE(answer({0x00, 1, 2, 3, 4, 5, 6, 7}));  // upload segment class
+  EXPECT_TRUE(answer({0x20, 0, 0, 0, 0, 0, 0, 0}));
+  ASSERT_TRUE(send({0x1B, 8, 9, 0, 0, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x30, 0, 0, 0, 0, 0, 0, 0}));
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 4u);
+}
+
+TEST_F(SdoLinkGuardStale, BlockDownloadPassesItsInitiateAcksAndEnd) {
+  ASSERT_TRUE(send({0xC6, 0x00, 0x21, 0x00, 14, 0, 0, 0}));     // initiate, crc, size
+  EXPECT_FALSE(answer({0x60, 0x00, 0x21, 0x00, 0, 0, 0, 0}));   // not a block answer
+  EXPECT_TRUE(answer({0xA4, 0x00, 0x21, 0x00, 127, 0, 0, 0}));  // blksize 127
+  ASSERT_TRUE(send({0x01, 1, 2, 3, 4, 5, 6, 7}));               // segment 1
+  ASSERT_TRUE(send({0x82, 8, 9, 10, 11, 12, 13, 14}));          // segment 2, last
+  EXPECT_TRUE(answer({0xA2, 2, 127, 0, 0, 0, 0, 0}));           // ack
+  ASSERT_TRUE(send({0xC1, 0x34, 0x12, 0, 0, 0, 0, 0}));         // end, crc
+  EXPECT_TRUE(answer({0xA1, 0, 0, 0, 0, 0, 0, 0}));             // end response
+  EXPECT_FALSE(answer({0xA1, 0, 0, 0, 0, 0, 0, 0}));            // the transfer is over
+}
+
+TEST_F(SdoLinkGuardStale, BlockUploadPassesEverySegmentOfTheServer) {
+  ASSERT_TRUE(send({0xA4, 0x00, 0x21, 0x00, 127, 0, 0, 0}));   // initiate, crc, blksize
+  EXPECT_FALSE(answer({0x60, 0x00, 0x21, 0x00, 0, 0, 0, 0}));  // a download's answer
+  EXPECT_TRUE(answer({0xC6, 0x00, 0x21, 0x00, 14, 0, 0, 0}));  // initiate response
+  ASSERT_TRUE(send({0xA3, 0, 0, 0, 0, 0, 0, 0}));              // start
+  EXPECT_TRUE(answer({0x01, 1, 2, 3, 4, 5, 6, 7}));            // segments: any first byte
+  EXPECT_TRUE(answer({0x82, 8, 9, 10, 11, 12, 13, 14}));
+  ASSERT_TRUE(send({0xA2, 2, 127, 0, 0, 0, 0, 0}));        // ack
+  EXPECT_TRUE(answer({0xC1, 0x34, 0x12, 0, 0, 0, 0, 0}));  // end
+  ASSERT_TRUE(send({0xA1, 0, 0, 0, 0, 0, 0, 0}));          // end: no answer
+  EXPECT_FALSE(answer({0x43, 0x00, 0x21, 0x00, 1, 2, 3, 4}));
+  EXPECT_TRUE(guard.on_gateway_down(1).empty());  // nothing in flight after the end
+}
+
+TEST_F(SdoLinkGuardStale, ABlockUploadTheServerSwitchesToTheUploadProtocolPasses) {
+  ASSERT_TRUE(send({0xA4, 0x00, 0x21, 0x00, 127, 4, 0, 0}));  // protocol switch threshold 4
+  EXPECT_TRUE(answer({0x43, 0x00, 0x21, 0x00, 1, 2, 3, 4}));
+}
+
 }  // namespace
 }  // namespace canbridge::bridge
