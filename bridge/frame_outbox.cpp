@@ -24,18 +24,14 @@ bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
 
-bool is_sdo_response(const can::Frame& f) {
-  return !f.is_extended() && f.id > 0x580 && f.id <= 0x5FF;
-}
-
-std::size_t withdraw_frames(std::string& payload, bool (*which)(const can::Frame&)) {
+std::size_t withdraw_sdo_requests(std::string& payload) {
   v1::Payload parsed;
   std::vector<can::Frame> frames;
   if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
       decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
     return 0;
   }
-  const auto kept = std::remove_if(frames.begin(), frames.end(), which);
+  const auto kept = std::remove_if(frames.begin(), frames.end(), is_sdo_request);
   const auto removed = static_cast<std::size_t>(frames.end() - kept);
   if (removed == 0) return 0;
   frames.erase(kept, frames.end());
@@ -48,10 +44,6 @@ std::size_t withdraw_frames(std::string& payload, bool (*which)(const can::Frame
   payload.clear();
   parsed.AppendToString(&payload);
   return removed;
-}
-
-std::size_t withdraw_sdo_requests(std::string& payload) {
-  return withdraw_frames(payload, is_sdo_request);
 }
 
 namespace {
@@ -109,10 +101,6 @@ bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
 void FrameOutbox::withdraw_queued_sdo_requests() {
   counters_.sdo_requests_withdrawn +=
       queue_.erase_if([](const Entry& entry) { return is_sdo_request(entry.frame); });
-}
-
-std::size_t FrameOutbox::withdraw_queued(bool (*which)(const can::Frame&)) {
-  return queue_.erase_if([which](const Entry& entry) { return which(entry.frame); });
 }
 
 bool FrameOutbox::drop_front_if_too_old(Clock::time_point now) {

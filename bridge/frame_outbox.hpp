@@ -50,14 +50,6 @@ std::string lanes_summary(const OutboxCounters& counters);
 // True for an SDO request on a default server channel (0x601-0x67F).
 bool is_sdo_request(const can::Frame& frame);
 
-// True for an SDO response on a default server channel (0x581-0x5FF).
-bool is_sdo_response(const can::Frame& frame);
-
-// The frames `which` names removed from one serialized Payload this outbox produced, for the
-// unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
-// were removed (0 leaves `payload` untouched; an unparsable payload is left alone).
-std::size_t withdraw_frames(std::string& payload, bool (*which)(const can::Frame&));
-
 // SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
 // unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
 // were removed (0 leaves `payload` untouched; an unparsable payload is left alone).
@@ -97,10 +89,6 @@ class FrameOutbox {
   // abort because the peer's link went down, and a node must not execute later a request its
   // master was told failed. Frames queued afterwards are not affected.
   void withdraw_queued_sdo_requests();
-
-  // Frames queued now for which `which` is true are never sent; returns how many (counted by
-  // the caller, which knows why).
-  std::size_t withdraw_queued(bool (*which)(const can::Frame&));
 
   // The peer this outbox feeds is a new process: everything queued was meant for the old one.
   void discard_queued();

@@ -370,11 +370,6 @@ void Gateway::on_link_dead() {
   for (auto& writer : writers_) {
     sdo_.withdrew(writer->withdraw(ModuleSdoTracking::withdrawn_at_link_loss));
   }
-  // The nodes' answers to those requests, not yet with the surface, are stale for its master.
-  sdo_.discarded_answers(outbox_.withdraw_queued(ModuleSdoTracking::discarded_at_link_loss));
-  stream_.edit_unacked([this](std::string& payload) {
-    sdo_.discarded_answers(withdraw_frames(payload, ModuleSdoTracking::discarded_at_link_loss));
-  });
 }
 
 void Gateway::on_payload(std::span<const std::uint8_t> payload) {
@@ -475,7 +470,6 @@ GatewayCounters Gateway::counters() const {
   c.sdo_values_rewritten = sdo_.counters().values_rewritten;
   c.sdo_values_unmapped = sdo_.counters().values_unmapped;
   c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;
-  c.sdo_responses_discarded = sdo_.counters().responses_discarded;
   c.outbox = outbox_.counters();
   c.process_lost_on_line = line_loss_.lost();
   const GatewayPdopWork::Counters& pdop = pdop_.counters();
@@ -506,8 +500,7 @@ std::string Gateway::stats_line() const {
       "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
       "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
       "bus-refused {}, echoes-dropped {}, sdo-values rewritten {} unmapped {}, stale-links {}, "
-      "reliable dropped too-old {} surface-restart {}, sdo-requests-withdrawn {}, "
-      "sdo-responses-discarded {}",
+      "reliable dropped too-old {} surface-restart {}, sdo-requests-withdrawn {}",
       name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
       dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
       c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
@@ -516,7 +509,7 @@ std::string Gateway::stats_line() const {
       c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped, c.session.stale_links_closed,
       c.outbox.reliable_too_old + c.session.reliable_dropped_too_old,
       c.outbox.discarded_peer_restart + c.session.reliable_dropped_peer_restart,
-      c.sdo_requests_withdrawn, c.sdo_responses_discarded);
+      c.sdo_requests_withdrawn);
   s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
                    to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
                    c.backbone_tx_bytes, lanes_summary(c.outbox));

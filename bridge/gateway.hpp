@@ -67,9 +67,6 @@ struct GatewayCounters {
   // SDO requests from the surface still waiting for a bus when the link died (the master was
   // told they failed): never written.
   std::uint64_t sdo_requests_withdrawn = 0;
-  // SDO responses waiting for the surface when the link died (their requests were aborted
-  // toward the master): never sent.
-  std::uint64_t sdo_responses_discarded = 0;
   // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h, 1028h)
   // rewritten between bus and surface ids, and those whose id has no counterpart (forwarded
   // unchanged).

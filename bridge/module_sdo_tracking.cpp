@@ -86,10 +86,6 @@ bool ModuleSdoTracking::withdrawn_at_link_loss(const can::Frame& waiting) {
   return is_sdo_request(waiting);
 }
 
-bool ModuleSdoTracking::discarded_at_link_loss(const can::Frame& for_surface) {
-  return is_sdo_response(for_surface);
-}
-
 canopen::NodeId ModuleSdoTracking::sdo_node(std::size_t m, const can::Frame& frame,
                                             std::uint16_t base) const {
   if (frame.is_extended() || frame.id <= base) return 0;

@@ -29,8 +29,6 @@ class ModuleSdoTracking {
     // SDO requests from the surface still waiting for a bus when the link died (the master was
     // told they failed): never written.
     std::uint64_t requests_withdrawn = 0;
-    // SDO responses of the nodes still waiting for the surface when the link died: dropped.
-    std::uint64_t responses_discarded = 0;
   };
 
   // A heartbeat producer time (1017h sub 0) a node confirmed writing: the node table watches
@@ -69,11 +67,6 @@ class ModuleSdoTracking {
   // request (the master got its abort; executing it later would contradict that).
   static bool withdrawn_at_link_loss(const can::Frame& waiting);
   void withdrew(std::size_t requests) { counters_.requests_withdrawn += requests; }
-  // A frame waiting for the surface (queued, or sent and unacknowledged) that must never reach
-  // it once the link died: a node's SDO response answers a request the master saw aborted, and
-  // arriving after the link returns it would pass as the answer to the master's next request.
-  static bool discarded_at_link_loss(const can::Frame& for_surface);
-  void discarded_answers(std::size_t responses) { counters_.responses_discarded += responses; }
 
   const Counters& counters() const { return counters_; }
 
