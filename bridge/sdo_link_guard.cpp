@@ -80,9 +80,10 @@ bool SdoLinkGuard::can_answer(Node& n, const can::Frame& response) {
       response.data[1] == n.mux[0] && response.data[2] == n.mux[1] && response.data[3] == n.mux[2];
   switch (n.expect) {
     case Expect::untracked:
-      return true;
+    // Nothing pending, the last request answered: an answer to a master on the module bus
+    // (transparency); the late answer to an aborted request was dropped before.
     case Expect::nothing:
-      return false;
+      return true;
     case Expect::block_upload:  // segments: any first byte
       return true;
     default:

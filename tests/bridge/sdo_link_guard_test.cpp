@@ -300,9 +300,10 @@ TEST_F(SdoLinkGuardStale, AnUploadAnswerWhileADownloadOfTheSameObjectIsPendingIs
   ASSERT_TRUE(send({0x23, 0x00, 0x20, 0x00, 7, 0, 0, 0}));     // download 2000h, link back
   EXPECT_FALSE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));  // the upload's late answer
   EXPECT_EQ(guard.counters().stale_responses_dropped, 1u);
-  EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));   // the download's answer
-  EXPECT_FALSE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));  // a second one: no request
-  EXPECT_EQ(guard.counters().stale_responses_dropped, 2u);
+  EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));  // the download's answer
+  // Nothing pending: another master's answer on the module bus passes (transparency).
+  EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 1u);
 }
 
 TEST_F(SdoLinkGuardStale, ADownloadAnswerWhileAnUploadIsPendingIsDropped) {
@@ -322,7 +323,6 @@ TEST_F(SdoLinkGuardStale, AnAnswerNamingAnotherObjectIsDropped) {
 TEST_F(SdoLinkGuardStale, AnAbortAlwaysAnswersThePendingRequest) {
   ASSERT_TRUE(send({0x23, 0x00, 0x20, 0x00, 7, 0, 0, 0}));
   EXPECT_TRUE(answer({0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x02, 0x06}));
-  EXPECT_FALSE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));  // the transfer ended
 }
 
 TEST_F(SdoLinkGuardStale, ANodeTheMasterNeverAskedPassesEverything) {
@@ -361,7 +361,6 @@ TEST_F(SdoLinkGuardStale, BlockDownloadPassesItsInitiateAcksAndEnd) {
   EXPECT_TRUE(answer({0xA2, 2, 127, 0, 0, 0, 0, 0}));           // ack
   ASSERT_TRUE(send({0xC1, 0x34, 0x12, 0, 0, 0, 0, 0}));         // end, crc
   EXPECT_TRUE(answer({0xA1, 0, 0, 0, 0, 0, 0, 0}));             // end response
-  EXPECT_FALSE(answer({0xA1, 0, 0, 0, 0, 0, 0, 0}));            // the transfer is over
 }
 
 TEST_F(SdoLinkGuardStale, BlockUploadPassesEverySegmentOfTheServer) {
@@ -374,8 +373,7 @@ TEST_F(SdoLinkGuardStale, BlockUploadPassesEverySegmentOfTheServer) {
   ASSERT_TRUE(send({0xA2, 2, 127, 0, 0, 0, 0, 0}));        // ack
   EXPECT_TRUE(answer({0xC1, 0x34, 0x12, 0, 0, 0, 0, 0}));  // end
   ASSERT_TRUE(send({0xA1, 0, 0, 0, 0, 0, 0, 0}));          // end: no answer
-  EXPECT_FALSE(answer({0x43, 0x00, 0x21, 0x00, 1, 2, 3, 4}));
-  EXPECT_TRUE(guard.on_gateway_down(1).empty());  // nothing in flight after the end
+  EXPECT_TRUE(guard.on_gateway_down(1).empty());           // nothing in flight after the end
 }
 
 TEST_F(SdoLinkGuardStale, ABlockUploadTheServerSwitchesToTheUploadProtocolPasses) {
