@@ -17,18 +17,9 @@ namespace {
 namespace asio = boost::asio;
 using namespace std::chrono_literals;
 using testing::exactly_once_in_order;
+using testing::fast_options;
 using testing::run_until;
 using testing::SessionEnd;
-
-SessionOptions fast_options() {
-  SessionOptions o;
-  o.keepalive_interval = 50ms;
-  o.dead_after = 300ms;
-  o.retransmit_timeout = 200ms;
-  o.resend_buffer_messages = 512;
-  o.resend_buffer_bytes = 64 * 1024;
-  return o;
-}
 
 class SessionOverMemoryLinkTest : public ::testing::Test {
  protected:

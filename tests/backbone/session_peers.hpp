@@ -18,6 +18,18 @@ namespace canbridge::backbone::testing {
 
 // One end: a stream whose producer sends the numbers next_..limit_ as 8-byte reliable payloads
 // (little endian), and whose receiver records every payload it gets.
+// Short intervals, so the session tests that wait for keepalives, dead links and resends are fast.
+inline SessionOptions fast_options() {
+  using namespace std::chrono_literals;
+  SessionOptions o;
+  o.keepalive_interval = 50ms;
+  o.dead_after = 300ms;
+  o.retransmit_timeout = 200ms;
+  o.resend_buffer_messages = 512;
+  o.resend_buffer_bytes = 64 * 1024;
+  return o;
+}
+
 class SessionEnd {
  public:
   SessionEnd(std::string name, v1::Hello::Role role, SessionOptions options,
