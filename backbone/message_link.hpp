@@ -78,6 +78,13 @@ class MessageLink {
   // Messages cross a path that can corrupt, lose or cut bytes (a serial line, or TCP across a
   // lossy path), COBS + CRC-32C framed: the session then tolerates what such a line does.
   virtual bool crc_framed() const noexcept = 0;
+  // The identity the transport proved for the peer (a TLS PSK identity's name or a certificate's
+  // name), empty when the transport proved nothing (plain TCP, a serial line: there the session
+  // authenticates, see SessionLink::authenticated_peer).
+  virtual const std::string& authenticated_peer() const noexcept {
+    static const std::string none;
+    return none;
+  }
 
  protected:
   MessageLink() = default;

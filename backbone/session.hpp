@@ -42,6 +42,9 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
   bool ready() const { return core_.ready(); }
   PeerStream* stream() const { return core_.stream(); }
   const std::shared_ptr<MessageLink>& message_link() const { return link_; }
+  // Who the peer proved to be: the transport's proof (TLS), else the session's own (the serial
+  // challenge-response); empty when nothing was proven (plain operation).
+  const std::string& authenticated_peer() const { return link_->authenticated_peer(); }
 
  private:
   SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,

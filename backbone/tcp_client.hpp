@@ -13,6 +13,7 @@
 #include <string>
 
 #include "backbone/reconnect_backoff.hpp"
+#include "backbone/link_upgrade.hpp"
 #include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
@@ -26,6 +27,8 @@ struct ClientOptions {
   // Bounds resolve + connect, so a silently dropped SYN does not stall reconnection for minutes.
   std::chrono::milliseconds connect_timeout{5000};
   StreamLinkOptions link;
+  // Plain when empty; the TLS handshake otherwise (backbone/tls_*). Bounded by connect_timeout.
+  LinkUpgrade upgrade;
 };
 
 struct ClientCounters {

@@ -13,6 +13,7 @@
 #include <system_error>
 #include <vector>
 
+#include "backbone/link_upgrade.hpp"
 #include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
@@ -21,6 +22,8 @@ struct ServerOptions {
   StreamLinkOptions link;
   // Pause after a failed accept (e.g. EMFILE), which would otherwise fail again at once.
   std::chrono::milliseconds accept_retry_delay{100};
+  // Plain when empty; the TLS handshake otherwise (backbone/tls_*).
+  LinkUpgrade upgrade;
 };
 
 struct ServerCounters {

@@ -53,6 +53,56 @@ struct SerialLineOptions {
   std::string device;  // /dev/ttyS1, /dev/ttyUSB0, a pty path, ...
   unsigned baud = 115200;
   bool hardware_flow_control = false;
+  // Surface only: the configured gateway (AcceptedGatewayOptions::name) this line serves; its
+  // key authenticates the line. Empty on the gateway (one line, to the surface).
+  std::string gateway;
+};
+
+// How a role proves who it is on the backbone and checks its peers (docs/security.md). The
+// loader requires `backbone.auth.mode`: plain operation is never a default.
+enum class AuthMode {
+  psk,           // TLS 1.3 with an external pre-shared key on TCP; challenge-response + MACs on serial
+  certificates,  // TLS 1.3 with certificates of a private CA on TCP (serial lines still use PSK)
+  plain,         // nothing proven: a lab bench on loopback only; warned at start
+};
+
+struct AuthOptions {
+  AuthMode mode = AuthMode::psk;
+  // Gateway, psk: its key file (current key first; two during rotation).
+  std::string key_file;
+  // Gateway: the surface's identity (its certificate's name; the name in its serial proofs).
+  std::string surface = "surface";
+  // certificates: this end's certificate chain and private key (PEM; the key checked like a key
+  // file), and the private CA that signed the peers' certificates.
+  std::string certificate_file;
+  std::string private_key_file;
+  std::string ca_file;
+  // Serial lines: bytes of MAC per sealed message, 16 or 32; both ends must agree.
+  std::size_t mac_tag_bytes = 16;
+};
+
+// Surface: how many strangers the TCP listener entertains, so a flood cannot keep a configured
+// gateway out or grow memory without bound.
+struct AdmissionOptions {
+  // Connections whose handshake is in progress; a new connection beyond this closes the oldest.
+  std::size_t max_pending_handshakes = 32;
+  // A connection that has not completed its handshake (TLS, then the session hello) in this
+  // time is closed.
+  std::chrono::milliseconds handshake_timeout{2000};
+  // Authenticated links at once; 0: four per configured gateway plus eight.
+  std::size_t max_links = 0;
+};
+
+// Surface: one gateway it accepts. Only configured gateways are ever bound, and each only to
+// the modules, surface node ids and COB-IDs written here.
+struct AcceptedGatewayOptions {
+  std::string name;  // its identity: TLS PSK identity or certificate name, and its hello's name
+  std::vector<std::uint32_t> modules;
+  // The surface node ids it may serve; empty: the default mapping of its modules (32 x module
+  // id + 1..31).
+  std::vector<std::uint8_t> surface_nodes;
+  // psk (TCP or serial): the key file this gateway shares with the surface.
+  std::string key_file;
 };
 
 // Session behaviour, shared by both roles (see backbone/session.hpp for the semantics).
@@ -86,6 +136,7 @@ struct GatewayOptions {
   // Exactly one transport: a TCP connection to the surface's listener, or a serial line.
   Endpoint connect;
   std::optional<SerialLineOptions> serial;
+  AuthOptions auth;
   SessionTuning session;
   std::chrono::milliseconds reconnect_min{100};
   std::chrono::milliseconds reconnect_max{5000};
@@ -103,6 +154,10 @@ struct SurfaceOptions {
   // reached over a serial backbone. At least one of the two.
   Endpoint listen;
   std::vector<SerialLineOptions> serial;
+  AuthOptions auth;
+  AdmissionOptions admission;
+  // The gateways this surface accepts (at least one).
+  std::vector<AcceptedGatewayOptions> gateways;
   SessionTuning session;
   bool conflate_pdos = true;  // for surface -> gateway process data, as ModuleOptions
   // RPDOP from the surface master to pdop nodes, taken by the surface (`pdop:` block).
