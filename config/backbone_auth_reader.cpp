@@ -192,6 +192,11 @@ std::string ranges(const std::vector<std::uint8_t>& sorted) {
   return s;
 }
 
+// "node id 7" or "node ids 33-63, 65".
+std::string node_ids(const std::vector<std::uint8_t>& sorted) {
+  return (sorted.size() == 1 ? "node id " : "node ids ") + ranges(sorted);
+}
+
 // One `surface_nodes` item: a node id, or "a-b" (inclusive). Appends to `out`.
 bool read_node_item(YamlReader& in, const YAML::Node& item, const std::string& field,
                     std::vector<std::uint8_t>& out) {
@@ -267,7 +272,8 @@ GatewayClaims read_surface_nodes(YamlReader& in, const YAML::Node& item, const s
     }
   }
   if (!twice.empty()) {
-    in.problem(nodes, field, "node ids " + ranges(twice) + " are listed twice");
+    in.problem(nodes, field,
+               node_ids(twice) + (twice.size() == 1 ? " is" : " are") + " listed twice");
     return claims;
   }
   claims.nodes_known = true;
@@ -341,8 +347,8 @@ void read_accepted_gateway(YamlReader& in, const YAML::Node& item, std::size_t i
     for (auto& [other, nodes] : clashes) {
       std::sort(nodes.begin(), nodes.end());
       in.problem(claims.at, path + ".surface_nodes",
-                 "surface node ids " + ranges(nodes) + " are also claimed by gateways[" +
-                     std::to_string(other) + "]" +
+                 "surface " + node_ids(nodes) + (nodes.size() == 1 ? " is" : " are") +
+                     " also claimed by gateways[" + std::to_string(other) + "]" +
                      (item["surface_nodes"] ? "" : " (here: the default ids of its modules)"));
     }
   }
