@@ -2,6 +2,7 @@
 // mistake reported at its file, line and field. Key files are made at run time (never committed).
 #include <gtest/gtest.h>
 
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -331,6 +332,10 @@ std::vector<BadAuthCase> bad_auth_cases() {
            "  admission: {max_links: 5}\n" + kOneModule,
        6, "backbone.admission", "unknown key"},
   };
+}
+
+void PrintTo(const BadAuthCase& c, std::ostream* os) {
+  *os << c.name;
 }
 
 class BadAuthConfig : public AuthConfig, public ::testing::WithParamInterface<BadAuthCase> {};

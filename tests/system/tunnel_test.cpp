@@ -65,6 +65,11 @@ class Tunnel : public ::testing::Test {
     ASSERT_TRUE(surface_->wait_for_line("gateway 'test-gateway' ready", 10s))
         << surface_->output() << gateway_->output();
     ASSERT_TRUE(gateway_->wait_for_line("surface 'test-surface' ready", 10s)) << gateway_->output();
+    // A plain backbone never runs silently.
+    EXPECT_NE(surface_->output().find("backbone is NOT authenticated"), std::string::npos)
+        << surface_->output();
+    EXPECT_NE(gateway_->output().find("backbone is NOT authenticated"), std::string::npos)
+        << gateway_->output();
     ready_ = true;
   }
 
