@@ -178,6 +178,24 @@ bool valid_identity(const std::string& name) {
   });
 }
 
+// A name that is an identity on the wire (PSK identity "<name>/<key id>", certificate name, hello
+// name): refused (false) unless it is one every role can write.
+bool check_identity(YamlReader& in, const YAML::Node& at, const std::string& field,
+                    const std::string& name) {
+  if (valid_identity(name)) return true;
+  in.problem(at, field,
+             "'" + name +
+                 "' must be 1..64 letters, digits, '-', '_' or '.': it is an identity on the "
+                 "backbone");
+  return false;
+}
+
+// The role's own `name` (and a gateway's `auth.surface`), identities like the gateways' names.
+void check_own_name(YamlReader& in, const YAML::Node& root, const std::string& name) {
+  const YAML::Node node = root["name"];
+  if (node && node.IsScalar() && !node.Scalar().empty()) check_identity(in, node, "name", name);
+}
+
 // "33-63, 65": node ids as ranges, for messages.
 std::string ranges(const std::vector<std::uint8_t>& sorted) {
   std::string s;
@@ -293,11 +311,7 @@ void read_accepted_gateway(YamlReader& in, const YAML::Node& item, std::size_t i
   AcceptedGatewayOptions g;
   if (auto name = in.string(item, "name", path, true)) {
     g.name = *name;
-    if (!valid_identity(*name)) {
-      in.problem(item["name"], path + ".name",
-                 "'" + *name +
-                     "' must be 1..64 letters, digits, '-', '_' or '.': it is the gateway's "
-                     "identity on the wire");
+    if (!check_identity(in, item["name"], path + ".name", *name)) {
     } else if (auto [it, fresh] = names.emplace(*name, i); !fresh) {
       in.problem(
           item["name"], path + ".name",
@@ -487,8 +501,10 @@ void read_gateway_auth(YamlReader& in, const YAML::Node& root, GatewayOptions& o
       {"mode", "key_file", "surface", "certificate", "private_key", "ca", "mac_tag_bytes"});
   const auto mode = read_mode(in, *auth, auth_key);
   if (mode) out.auth.mode = *mode;
+  check_own_name(in, root, out.name);
   if (auto surface = in.string(*auth, "surface", "backbone.auth", false)) {
     out.auth.surface = *surface;
+    check_identity(in, (*auth)["surface"], "backbone.auth.surface", *surface);
   }
   read_mac_tag_bytes(in, *auth, out.auth);
   const bool tcp = !out.connect.host.empty();
@@ -516,6 +532,7 @@ void read_surface_auth(YamlReader& in, const YAML::Node& root, SurfaceOptions& o
   const auto auth = auth_block(in, root);
   if (!auth) return;
   const YAML::Node auth_key = key_node(backbone, "auth");
+  check_own_name(in, root, out.name);
   in.only_keys(*auth, "backbone.auth",
                {"mode", "key_file", "certificate", "private_key", "ca", "mac_tag_bytes"});
   if ((*auth)["key_file"]) {

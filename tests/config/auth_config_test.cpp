@@ -276,6 +276,20 @@ std::vector<BadAuthCase> bad_auth_cases() {
        kSurfaceHead + "  listen: 127.0.0.1:7000\n  auth: {mode: plain}\ngateways:\n" +
            "  - {name: tool/1, modules: [1]}\n",
        7, "gateways[0].name", "must be 1..64 letters, digits"},
+      {"GatewayOwnNameNotAnIdentity", false,
+       "role: gateway\nname: tool gateway\nbackbone:\n  connect: 127.0.0.1:7000\n"
+       "  auth: {mode: plain}\n" +
+           kOneModule,
+       2, "name", "'tool gateway' must be 1..64 letters, digits"},
+      {"SurfaceNameNotAnIdentity", false,
+       kGatewayHead + "  connect: 127.0.0.1:7000\n  auth: {mode: plain, surface: 'a/b'}\n" +
+           kOneModule,
+       5, "backbone.auth.surface", "'a/b' must be 1..64 letters"},
+      {"SurfaceOwnNameNotAnIdentity", true,
+       "role: surface\nname: my surface\nbus: vcan0\nbackbone:\n  listen: 127.0.0.1:7000\n"
+       "  auth: {mode: plain}\n" +
+           kToolGateway,
+       2, "name", "'my surface' must be 1..64 letters"},
       {"ModuleClaimedByTwoGateways", true,
        kSurfaceHead + "  listen: 127.0.0.1:7000\n  auth: {mode: plain}\ngateways:\n" +
            "  - {name: tool, modules: [1, 2]}\n  - name: probe\n    modules: [3, 2]\n",
