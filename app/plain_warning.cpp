@@ -20,10 +20,11 @@ std::optional<std::string> plain_warning(const config::GatewayOptions& options) 
          "): this gateway cannot tell its surface from any other peer" + kWhy;
 }
 
+// Not "listening on": tests and benches wait for that line to learn the port actually bound.
 std::optional<std::string> plain_warning(const config::SurfaceOptions& options) {
   if (options.auth.mode != config::AuthMode::plain) return std::nullopt;
   std::string links;
-  if (!options.listen.host.empty()) links = "listening on " + options.listen.to_string();
+  if (!options.listen.host.empty()) links = "tcp listener " + options.listen.to_string();
   for (const auto& line : options.serial) {
     links += (links.empty() ? "serial line " : ", serial line ") + line.device;
   }

@@ -17,7 +17,7 @@ TEST(PlainWarning, SurfaceNamesItsListenerLinesAndBus) {
   const auto warning = plain_warning(s);
   ASSERT_TRUE(warning);
   EXPECT_NE(warning->find("surface bench: backbone is NOT authenticated (auth mode plain, "
-                          "listening on 127.0.0.1:7000, serial line /dev/ttyS1): any peer that "
+                          "tcp listener 127.0.0.1:7000, serial line /dev/ttyS1): any peer that "
                           "reaches it may put frames on bus vcan0"),
             std::string::npos)
       << *warning;
