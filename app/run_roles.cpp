@@ -6,6 +6,7 @@
 
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
+#include "app/plain_warning.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -100,6 +101,7 @@ SurfacePolicy surface_policy(const config::SurfaceOptions& options) {
 
 int run_gateway(const config::GatewayOptions& options) {
   apply_log_level(options.log);
+  warn_if_plain(options);
   asio::io_context io(1);
   NodeMap map;
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
@@ -145,6 +147,7 @@ int run_gateway(const config::GatewayOptions& options) {
 
 int run_surface(const config::SurfaceOptions& options) {
   apply_log_level(options.log);
+  warn_if_plain(options);
   asio::io_context io(1);
   Surface surface(io.get_executor(), options.name,
                   open_bus(io.get_executor(), options.bus, options.can), surface_policy(options),
