@@ -84,8 +84,9 @@ struct SurfaceCounters {
 // (once it has bound) one outbox per configured gateway, none per stranger. An outbox holds at
 // most BackboneTuning::outbox's lane bounds in frames (reliable 65,536 + latest 4,096 + process
 // 16,384 + fragments 16,384 by default), each a fixed-size entry (a can::Frame, its module and
-// time: sizeof(FrameOutbox entry), 88 bytes on x86-64), so the frame bound is a byte bound:
-// about 9 MB per configured gateway at the defaults, and nothing for a peer that never binds.
+// time: 40 bytes on x86-64, plus the queue's own per-entry overhead), so the frame bound is a
+// byte bound: about 4 MB per configured gateway at the defaults, nothing for a peer that never
+// binds.
 struct SurfacePolicy {
   std::vector<AcceptedGateway> gateways;
   // A link that proved no identity (plain TCP, an unauthenticated serial line) binds nobody.
