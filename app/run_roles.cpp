@@ -6,6 +6,7 @@
 
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
+#include "app/serial_authentication.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -91,8 +92,9 @@ int run_gateway(const config::GatewayOptions& options) {
   asio::io_context io(1);
   NodeMap map;
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
-  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
-                  make_tuning(options.session));
+  BackboneTuning tuning = make_tuning(options.session);
+  tuning.session.authenticator = serial_authenticator(options);
+  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules), tuning);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     gateway.attach(std::move(link));
   };
@@ -134,9 +136,11 @@ int run_gateway(const config::GatewayOptions& options) {
 int run_surface(const config::SurfaceOptions& options) {
   apply_log_level(options.log);
   asio::io_context io(1);
+  BackboneTuning tuning = make_tuning(options.session);
+  tuning.session.authenticator = serial_authenticators(options);
   Surface surface(io.get_executor(), options.name,
-                  open_bus(io.get_executor(), options.bus, options.can),
-                  make_tuning(options.session), options.conflate_pdos, options.rpdop_relay);
+                  open_bus(io.get_executor(), options.bus, options.can), tuning,
+                  options.conflate_pdos, options.rpdop_relay);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     surface.attach(std::move(link));
   };
