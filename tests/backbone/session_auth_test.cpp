@@ -9,11 +9,14 @@
 #include <functional>
 #include <numeric>
 #include <optional>
+#include <random>
 #include <vector>
 
 #include "backbone/delimited_codec.hpp"
 #include "backbone/envelope_codec.hpp"
 #include "backbone/session_core.hpp"
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
 namespace canbridge::backbone {
 namespace {
@@ -474,6 +477,17 @@ TEST_F(SessionAuthTest, ASurfaceThatReopensItsEndMakesTheGatewayStartOver) {
   advance(1s);
   ASSERT_TRUE(ready());
   EXPECT_EQ(surface.received, range(1, 8));
+}
+
+// The fuzz target's invariants (tests/fuzz/session_auth_fuzz.cpp) on seeded random inputs: an
+// attacker's bytes, replays, flips and cuts before and after the handshake.
+TEST(SessionAuthFuzz, RandomInputsKeepTheInvariants) {
+  for (std::uint32_t seed = 1; seed <= 200; ++seed) {
+    std::mt19937 rng(seed);
+    std::vector<std::uint8_t> input(1 + rng() % 300);
+    for (auto& b : input) b = static_cast<std::uint8_t>(rng());
+    EXPECT_EQ(LLVMFuzzerTestOneInput(input.data(), input.size()), 0);
+  }
 }
 
 }  // namespace
