@@ -1,10 +1,10 @@
 // canbridge-backbone-bench: how many CAN frames per second the backbone session carries, and how
 // many wire bytes each costs, over TCP loopback and over an emulated 115200 bit/s line (TCP and a
 // pty pair, clean and at a bit error rate of 1e-4), and what the serial line's authentication
-// (sealed envelopes) costs against the plain line at 115200 and 1 Mbit/s. One process, one io_context(1): a "gateway"
-// end whose producer is a bridge::FrameOutbox kept topped up with reliable frames, and a
-// "surface" end that decodes every FrameBatch and checks each frame is intact and in order per
-// COB-ID. A measurement, never a test: see bench/README.md.
+// (sealed envelopes) costs against the plain line at 115200 and 1 Mbit/s. One process, one
+// io_context(1): a "gateway" end whose producer is a bridge::FrameOutbox kept topped up with
+// reliable frames, and a "surface" end that decodes every FrameBatch and checks each frame is
+// intact and in order per COB-ID. A measurement, never a test: see bench/README.md.
 #include <fcntl.h>
 #include <poll.h>
 #include <spawn.h>
@@ -503,7 +503,8 @@ RunResult run_once(const BenchConfig& config, const Scenario& scenario, int run,
     auto line = [&](const std::filesystem::path& device) {
       backbone::SerialOptions o;
       o.device = device.string();
-      o.baud = static_cast<unsigned>(scenario.baud);  // a pty ignores it; the emulator sets the pace
+      o.baud =
+          static_cast<unsigned>(scenario.baud);  // a pty ignores it; the emulator sets the pace
       o.backoff_min = 20ms;
       o.backoff_max = 200ms;
       return backbone::SerialClient::create(io.get_executor(), o);

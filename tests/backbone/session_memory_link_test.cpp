@@ -146,9 +146,12 @@ TEST(SessionAuthOverMemoryLinkTest, EveryLinkAuthenticatesAndTheStreamResumesExa
     ASSERT_TRUE(run_until(io, [&] { return !gateway.stream().up() && !surface.stream().up(); }));
   }
   auto pair = make_memory_link_pair(io.get_executor(), options);
-  gateway.attach(pair.a);
-  surface.attach(pair.b);
-  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 300; }));
+  auto g = gateway.attach(pair.a);
+  auto s = surface.attach(pair.b);
+  ASSERT_TRUE(run_until(io, [&] {
+    return g->ready() && s->ready() && surface.received.size() == 300 &&
+           gateway.stream().sender().unacked_count() == 0;
+  }));
   EXPECT_TRUE(exactly_once_in_order(surface.received, 300));
   EXPECT_EQ(surface.counters.auth_established, 4u);
   EXPECT_EQ(gateway.counters.auth_established, 4u);

@@ -5,7 +5,7 @@
 //   tamper    one byte in the middle of its payload flipped, the CRC recomputed (so the frame
 //             passes the line's check and only the session's MAC can tell);
 //   truncate  cut to its first 10 bytes (shorter than a seal's counter and tag), valid CRC;
-//   replay    sent, then an earlier frame of a (at least --min-bytes) sent again unchanged.
+//   replay    sent, then the frame of a (at least --min-bytes) before it sent again unchanged.
 // Prints "serial-tamper-proxy: ready" once the ptys exist and one line per attack done.
 //
 // Usage: serial-tamper-proxy --a PATH --b PATH --commands FIFO [--min-bytes N]
@@ -13,13 +13,13 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <array>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/posix/stream_descriptor.hpp>
 #include <boost/asio/read_until.hpp>
 #include <boost/asio/signal_set.hpp>
 #include <boost/asio/streambuf.hpp>
 #include <boost/asio/write.hpp>
-#include <array>
 #include <cstdio>
 #include <deque>
 #include <istream>
@@ -44,8 +44,7 @@ class Proxy {
  public:
   Proxy(asio::io_context& io, const std::string& a, const std::string& b, int commands,
         std::size_t min_bytes)
-      : a_(io, a), b_(io, b), commands_(io, commands), min_bytes_(min_bytes),
-        deframer_(1 << 20) {}
+      : a_(io, a), b_(io, b), commands_(io, commands), min_bytes_(min_bytes), deframer_(1 << 20) {}
 
   void start() {
     read_a();
@@ -59,7 +58,7 @@ class Proxy {
  private:
   void read_a() {
     a_.master().async_read_some(asio::buffer(from_a_), [this](auto ec, std::size_t n) {
-      if (ec) return read_a_later();
+      if (ec) return;  // PtyEndpoint holds the slave open: only at shutdown
       std::string out;
       deframer_.feed({from_a_.data(), n}, [&](std::span<const std::uint8_t> payload) {
         forward(Bytes(payload.begin(), payload.end()), out);
@@ -68,18 +67,18 @@ class Proxy {
       read_a();
     });
   }
-  // EIO while nobody has the slave open cannot happen (PtyEndpoint holds it); be safe anyway.
-  void read_a_later() { asio::post(a_.master().get_executor(), [this] { read_a(); }); }
 
   void read_b() {
     b_.master().async_read_some(asio::buffer(from_b_), [this](auto ec, std::size_t n) {
-      if (!ec) asio::write(a_.master(), asio::buffer(from_b_.data(), n), ignored_);
+      if (ec) return;
+      asio::write(a_.master(), asio::buffer(from_b_.data(), n), ignored_);
       read_b();
     });
   }
 
   void forward(Bytes payload, std::string& out) {
     const bool target = payload.size() >= min_bytes_;
+    if (target) remember(payload);  // as the sender wrote it
     if (target && !pending_.empty()) {
       const std::string action = pending_.front();
       pending_.pop_front();
@@ -91,14 +90,14 @@ class Proxy {
         payload.resize(kTruncatedSize);
       } else if (action == "replay" && !history_.empty()) {
         append_serial_frame(out, payload);
-        remember(payload);
-        payload = history_.front();  // the oldest kept: well behind the receiver's counter
+        // The one before: a sealed message the receiver has opened already. (The oldest kept
+        // could be the gateway's unsealed challenge, which only makes the surface start over.)
+        payload = history_[history_.size() >= 2 ? history_.size() - 2 : 0];
         report("replayed", payload.size());
         append_serial_frame(out, payload);
         return;
       }
     }
-    if (target) remember(payload);
     append_serial_frame(out, payload);
   }
 
