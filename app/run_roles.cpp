@@ -7,6 +7,7 @@
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
 #include "app/plain_warning.hpp"
+#include "app/serial_authentication.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -105,8 +106,9 @@ int run_gateway(const config::GatewayOptions& options) {
   asio::io_context io(1);
   NodeMap map;
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
-  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules),
-                  make_tuning(options.session));
+  BackboneTuning tuning = make_tuning(options.session);
+  tuning.session.authenticator = serial_authenticator(options);
+  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules), tuning);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     gateway.attach(std::move(link));
   };
@@ -149,9 +151,11 @@ int run_surface(const config::SurfaceOptions& options) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
+  BackboneTuning tuning = make_tuning(options.session);
+  tuning.session.authenticator = serial_authenticators(options);
   Surface surface(io.get_executor(), options.name,
                   open_bus(io.get_executor(), options.bus, options.can), surface_policy(options),
-                  make_tuning(options.session), options.conflate_pdos, options.rpdop_relay);
+                  tuning, options.conflate_pdos, options.rpdop_relay);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     surface.attach(std::move(link));
   };

@@ -104,6 +104,11 @@ class PeerAuthenticator {
   std::optional<std::span<const std::uint8_t>> open(std::span<const std::uint8_t> sealed);
 
   State state() const { return state_; }
+  AuthRole role() const { return role_; }
+  // The other end's configured identity: who it has proven to be once established.
+  const std::string& peer_identity() const {
+    return role_ == AuthRole::gateway ? surface_identity_ : gateway_identity_;
+  }
   const AuthCounters& counters() const { return counters_; }
   std::size_t seal_overhead() const { return kSealCounterSize + tag_size_; }
 

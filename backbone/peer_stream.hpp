@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "backbone/peer_authenticator.hpp"
 #include "backbone/reliable_channel.hpp"
 #include "session.pb.h"
 
@@ -17,8 +18,9 @@ namespace canbridge::backbone {
 
 inline constexpr std::uint32_t kProtocolMajor = 2;
 // 1: a second application payload kind; 2: PDO Packets (three more kinds); 3: Hello.application
-// (a gateway's claims, checked by the surface)
-inline constexpr std::uint32_t kProtocolMinor = 3;
+// (a gateway's claims, checked by the surface); 4: Envelope.auth (the serial challenge-response
+// before the hellos, then sealed envelopes)
+inline constexpr std::uint32_t kProtocolMinor = 4;
 
 struct SessionOptions {
   // Nothing sent for this long: send a keepalive (it carries the current ack).
@@ -41,6 +43,11 @@ struct SessionOptions {
   std::chrono::milliseconds reliable_max_age{0};
   // The session's clock; empty: std::chrono::steady_clock::now. Tests inject their own.
   std::function<std::chrono::steady_clock::time_point()> clock;
+  // The session's own authentication (serial lines; TCP has TLS): called once per link with the
+  // link's name (a serial device, "address:port"); a fresh authenticator (new nonces, keys and
+  // counters) runs the challenge-response before the hellos and seals every envelope after it.
+  // Null, or an empty function: this link is not authenticated by the session.
+  std::function<std::unique_ptr<PeerAuthenticator>(const std::string& link_name)> authenticator;
 };
 
 // Counters of one side, summed over all its peers and links.
@@ -69,12 +76,24 @@ struct SessionCounters {
   std::uint64_t reliable_dropped_peer_restart = 0;  // tombstoned: meant for the peer's old process
   std::uint64_t tombstones_received = 0;            // empty reliable payloads, not delivered
   std::uint64_t unreliable_lost = 0;  // gaps in a peer's unreliable sequence: lost on the line
+  // Session authentication (SessionOptions::authenticator): handshakes completed, handshakes
+  // refused by reason, and sealed envelopes that did not open (dropped, never delivered).
+  std::uint64_t auth_established = 0;
+  std::uint64_t auth_failed_bad_proof = 0;        // wrong key, forged or reflected proof
+  std::uint64_t auth_failed_unknown_key = 0;      // surface: the gateway's key id is none of ours
+  std::uint64_t auth_failed_malformed = 0;        // malformed step, another tag size, wrong order
+  std::uint64_t auth_failed_unauthenticated = 0;  // the peer skipped it (or we do not do it)
+  std::uint64_t auth_restarts = 0;  // the peer restarted its end of an authenticated line
+  std::uint64_t rejected_truncated = 0;
+  std::uint64_t rejected_bad_tag = 0;  // tampered, forged or unsealed
+  std::uint64_t rejected_replay = 0;   // authentic but not newer: replayed or reordered
 };
 
 // What one side has said in its log already, shared by its links like SessionCounters: a repeat
 // (the same refusal on every reconnect, a flood of bad envelopes) is only counted.
 struct SessionLogMemory {
   bool warned_malformed = false;
+  bool warned_rejected = false;  // a sealed envelope that did not open
   std::string last_refusal;
 };
 

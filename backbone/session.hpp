@@ -44,7 +44,10 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
   const std::shared_ptr<MessageLink>& message_link() const { return link_; }
   // Who the peer proved to be: the transport's proof (TLS), else the session's own (the serial
   // challenge-response); empty when nothing was proven (plain operation).
-  const std::string& authenticated_peer() const { return link_->authenticated_peer(); }
+  const std::string& authenticated_peer() const {
+    const std::string& transport = link_->authenticated_peer();
+    return transport.empty() ? core_.authenticated_peer() : transport;
+  }
 
  private:
   SessionLink(std::shared_ptr<MessageLink> link, const Identity& identity,

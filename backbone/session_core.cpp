@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 
 #include "backbone/delimited_codec.hpp"
 #include "backbone/envelope_codec.hpp"
@@ -111,11 +112,21 @@ SessionCore::SessionCore(const SessionIdentity& identity, const SessionOptions& 
       counters_(counters),
       log_(log),
       shell_(shell),
-      link_(std::move(link)) {}
+      link_(std::move(link)) {
+  // One authenticator per link: new nonces, new keys, and counters that start with the link.
+  if (options_.authenticator) auth_ = options_.authenticator(link_.peer_name);
+}
 
 void SessionCore::start(TimePoint now) {
   last_rx_ = last_tx_ = last_run_ = last_tick_ = now;
-  shell_.wake_writer();  // a preset stream's hello goes out at once
+  if (auth_ && auth_->role() == AuthRole::gateway) {
+    // The gateway opens the handshake; its hello follows once both ends are proven.
+    const AuthCounters before = auth_->counters();
+    const auto challenge = auth_->make_challenge();
+    if (!challenge) return auth_failed(before, "no challenge (random source failed)");
+    queue_auth_step(*challenge, {});
+  }
+  shell_.wake_writer();  // a preset stream's hello (or the challenge) goes out at once
 }
 
 void SessionCore::close(std::error_code reason) {
@@ -162,6 +173,15 @@ Clock::duration SessionCore::peer_patience() const {
 
 void SessionCore::on_message(std::span<const std::uint8_t> bytes, TimePoint now) {
   if (closing_ || closing_after_flush_ || !refusal_.empty()) return;
+  if (auth_) {
+    if (auth_->state() != PeerAuthenticator::State::established) {
+      return on_handshake_message(bytes, now);
+    }
+    const AuthCounters before = auth_->counters();
+    const auto opened = auth_->open(bytes);
+    if (!opened) return on_unopened(bytes, before);
+    bytes = *opened;
+  }
   if (!accept_input(bytes, now)) return;
   if (!on_control(now)) return;
   if (!peer_hello_ok_ || !ready_) return before_ready(now);
@@ -200,6 +220,14 @@ bool SessionCore::on_control(TimePoint now) {
       return false;
     case v1::Envelope::kRefusal:
       on_refusal();
+      return false;
+    case v1::Envelope::kAuth:
+      if (auth_) {
+        protocol_error("a handshake step inside a sealed envelope");
+        return false;
+      }
+      auth_failed(counters_.auth_failed_unauthenticated,
+                  "it wants the challenge-response, which this side is not configured for");
       return false;
     case v1::Envelope::kKeepalive:
       if (!inbound_.keepalive().hello_please()) return true;
@@ -449,10 +477,230 @@ bool SessionCore::same_as_last_refusal(const std::string& text) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Authentication: gateway challenge; surface challenge and proof; gateway proof. Then sealed.
+
+// Before the handshake completes: its steps, a refusal, a hello request; nothing else counts.
+void SessionCore::on_handshake_message(std::span<const std::uint8_t> bytes, TimePoint now) {
+  if (const char* why = stale_reason(now)) return close_stale(why, now);
+  last_run_ = now;
+  // Sealed messages from a peer still on its previous link do not parse (their counter comes
+  // first); neither does line noise.
+  if (!inbound_.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) {
+    return before_handshake(now);
+  }
+  switch (inbound_.body_case()) {
+    case v1::Envelope::kAuth:
+      last_rx_ = now;
+      return on_auth_step();
+    case v1::Envelope::kRefusal:
+      last_rx_ = now;
+      return on_refusal();
+    case v1::Envelope::kKeepalive:
+      if (!inbound_.keepalive().hello_please()) return before_handshake(now);
+      // A surface that reopened its end asks: our challenge goes again.
+      if (auth_->state() == PeerAuthenticator::State::challenged) {
+        auth_step_ = last_auth_step_;
+        shell_.wake_writer();
+      }
+      return;
+    case v1::Envelope::kHello:
+      return auth_failed(counters_.auth_failed_unauthenticated,
+                         "its hello came without the challenge-response this side requires (is "
+                         "authentication configured at both ends?)");
+    default:
+      return before_handshake(now);
+  }
+}
+
+// Something else than a handshake step before the handshake completed. On a serial line the
+// peer may still be on its previous, authenticated link: as the responder, ask it for a new
+// start (it closes that link and challenges again). Elsewhere the peer skipped authentication.
+void SessionCore::before_handshake(TimePoint now) {
+  if (!link_.crc_framed) {
+    return auth_failed(counters_.auth_failed_unauthenticated,
+                       "it sent something else than the challenge-response this side requires");
+  }
+  ++counters_.before_hello;
+  if (!initiator_ && now - last_hello_request_ >= options_.keepalive_interval) {
+    last_hello_request_ = now;
+    hello_please_owed_ = true;
+    shell_.wake_writer();
+  }
+}
+
+void SessionCore::on_auth_step() {
+  using State = PeerAuthenticator::State;
+  const v1::AuthStep& step = inbound_.auth();
+  const bool challenge = !step.challenge().empty();
+  const bool proof = !step.proof().empty();
+  const AuthCounters before = auth_->counters();
+  if (auth_->role() == AuthRole::surface) {
+    if (challenge && !proof) return answer_challenge(step.challenge());
+    if (proof && !challenge && auth_->state() == State::responded) {
+      if (!auth_->verify(bytes_of(step.proof()))) {
+        return auth_failed(before, "its proof is wrong (another key?)");
+      }
+      return auth_established();
+    }
+  } else if (challenge && proof && auth_->state() == State::challenged) {
+    const auto own_proof = auth_->respond(bytes_of(step.challenge()));
+    if (!own_proof) return auth_failed(before, "its challenge is unusable");
+    if (!auth_->verify(bytes_of(step.proof()))) {
+      return auth_failed(before, "its proof is wrong (another key?)");
+    }
+    queue_auth_step({}, *own_proof);
+    return auth_established();  // our hello follows the proof, sealed
+  }
+  auth_failed(counters_.auth_failed_malformed, "a handshake step out of order");
+}
+
+// Surface: the gateway's challenge, answered with ours and our proof.
+void SessionCore::answer_challenge(const std::string& challenge) {
+  using State = PeerAuthenticator::State;
+  if (auth_->state() == State::responded) {
+    if (challenge == answered_challenge_) {
+      auth_step_ = last_auth_step_;  // our answer was lost: the gateway asks again
+      shell_.wake_writer();
+      return;
+    }
+    // The gateway started over (it reopened its end): so do we, with new nonces.
+    auth_ = options_.authenticator(link_.peer_name);
+  }
+  const AuthCounters before = auth_->counters();
+  const auto own_challenge = auth_->make_challenge();
+  if (!own_challenge) return auth_failed(before, "no challenge (random source failed)");
+  const auto proof = auth_->respond(bytes_of(challenge));
+  if (!proof) return auth_failed(before, "its challenge is unusable");
+  answered_challenge_ = challenge;
+  queue_auth_step(*own_challenge, *proof);
+}
+
+void SessionCore::queue_auth_step(std::span<const std::uint8_t> challenge,
+                                  std::span<const std::uint8_t> proof) {
+  scratch_.Clear();
+  v1::AuthStep& step = *scratch_.mutable_auth();
+  if (!challenge.empty()) step.set_challenge(challenge.data(), challenge.size());
+  if (!proof.empty()) step.set_proof(proof.data(), proof.size());
+  last_auth_step_.clear();
+  append_message(last_auth_step_, scratch_);
+  auth_step_ = last_auth_step_;
+  shell_.wake_writer();
+}
+
+void SessionCore::auth_established() {
+  ++counters_.auth_established;
+  authenticated_peer_ = auth_->peer_identity();
+  spdlog::info("backbone: {} proved to be '{}' (challenge-response); envelopes sealed from now on",
+               link_.peer_name, authenticated_peer_);
+  shell_.wake_writer();  // the gateway's hello, sealed
+}
+
+// The authenticator's verdict, counted by what it found.
+void SessionCore::auth_failed(const AuthCounters& before, const std::string& why) {
+  const AuthCounters& after = auth_->counters();
+  if (after.unknown_keys != before.unknown_keys) {
+    return auth_failed(counters_.auth_failed_unknown_key, "its key is not one configured here");
+  }
+  if (after.bad_proofs != before.bad_proofs) {
+    return auth_failed(counters_.auth_failed_bad_proof, why);
+  }
+  if (after.parameter_mismatches != before.parameter_mismatches) {
+    return auth_failed(counters_.auth_failed_malformed, "it uses another MAC size");
+  }
+  auth_failed(counters_.auth_failed_malformed, why);
+}
+
+// The details stay in this side's log: an unproven peer learns only that it was refused.
+void SessionCore::auth_failed(std::uint64_t& reason, const std::string& why) {
+  ++reason;
+  ++counters_.refusals_sent;
+  const std::string text = "authentication failed: " + why;
+  spdlog::log(same_as_last_refusal(text) ? spdlog::level::debug : spdlog::level::warn,
+              "backbone: refusing {}: {} (the peer is told only 'refused'; counted)",
+              link_.peer_name, text);
+  scratch_.Clear();
+  scratch_.mutable_refusal()->set_detail("refused");
+  refusal_.clear();
+  append_message(refusal_, scratch_);
+  shell_.wake_writer();
+}
+
+// A message that did not open on an authenticated link. Unsealed control messages are the
+// peer's end starting over (a new challenge, a hello request) or refusing: they only end this
+// link, which anyone able to write to the line could do anyway. Everything else is dropped.
+void SessionCore::on_unopened(std::span<const std::uint8_t> bytes, const AuthCounters& before) {
+  const AuthCounters& after = auth_->counters();
+  // A sealed message starts with its counter's high byte, zero for the first 2^24 messages,
+  // which no envelope does.
+  if (inbound_.ParseFromArray(bytes.data(), static_cast<int>(bytes.size()))) {
+    if (inbound_.has_refusal()) return on_refusal();
+    if (link_.crc_framed && inbound_.has_auth()) {
+      // A repeated answer or proof is late news; a bare challenge is a new start.
+      if (inbound_.auth().proof().empty()) return peer_restarted("challenged again");
+      return;
+    }
+    if (link_.crc_framed && inbound_.has_keepalive() && inbound_.keepalive().hello_please()) {
+      return peer_restarted("asked for a hello");
+    }
+  }
+  if (after.truncated != before.truncated) {
+    ++counters_.rejected_truncated;
+  } else if (after.replays != before.replays) {
+    ++counters_.rejected_replay;
+  } else {
+    ++counters_.rejected_bad_tag;
+  }
+  if (!log_.warned_rejected) {
+    log_.warned_rejected = true;
+    spdlog::warn(
+        "backbone: a sealed envelope from {} did not open (tampered, replayed, reordered or cut "
+        "short): dropped (counted by reason; further ones are only counted)",
+        link_.peer_name);
+  }
+}
+
+void SessionCore::peer_restarted(const char* what) {
+  ++counters_.auth_restarts;
+  spdlog::info(
+      "backbone: {} {}: its end of the line started over; closing this link so that the next "
+      "one authenticates afresh",
+      link_.peer_name, what);
+  close(make_error_code(errc::closed));
+}
+
+// Each delimited envelope in `plain` goes to `out` as counter | envelope | tag, delimited.
+void SessionCore::seal_into(const std::string& plain, std::string& out) {
+  DelimitedDecoder decoder;
+  decoder.feed(bytes_of(plain), [&](std::span<const std::uint8_t> envelope) {
+    std::array<std::uint8_t, kMaxLengthPrefixBytes> prefix{};
+    const std::uint8_t* end = write_varint(envelope.size() + auth_->seal_overhead(), prefix.data());
+    const std::size_t start = out.size();
+    out.append(reinterpret_cast<const char*>(prefix.data()),
+               static_cast<std::size_t>(end - prefix.data()));
+    // Established, it fails only after 2^64 messages: then nothing more goes out.
+    if (!auth_->seal(envelope, out)) out.resize(start);
+  });
+}
+
+// ---------------------------------------------------------------------------------------------
 // Output.
 
 void SessionCore::fill(std::string& out, TimePoint now) {
   if (closing_) return;
+  if (!auth_) return fill_envelopes(out, now);
+  if (!auth_step_.empty()) {
+    out += auth_step_;  // unsealed: the keys come from the handshake
+    auth_step_.clear();
+    last_tx_ = now;
+  }
+  // Before the handshake completes only a refusal or a hello request can go out, unsealed.
+  if (auth_->state() != PeerAuthenticator::State::established) return fill_envelopes(out, now);
+  sealing_.clear();
+  fill_envelopes(sealing_, now);
+  seal_into(sealing_, out);
+}
+
+void SessionCore::fill_envelopes(std::string& out, TimePoint now) {
   if (!fill_control(out, now)) return;
   if (hello_sent_ && peer_hello_ok_ && !ready_) become_ready();
   if (closed_ || !ready_) return;
@@ -478,7 +726,8 @@ bool SessionCore::fill_control(std::string& out, TimePoint now) {
     append_message(out, scratch_);
     hello_please_owed_ = false;
   }
-  if (!hello_sent_ && stream_) write_hello(out, now);
+  const bool proven = !auth_ || auth_->state() == PeerAuthenticator::State::established;
+  if (!hello_sent_ && stream_ && proven) write_hello(out, now);
   return true;
 }
 
@@ -555,6 +804,11 @@ void SessionCore::on_tick(TimePoint now, bool reading_paused) {
   }
   if (initiator_ && !ready_ && hello_sent_ && now - last_tx_ >= options_.keepalive_interval) {
     hello_sent_ = false;  // no answer yet: the hello may have been lost on a noisy line
+    shell_.wake_writer();
+  }
+  if (auth_ && auth_->state() == PeerAuthenticator::State::challenged &&
+      now - last_tx_ >= options_.keepalive_interval) {
+    auth_step_ = last_auth_step_;  // no answer yet: the challenge may have been lost too
     shell_.wake_writer();
   }
   if (ready_) tick_ready(now, reading_paused);

@@ -1,10 +1,12 @@
-// Every decision one backbone link's session makes (hello exchange, refusals, binding, keepalive,
-// dead and stale links, acknowledgement, resend requests, retransmission, what to write next),
-// from the messages it is given and an injected `now`: no sockets, no timers, no coroutines.
+// Every decision one backbone link's session makes (challenge-response and sealed envelopes when
+// the session authenticates, hello exchange, refusals, binding, keepalive, dead and stale links,
+// acknowledgement, resend requests, retransmission, what to write next), from the messages it is
+// given and an injected `now`: no sockets, no timers, no coroutines.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <span>
 #include <string>
 #include <system_error>
@@ -71,6 +73,9 @@ class SessionCore {
   bool ready() const { return ready_; }
   bool closed() const { return closed_; }
   PeerStream* stream() const { return stream_; }
+  // The peer's configured identity once the session's challenge-response proved it; empty before
+  // and when the session does not authenticate (SessionOptions::authenticator).
+  const std::string& authenticated_peer() const { return authenticated_peer_; }
   // The tick period SessionLink has always used: a quarter of the shortest timeout, 5..250 ms.
   Clock::duration tick_period() const;
 
@@ -96,7 +101,21 @@ class SessionCore {
   void refuse(v1::Refusal::Reason reason, const std::string& detail, bool repeated = false);
   void protocol_error(const std::string& why);
   bool same_as_last_refusal(const std::string& text);
+  // Authentication (SessionOptions::authenticator): handshake, then sealed envelopes.
+  void on_handshake_message(std::span<const std::uint8_t> bytes, TimePoint now);
+  void before_handshake(TimePoint now);
+  void on_auth_step();
+  void answer_challenge(const std::string& challenge);
+  void queue_auth_step(std::span<const std::uint8_t> challenge,
+                       std::span<const std::uint8_t> proof);
+  void auth_established();
+  void auth_failed(const AuthCounters& before, const std::string& why);
+  void auth_failed(std::uint64_t& reason, const std::string& why);
+  void on_unopened(std::span<const std::uint8_t> bytes, const AuthCounters& before);
+  void peer_restarted(const char* what);
+  void seal_into(const std::string& plain, std::string& out);
   // Output.
+  void fill_envelopes(std::string& out, TimePoint now);
   bool fill_control(std::string& out, TimePoint now);
   void write_hello(std::string& out, TimePoint now);
   void fill_stream(std::string& out, TimePoint now);
@@ -138,6 +157,15 @@ class SessionCore {
   bool keepalive_owed_ = false;
   bool hello_please_owed_ = false;
   TimePoint last_hello_request_{};
+  // Authentication: this link's authenticator (null: the session does not authenticate), the
+  // handshake step waiting to be written (unsealed), and the last one written, sent again when
+  // the peer did not get it (the gateway's challenge; the surface's answer to a repeated one).
+  std::unique_ptr<PeerAuthenticator> auth_;
+  std::string auth_step_;
+  std::string last_auth_step_;
+  std::string answered_challenge_;  // surface: the challenge last_auth_step_ answers
+  std::string sealing_;             // what fill wrote, before it is sealed
+  std::string authenticated_peer_;
   bool closing_ = false;  // close_link was asked for: nothing more happens on this link
   bool closed_ = false;   // the link ended
 };

@@ -5,7 +5,8 @@
 # Usage: tools/fuzz.sh [--seconds N] [--target NAME]... [BUILD_DIR]
 #   --seconds N    how long each target runs (default 10; e.g. 3600 for a long run)
 #   --target NAME  run only this target (repeatable): serial_deframer_fuzz, envelope_fuzz,
-#                  delimited_decoder_fuzz, pdop_reassembler_fuzz, peer_authenticator_fuzz
+#                  delimited_decoder_fuzz, pdop_reassembler_fuzz, peer_authenticator_fuzz,
+#                  session_auth_fuzz
 #   BUILD_DIR      build and work directory (default: build-fuzz in the repository root)
 # Inside BUILD_DIR: corpus/<target>/ keeps what the fuzzers learn from run to run, seeds/<target>/
 # the generated seeds, crashes/<target>/ the inputs that failed, logs/<target>.log the output.
@@ -43,10 +44,12 @@ done
 # Longest input per target: room for a few maximum-size frames, small enough to mutate quickly.
 # pdop_reassembler_fuzz: 2 option bytes and up to 511 operations of 4 bytes.
 # peer_authenticator_fuzz: a mode byte, a challenge and a proof, then a few dozen operations.
+# session_auth_fuzz: a mode byte, then up to 64 operations of a few to 257 bytes.
 declare -A max_len=([serial_deframer_fuzz]=4096 [envelope_fuzz]=2048 [delimited_decoder_fuzz]=4096
-                    [pdop_reassembler_fuzz]=2046 [peer_authenticator_fuzz]=2048)
+                    [pdop_reassembler_fuzz]=2046 [peer_authenticator_fuzz]=2048
+                    [session_auth_fuzz]=4096)
 targets=(serial_deframer_fuzz envelope_fuzz delimited_decoder_fuzz pdop_reassembler_fuzz
-         peer_authenticator_fuzz)
+         peer_authenticator_fuzz session_auth_fuzz)
 if ((${#only[@]})); then
   for t in "${only[@]}"; do
     [[ -v "max_len[$t]" ]] || { echo "fuzz: no target '$t' (have: ${targets[*]})" >&2; exit 2; }

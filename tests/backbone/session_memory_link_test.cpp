@@ -109,5 +109,57 @@ TEST_F(SessionOverMemoryLinkTest, ClosingOneEndAndAttachingANewPairResumesExactl
   EXPECT_EQ(gateway.counters.dead_links + surface.counters.dead_links, 0u);
 }
 
+// The session's own authentication over a real SessionLink: every link handshakes afresh, the
+// link reports who the peer proved to be, and the reliable stream resumes on top as on a plain
+// link.
+SessionOptions authenticating(AuthRole role) {
+  SessionOptions o = fast_options();
+  o.authenticator = [role](const std::string&) {
+    PeerAuthenticatorOptions a;
+    a.role = role;
+    a.own_identity = role == AuthRole::gateway ? "gw" : "surface";
+    a.peer_identity = role == AuthRole::gateway ? "surface" : "gw";
+    std::array<std::uint8_t, kPreSharedKeySize> key{};
+    key.fill(7);
+    a.keys.emplace_back(key);
+    return std::make_unique<PeerAuthenticator>(std::move(a));
+  };
+  return o;
+}
+
+TEST(SessionAuthOverMemoryLinkTest, EveryLinkAuthenticatesAndTheStreamResumesExactlyOnce) {
+  asio::io_context io{1};
+  SessionEnd gateway{"gw", v1::Hello::ROLE_GATEWAY, authenticating(AuthRole::gateway), {1}};
+  SessionEnd surface{"surface", v1::Hello::ROLE_SURFACE, authenticating(AuthRole::surface)};
+  MemoryLinkOptions options;
+  options.crc_framed = true;
+  for (std::uint64_t round = 1; round <= 3; ++round) {
+    auto pair = make_memory_link_pair(io.get_executor(), options);
+    auto g = gateway.attach(pair.a);
+    auto s = surface.attach(pair.b);
+    ASSERT_TRUE(run_until(io, [&] { return g->ready() && s->ready(); })) << round;
+    EXPECT_EQ(g->authenticated_peer(), "surface");
+    EXPECT_EQ(s->authenticated_peer(), "gw");
+    gateway.send_up_to(round * 100);
+    ASSERT_TRUE(run_until(io, [&] { return surface.received.size() >= round * 100 - 50; }));
+    pair.b->close();  // cut mid-stream
+    ASSERT_TRUE(run_until(io, [&] { return !gateway.stream().up() && !surface.stream().up(); }));
+  }
+  auto pair = make_memory_link_pair(io.get_executor(), options);
+  auto g = gateway.attach(pair.a);
+  auto s = surface.attach(pair.b);
+  ASSERT_TRUE(run_until(io, [&] {
+    return g->ready() && s->ready() && surface.received.size() == 300 &&
+           gateway.stream().sender().unacked_count() == 0;
+  }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 300));
+  EXPECT_EQ(surface.counters.auth_established, 4u);
+  EXPECT_EQ(gateway.counters.auth_established, 4u);
+  EXPECT_EQ(surface.counters.rejected_bad_tag + surface.counters.rejected_replay, 0u);
+  pair.a->close();
+  io.restart();
+  io.run_for(20ms);
+}
+
 }  // namespace
 }  // namespace canbridge::backbone

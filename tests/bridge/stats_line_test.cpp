@@ -27,7 +27,9 @@ const std::vector<std::string> kSharedLabels = {
     // SessionCounters
     "session links ", "protocol-errors ", "before-hello ", "keepalives ", "resend-requests ",
     "peer-restarts ", "reliable delivered ", "duplicates ", "unreliable sent ", "lost-on-line ",
-    "reliable sent ", "resent ", "dead-links ", "refusals ", "malformed ",
+    "reliable sent ", "resent ", "dead-links ", "refusals ", "malformed ", "auth ok ",
+    "refused key/proof/malformed/unauthenticated ", "restarts ",
+    "rejected truncated/bad-tag/replay ",
     // OutboxCounters
     "bus->backbone ", "conflated ", "process-dropped ", "reliable-refused ", "queued-total ",
     // frames
