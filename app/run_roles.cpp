@@ -6,6 +6,7 @@
 
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
+#include "app/tls_setup.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -77,6 +78,7 @@ std::shared_ptr<backbone::TcpClient> tcp_client(asio::any_io_executor ex,
   backbone::ClientOptions client_options;
   client_options.backoff_min = options.reconnect_min;
   client_options.backoff_max = options.reconnect_max;
+  client_options.upgrade = gateway_link_upgrade(options);
   if (options.session.tcp_crc_framing) {
     client_options.link.framing = backbone::LinkFraming::cobs_crc32c;
   }
@@ -143,6 +145,7 @@ int run_surface(const config::SurfaceOptions& options) {
   std::shared_ptr<backbone::TcpServer> server;
   if (!options.listen.host.empty()) {
     backbone::ServerOptions server_options;
+    server_options.upgrade = surface_link_upgrade(options);
     if (options.session.tcp_crc_framing) {
       server_options.link.framing = backbone::LinkFraming::cobs_crc32c;
     }
