@@ -31,7 +31,8 @@ struct AdmissionLimits {
 
 struct AdmissionCounters {
   std::uint64_t accepted = 0;
-  std::uint64_t evicted_pending = 0;     // oldest pending closed to make room for a new one
+  std::uint64_t evicted_pending = 0;     // a pending one closed to make room for a new one
+  std::uint64_t evicted_talking = 0;     // ... of which had sent something (all were talking)
   std::uint64_t handshake_timeouts = 0;  // pending past handshake_timeout
   std::uint64_t refused_link_cap = 0;    // admitted beyond max_links: closed instead
   std::uint64_t admitted = 0;
@@ -47,9 +48,14 @@ class AdmissionControl {
 
   explicit AdmissionControl(AdmissionLimits limits);
 
-  // A new connection, pending from now on. Returns the oldest pending connection the caller must
-  // close to make room (it is no longer tracked), if the cap was reached.
-  std::optional<ConnectionId> on_accepted(ConnectionId id, Clock::time_point now);
+  // A new connection, pending from now on; `talking`: its peer has sent something already.
+  // Returns the pending connection the caller must close to make room (it is no longer tracked),
+  // if the cap was reached: the oldest silent one, else the oldest. A real peer speaks at once
+  // (TLS ClientHello, session hello), so connections that only hold a slot go first.
+  std::optional<ConnectionId> on_accepted(ConnectionId id, Clock::time_point now,
+                                          bool talking = false);
+  // The pending connection's peer has sent something.
+  void on_talking(ConnectionId id);
 
   enum class Admission {
     admitted,     // counted against max_links until on_closed
@@ -77,9 +83,13 @@ class AdmissionControl {
 
  private:
   AdmissionLimits limits_;
+  struct Pending {
+    Clock::time_point deadline;
+    bool talking = false;
+  };
   // Pending, by id: ids grow in accept order, so begin() is the oldest (and earliest deadline:
   // every deadline is its accept time plus the same timeout).
-  std::map<ConnectionId, Clock::time_point> pending_;
+  std::map<ConnectionId, Pending> pending_;
   std::set<ConnectionId> admitted_;
   AdmissionCounters counters_;
 };

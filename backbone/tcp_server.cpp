@@ -7,6 +7,7 @@
 #include <boost/asio/post.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <exception>
+#include <tuple>
 
 #include "coro/spawn_owned.hpp"
 
@@ -18,6 +19,8 @@ using asio::ip::tcp;
 namespace {
 constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
 using Clock = AdmissionControl::Clock;
+// Connections taken from the kernel's queue per wake-up; then the loop yields to other work.
+constexpr int kAcceptBatch = 256;
 }  // namespace
 
 std::shared_ptr<TcpServer> TcpServer::create(asio::any_io_executor executor,
@@ -140,42 +143,63 @@ void TcpServer::admitted(const MessageLink& link) {
 }
 
 asio::awaitable<void> TcpServer::accept_loop() {
-  while (!stopped_) {
-    auto [ec, socket] = co_await acceptor_.async_accept(kNoError);
+  boost::system::error_code ec;
+  acceptor_.non_blocking(true, ec);
+  while (!stopped_ && !ec) {
+    // Wait until connections are queued, then take every one queued (up to a batch) at once: a
+    // real peer queued behind a flood must not wait a scheduler turn per connection ahead of it.
+    std::tie(ec) = co_await acceptor_.async_wait(tcp::acceptor::wait_read, kNoError);
+    for (int taken = 0; !stopped_ && !ec && taken < kAcceptBatch; ++taken) {
+      tcp::socket socket(executor_);
+      acceptor_.accept(socket, ec);
+      if (ec == asio::error::would_block || ec == asio::error::try_again) {
+        ec = {};
+        break;
+      }
+      if (!ec) take(std::move(socket));
+    }
     if (stopped_) break;
     if (ec) {
       ++counters_.accept_errors;
       spdlog::warn("backbone: accept on port {} failed: {}", port_, ec.message());
       retry_timer_.expires_after(options_.accept_retry_delay);
       co_await retry_timer_.async_wait(kNoError);
-      continue;
+      ec = {};
     }
-    ++counters_.accepted;
-    auto connection = std::make_shared<Connection>();
-    connection->id = ++next_id_;
-    connections_.emplace(connection->id, connection);
-    if (const auto evicted = admission_.on_accepted(connection->id, Clock::now())) {
-      if (!warned_evicted_) {
-        warned_evicted_ = true;
-        spdlog::warn(
-            "backbone: {} handshakes in progress on port {} (max_pending_handshakes): the oldest "
-            "is closed for each new connection; further evictions are only counted",
-            admission_.limits().max_pending_handshakes, port_);
-      }
-      end_connection(*evicted);
-    }
-    arm_deadline();
-    // Each connection upgrades in its own coroutine, so a slow or silent peer never holds up the
-    // accept loop. The connection outlives the coroutine (its signal is bound to it): the last
-    // reference goes on a later turn of the loop.
-    auto slot = connection->cancel.slot();
-    coro::spawn_owned(executor_, serve(connection, std::move(socket)), slot,
-                      [self = shared_from_this(), connection](const std::string& failure) mutable {
-                        self->connection_done(*connection, failure);
-                        asio::post(self->executor_, [c = std::move(connection)] {});
-                      });
   }
   on_accepted_ = nullptr;  // drops anything the handler captured, e.g. the server itself
+}
+
+void TcpServer::take(tcp::socket socket) {
+  ++counters_.accepted;
+  auto connection = std::make_shared<Connection>();
+  connection->id = ++next_id_;
+  connections_.emplace(connection->id, connection);
+  // A real peer speaks at once (TLS ClientHello, session hello): usually its bytes are here
+  // before we accept it, which protects it from eviction by connections that only hold a slot.
+  boost::system::error_code ignored;
+  const bool talking = socket.available(ignored) > 0;
+  if (const auto evicted = admission_.on_accepted(connection->id, Clock::now(), talking)) {
+    if (!warned_evicted_) {
+      warned_evicted_ = true;
+      spdlog::warn(
+          "backbone: {} handshakes in progress on port {} (max_pending_handshakes): a pending "
+          "one (silent ones first) is closed for each new connection; further evictions are "
+          "only counted",
+          admission_.limits().max_pending_handshakes, port_);
+    }
+    end_connection(*evicted);
+  }
+  arm_deadline();
+  // Each connection waits and upgrades in its own coroutine, so a slow or silent peer never holds
+  // up the accept loop. The connection outlives the coroutine (its signal is bound to it): the
+  // last reference goes on a later turn of the loop.
+  auto slot = connection->cancel.slot();
+  coro::spawn_owned(executor_, serve(connection, std::move(socket), talking), slot,
+                    [self = shared_from_this(), connection](const std::string& failure) mutable {
+                      self->connection_done(*connection, failure);
+                      asio::post(self->executor_, [c = std::move(connection)] {});
+                    });
 }
 
 asio::awaitable<UpgradeResult> TcpServer::upgrade(tcp::socket socket) {
@@ -195,11 +219,21 @@ asio::awaitable<UpgradeResult> TcpServer::upgrade(tcp::socket socket) {
   }
 }
 
-asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, tcp::socket socket) {
+asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, tcp::socket socket,
+                                       bool talking) {
   // Evicted before it ran: the cancellation found nothing to cancel yet.
-  if (stopped_ || !admission_.is_pending(connection->id)) {
-    ++counters_.upgrade_failures;
-    co_return;
+  if (stopped_ || !admission_.is_pending(connection->id)) co_return;
+  if (!talking) {
+    // A silent connection costs only its socket until its peer says something: no link, no
+    // session, no TLS state. Cancelled when evicted or at the deadline.
+    auto [ec] = co_await socket.async_wait(tcp::socket::wait_read, kNoError);
+    if (ec || stopped_ || !admission_.is_pending(connection->id)) co_return;
+    boost::system::error_code ignored;
+    if (socket.available(ignored) == 0) {  // the peer left without a word
+      ++counters_.left_silent;
+      co_return;
+    }
+    admission_.on_talking(connection->id);
   }
   UpgradeResult result = co_await upgrade(std::move(socket));
   const bool ended = stopped_ || !admission_.is_pending(connection->id);

@@ -42,6 +42,7 @@ struct ServerCounters {
   std::uint64_t accepted = 0;
   std::uint64_t accept_errors = 0;
   std::uint64_t upgrade_failures = 0;  // the upgrade (TLS handshake) failed or was cancelled
+  std::uint64_t left_silent = 0;       // the peer closed before it said anything
   AdmissionCounters admission;
 };
 
@@ -95,9 +96,12 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   TcpServer(boost::asio::any_io_executor executor, ServerOptions options);
 
   boost::asio::awaitable<void> accept_loop();
-  // Upgrades the socket, hands the link over and waits until it closes.
+  // Takes one accepted socket under admission control and starts serve() on it.
+  void take(boost::asio::ip::tcp::socket socket);
+  // Waits until a silent peer speaks, upgrades the socket, hands the link over and waits until it
+  // closes.
   boost::asio::awaitable<void> serve(std::shared_ptr<Connection> connection,
-                                     boost::asio::ip::tcp::socket socket);
+                                     boost::asio::ip::tcp::socket socket, bool talking);
   boost::asio::awaitable<UpgradeResult> upgrade(boost::asio::ip::tcp::socket socket);
   // Closes every pending connection past its deadline; one timer for all of them.
   boost::asio::awaitable<void> deadline_loop();

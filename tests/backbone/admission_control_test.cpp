@@ -30,6 +30,23 @@ TEST(AdmissionControl, AcceptsUpToTheCapThenEvictsTheOldestPending) {
   EXPECT_EQ(admission.on_admitted(1), Admission::not_pending);
 }
 
+TEST(AdmissionControl, SilentConnectionsAreEvictedBeforeOnesWhosePeerSpoke) {
+  auto admission = make(3, 10);
+  admission.on_accepted(1, t0, true);  // a gateway's hello was there at accept
+  admission.on_accepted(2, t0);
+  admission.on_accepted(3, t0);
+  admission.on_talking(3);  // spoke later
+  EXPECT_EQ(admission.on_accepted(4, t0), 2u);
+  EXPECT_EQ(admission.on_accepted(5, t0), 4u);
+  EXPECT_EQ(admission.on_accepted(6, t0), 5u);
+  EXPECT_EQ(admission.counters().evicted_talking, 0u);
+  admission.on_talking(6);
+  // Every pending one spoke: the oldest goes.
+  EXPECT_EQ(admission.on_accepted(7, t0, true), 1u);
+  EXPECT_EQ(admission.counters().evicted_talking, 1u);
+  EXPECT_EQ(admission.counters().evicted_pending, 4u);
+}
+
 TEST(AdmissionControl, AdmittedConnectionsLeaveThePendingCapAndAreNeverEvicted) {
   auto admission = make(2, 10);
   admission.on_accepted(1, t0);
