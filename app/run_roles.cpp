@@ -4,6 +4,8 @@
 
 #include <boost/asio/io_context.hpp>
 
+#include "app/admission_from_options.hpp"
+#include "app/open_file_limit.hpp"
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
 #include "app/plain_warning.hpp"
@@ -87,6 +89,26 @@ std::shared_ptr<backbone::TcpClient> tcp_client(asio::any_io_executor ex,
                                      client_options);
 }
 
+// The surface's listener under admission control: the surface tells it which links its sessions
+// bound (no longer pending, counted against max_links), and it has descriptors for a flood.
+std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
+                                                      const config::SurfaceOptions& options,
+                                                      backbone::ServerOptions server_options,
+                                                      Surface& surface) {
+  server_options.admission = admission_limits(options);
+  auto server = backbone::TcpServer::create(std::move(ex), server_options);
+  surface.on_link_bound([weak = std::weak_ptr(server)](const backbone::MessageLink& link) {
+    if (auto s = weak.lock()) s->admitted(link);
+  });
+  const auto& limits = server_options.admission;
+  spdlog::info(
+      "surface {}: admission: {} pending handshakes, {} ms handshake timeout, {} links; {} open "
+      "files",
+      options.name, limits.max_pending_handshakes, limits.handshake_timeout.count(),
+      limits.max_links, raise_open_file_limit());
+  return server;
+}
+
 }  // namespace
 
 int run_gateway(const config::GatewayOptions& options) {
@@ -152,7 +174,7 @@ int run_surface(const config::SurfaceOptions& options) {
     if (options.session.tcp_crc_framing) {
       server_options.link.framing = backbone::LinkFraming::cobs_crc32c;
     }
-    server = backbone::TcpServer::create(io.get_executor(), server_options);
+    server = admitting_server(io.get_executor(), options, server_options, surface);
   }
   std::vector<std::shared_ptr<backbone::SerialClient>> lines;
   for (const auto& line : options.serial) {

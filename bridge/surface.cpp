@@ -153,7 +153,11 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   });
   auto session = backbone::SessionLink::create(
       std::move(link), identity_, tuning_.session, nullptr,
-      [this](const v1::Hello& hello, backbone::SessionLink&) { return bind(hello); },
+      [this](const v1::Hello& hello, backbone::SessionLink& bound) {
+        backbone::BindResult result = bind(hello);
+        if (result.stream && link_bound_) link_bound_(*bound.message_link());
+        return result;
+      },
       counters_.session, &session_log_);
   links_.push_back(session);
   session->start();

@@ -111,6 +111,11 @@ class Surface {
     pdop_observer_ = std::move(observer);
   }
   const RpdopRelay& rpdop_relay() const { return relay_; }
+  // Called with a link once its hello bound it to a gateway, e.g. so the TCP server stops timing
+  // its handshake (backbone::TcpServer::admitted). One observer.
+  void on_link_bound(std::function<void(const backbone::MessageLink&)> observer) {
+    link_bound_ = std::move(observer);
+  }
 
  private:
   struct Gateway;
@@ -177,6 +182,7 @@ class Surface {
   // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
   std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
+  std::function<void(const backbone::MessageLink&)> link_bound_;
   LoopGuard loop_guard_;
   // Frames (TPDOP packets whole) waiting for room on the bus: bursts from the backbone outrun it.
   BusWriter writer_;
