@@ -319,6 +319,16 @@ TEST_F(TlsTest, CertificatesSurfaceWithTheWrongNameIsRefusedByTheGateway) {
   EXPECT_FALSE(server_result->link);
 }
 
+TEST_F(TlsTest, PskGatewayRefusesASurfaceThatAnswersWithACertificateInsteadOfTheKey) {
+  auto certificate_surface = TlsUpgrade::create(certs().credentials("surface", true, {"gw1"}));
+  auto gateway = TlsUpgrade::create(gateway_psk("gw1", {key}));
+  handshake(certificate_surface, gateway);
+  EXPECT_FALSE(client_result->link);
+  EXPECT_TRUE(client_result->error);
+  EXPECT_EQ(gateway->counters().succeeded, 0u);
+  EXPECT_FALSE(server_result->link);
+}
+
 TEST_F(TlsTest, PrivateKeyReadableByOthersIsRefusedAtStartNamingTheFix) {
   TlsCertificates c = certs().credentials("gw1", false, {"surface"});
   const std::string open_copy = certs().path("gw1-open.key.pem");
