@@ -4,10 +4,13 @@
 
 #include <boost/asio/io_context.hpp>
 
+#include "app/admission_from_options.hpp"
+#include "app/open_file_limit.hpp"
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
 #include "app/plain_warning.hpp"
 #include "app/serial_authentication.hpp"
+#include "app/tls_setup.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -79,6 +82,7 @@ std::shared_ptr<backbone::TcpClient> tcp_client(asio::any_io_executor ex,
   backbone::ClientOptions client_options;
   client_options.backoff_min = options.reconnect_min;
   client_options.backoff_max = options.reconnect_max;
+  client_options.upgrade = gateway_link_upgrade(options);
   if (options.session.tcp_crc_framing) {
     client_options.link.framing = backbone::LinkFraming::cobs_crc32c;
   }
@@ -96,6 +100,26 @@ SurfacePolicy surface_policy(const config::SurfaceOptions& options) {
   }
   policy.require_authenticated_peers = options.auth.mode != config::AuthMode::plain;
   return policy;
+}
+
+// The surface's listener under admission control: the surface tells it which links its sessions
+// bound (no longer pending, counted against max_links), and it has descriptors for a flood.
+std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
+                                                      const config::SurfaceOptions& options,
+                                                      backbone::ServerOptions server_options,
+                                                      Surface& surface) {
+  server_options.admission = admission_limits(options);
+  auto server = backbone::TcpServer::create(std::move(ex), server_options);
+  surface.on_link_bound([weak = std::weak_ptr(server)](const backbone::MessageLink& link) {
+    if (auto s = weak.lock()) s->admitted(link);
+  });
+  const auto& limits = server_options.admission;
+  spdlog::info(
+      "surface {}: admission: {} pending handshakes, {} ms handshake timeout, {} links; {} open "
+      "files",
+      options.name, limits.max_pending_handshakes, limits.handshake_timeout.count(),
+      limits.max_links, raise_open_file_limit());
+  return server;
 }
 
 }  // namespace
@@ -162,10 +186,11 @@ int run_surface(const config::SurfaceOptions& options) {
   std::shared_ptr<backbone::TcpServer> server;
   if (!options.listen.host.empty()) {
     backbone::ServerOptions server_options;
+    server_options.upgrade = surface_link_upgrade(options);
     if (options.session.tcp_crc_framing) {
       server_options.link.framing = backbone::LinkFraming::cobs_crc32c;
     }
-    server = backbone::TcpServer::create(io.get_executor(), server_options);
+    server = admitting_server(io.get_executor(), options, server_options, surface);
   }
   std::vector<std::shared_ptr<backbone::SerialClient>> lines;
   for (const auto& line : options.serial) {

@@ -1,6 +1,8 @@
 #include "backbone/stream_link.hpp"
 
 #include <fcntl.h>
+#include <openssl/err.h>
+#include <openssl/ssl.h>
 #include <spdlog/spdlog.h>
 #include <sys/socket.h>
 #include <unistd.h>
@@ -43,6 +45,17 @@ std::shared_ptr<StreamLink> StreamLink::create(tcp::socket socket, StreamLinkOpt
   return link;
 }
 
+std::shared_ptr<StreamLink> StreamLink::create(TlsStream stream, std::string authenticated_peer,
+                                               StreamLinkOptions options) {
+  boost::system::error_code ec;
+  const tcp::endpoint remote = stream.lowest_layer().remote_endpoint(ec);
+  auto link =
+      std::shared_ptr<StreamLink>(new StreamLink(std::move(stream), describe(remote), options));
+  link->remote_ = remote;
+  link->authenticated_peer_ = std::move(authenticated_peer);
+  return link;
+}
+
 std::shared_ptr<StreamLink> StreamLink::create(asio::serial_port port, std::string name,
                                                StreamLinkOptions options) {
   return std::shared_ptr<StreamLink>(new StreamLink(std::move(port), std::move(name), options));
@@ -62,7 +75,7 @@ StreamLink::StreamLink(Stream stream, std::string peer_name, StreamLinkOptions o
   crc_framed_ = options.framing == LinkFraming::cobs_crc32c ||
                 (options.framing == LinkFraming::automatic && is_serial());
   boost::system::error_code ec;
-  if (auto* socket = std::get_if<tcp::socket>(&stream_)) {
+  if (auto* socket = tcp_socket()) {
     // Small, latency-bound messages: the writer already batches, so Nagle would only add delay.
     socket->set_option(tcp::no_delay(true), ec);
     if (ec) spdlog::warn("backbone: TCP_NODELAY on {} failed: {}", peer_name_, ec.message());
@@ -79,7 +92,14 @@ StreamLink::StreamLink(Stream stream, std::string peer_name, StreamLinkOptions o
 }
 
 int StreamLink::native_handle() {
-  return std::visit([](auto& s) { return static_cast<int>(s.native_handle()); }, stream_);
+  if (auto* socket = tcp_socket()) return socket->native_handle();
+  return std::get<asio::serial_port>(stream_).native_handle();
+}
+
+tcp::socket* StreamLink::tcp_socket() noexcept {
+  if (auto* socket = std::get_if<tcp::socket>(&stream_)) return socket;
+  if (auto* tls = std::get_if<TlsStream>(&stream_)) return &tls->next_layer();
+  return nullptr;
 }
 
 StreamLink::~StreamLink() = default;
@@ -112,7 +132,9 @@ void StreamLink::wake_writer() {
   wake_requested_ = true;
   if (!writer_sleeping_) return;  // busy: it calls the source again once its write completes
   writer_sleeping_ = false;       // one wake per sleep, however many wakes
-  if (write_inline()) return;     // nothing to send after all: the writer sleeps on
+  // TLS records are written by the stream's own async machinery only (a raw send would bypass
+  // the encryption), so a TLS writer is always resumed to write.
+  if (!is_tls() && write_inline()) return;  // nothing to send after all: the writer sleeps on
   wake_.cancel();
 }
 
@@ -236,14 +258,10 @@ asio::awaitable<void> StreamLink::read_loop() {
         stream_);
     if (closing_) break;
     if (ec) {
-      if (ec == asio::error::eof) {
-        if (!crc_framed_ && !decoder_.at_message_boundary()) {
-          spdlog::debug("backbone: {} closed in the middle of a message", peer_name_);
-        }
-        end(make_error_code(errc::peer_closed));
-      } else {
-        end(ec);
+      if (ec == asio::error::eof && !crc_framed_ && !decoder_.at_message_boundary()) {
+        spdlog::debug("backbone: {} closed in the middle of a message", peer_name_);
       }
+      end(read_end_reason(ec));
       break;
     }
     counters_.rx_bytes += n;
@@ -300,6 +318,20 @@ asio::awaitable<void> StreamLink::write_loop() {
   }
 }
 
+std::error_code StreamLink::read_end_reason(const boost::system::error_code& ec) const {
+  // A TLS peer closes without close_notify (as this end does): that is an ordinary close.
+  if (ec == asio::error::eof || ec == asio::ssl::error::stream_truncated) {
+    return make_error_code(errc::peer_closed);
+  }
+  // A TLS alert before any message: the peer's last check of the handshake refused us (a TLS 1.3
+  // server checks the client's certificate after the client considers the handshake done).
+  if (is_tls() && counters_.rx_messages == 0 && ec.category() == asio::error::get_ssl_category() &&
+      ERR_GET_REASON(static_cast<unsigned long>(ec.value())) >= SSL_AD_REASON_OFFSET) {
+    return make_error_code(errc::refused_by_peer);
+  }
+  return ec;
+}
+
 void StreamLink::report_handler_error(const std::string& what) {
   spdlog::error("backbone: handler on link {} threw: {}", peer_name_, what);
 }
@@ -324,7 +356,13 @@ void StreamLink::end(std::error_code reason) {
   counters_.close_reason = reason;
   spdlog::debug("backbone: link {} ends: {}", peer_name_, reason.message());
   boost::system::error_code ignored;
-  std::visit([&](auto& s) { s.close(ignored); }, stream_);  // aborts a pending read or write
+  // Aborts a pending read or write. A TLS link closes its socket without waiting for the
+  // peer's close_notify: a dead peer would never send it.
+  if (auto* socket = tcp_socket()) {
+    socket->close(ignored);
+  } else {
+    std::get<asio::serial_port>(stream_).close(ignored);
+  }
   writer_sleeping_ = false;
   wake_.cancel();
   resume_.cancel();

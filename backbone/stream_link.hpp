@@ -1,13 +1,14 @@
-// The MessageLink over a byte stream (a TCP connection or a serial line): a reader loop that
-// splits the stream into messages and a writer loop that batches whatever the source has queued,
-// sending inline from wake_writer() when idle. TCP frames messages by length prefix; a serial
-// line, which can corrupt, lose or cut bytes, frames them with COBS + CRC-32C and resynchronises
-// after damage.
+// The MessageLink over a byte stream (a TCP connection, plain or TLS, or a serial line): a reader
+// loop that splits the stream into messages and a writer loop that batches whatever the source
+// has queued, sending inline from wake_writer() when idle (plain TCP and serial). TCP frames
+// messages by length prefix; a serial line, which can corrupt, lose or cut bytes, frames them with
+// COBS + CRC-32C and resynchronises after damage.
 #pragma once
 
 #include <boost/asio/awaitable.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/serial_port.hpp>
+#include <boost/asio/ssl/stream.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <cstdint>
 #include <functional>
@@ -47,6 +48,11 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   // Takes over a connected socket; sets TCP_NODELAY and the socket buffer sizes.
   static std::shared_ptr<StreamLink> create(boost::asio::ip::tcp::socket socket,
                                             StreamLinkOptions options = {});
+  // Takes over a TLS stream whose handshake is done (backbone/tls_upgrade.hpp); sets TCP_NODELAY
+  // and the buffer sizes on its socket. `authenticated_peer` is the identity the handshake proved.
+  static std::shared_ptr<StreamLink> create(
+      boost::asio::ssl::stream<boost::asio::ip::tcp::socket> stream, std::string authenticated_peer,
+      StreamLinkOptions options = {});
   // Takes over an open, configured serial port (or pty); `name` is the device, for logs.
   static std::shared_ptr<StreamLink> create(boost::asio::serial_port port, std::string name,
                                             StreamLinkOptions options = {});
@@ -77,17 +83,21 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   const std::string& peer_name() const noexcept override { return peer_name_; }
   // COBS + CRC-32C framed: serial lines, or TCP across a lossy path (LinkFraming::cobs_crc32c).
   bool crc_framed() const noexcept override { return crc_framed_; }
+  // The identity a TLS handshake proved; empty on plain TCP and serial links.
+  const std::string& authenticated_peer() const noexcept override { return authenticated_peer_; }
 
   // The TCP peer (an empty endpoint on a serial link).
   const boost::asio::ip::tcp::endpoint& remote_endpoint() const noexcept { return remote_; }
   bool is_serial() const noexcept {
     return std::holds_alternative<boost::asio::serial_port>(stream_);
   }
+  bool is_tls() const noexcept { return std::holds_alternative<TlsStream>(stream_); }
   // For socket options and diagnostics only; never read or write through it.
   int native_handle();
 
  private:
-  using Stream = std::variant<boost::asio::ip::tcp::socket, boost::asio::serial_port>;
+  using TlsStream = boost::asio::ssl::stream<boost::asio::ip::tcp::socket>;
+  using Stream = std::variant<boost::asio::ip::tcp::socket, boost::asio::serial_port, TlsStream>;
   StreamLink(Stream stream, std::string peer_name, StreamLinkOptions options);
 
   // Turns the delimited messages the source appended to staging_ into serial frames.
@@ -106,11 +116,16 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   void report_handler_error(const std::string& what);
   bool write_inline();
   void write_done();
+  // The TCP socket under a plain or TLS stream; null on a serial link.
+  boost::asio::ip::tcp::socket* tcp_socket() noexcept;
+  // Why a read ended, in the link's terms.
+  std::error_code read_end_reason(const boost::system::error_code& ec) const;
 
   Stream stream_;
   StreamLinkOptions options_;
   boost::asio::ip::tcp::endpoint remote_;
   std::string peer_name_;
+  std::string authenticated_peer_;
   DelimitedDecoder decoder_;  // TCP framing
   SerialDeframer deframer_;   // serial framing
   std::string staging_;       // serial: the source's delimited messages before framing

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
+#include <boost/asio/bind_cancellation_slot.hpp>
+#include <boost/asio/co_spawn.hpp>
 #include <boost/asio/connect.hpp>
 #include <boost/asio/use_awaitable.hpp>
 
@@ -60,6 +62,7 @@ void TcpClient::stop() {
   socket_.close(ignored);
   deadline_.cancel();
   backoff_timer_.cancel();
+  upgrade_cancel_.emit(asio::cancellation_type::terminal);
   if (link_) link_->close();
 }
 
@@ -82,7 +85,9 @@ asio::awaitable<void> TcpClient::run() {
 
     ++counters_.connects;
     failing_ = false;
-    auto link = StreamLink::create(std::move(socket_), options_.link);
+    auto link =
+        upgraded_ ? std::move(upgraded_) : StreamLink::create(std::move(socket_), options_.link);
+    upgraded_.reset();
     socket_ = tcp::socket(executor_);
     // While refused, each attempt connects: the refusal (logged once) is the news, not that.
     spdlog::log(refused_ ? spdlog::level::debug : spdlog::level::info,
@@ -123,6 +128,7 @@ asio::awaitable<std::error_code> TcpClient::connect_once() {
     self->resolver_.cancel();
     boost::system::error_code ignored;
     self->socket_.close(ignored);
+    self->upgrade_cancel_.emit(asio::cancellation_type::terminal);
   });
 
   auto [resolve_ec, endpoints] = co_await resolver_.async_resolve(
@@ -133,6 +139,7 @@ asio::awaitable<std::error_code> TcpClient::connect_once() {
     ++counters_.attempts;
     auto [connect_ec, endpoint] = co_await asio::async_connect(socket_, endpoints, kNoError);
     result = connect_ec;
+    if (!result && options_.upgrade && !stopped_) result = co_await upgrade();
   }
   ++attempt_;  // a deadline expiry already queued must not touch the next attempt's socket
   deadline_.cancel();
@@ -140,6 +147,21 @@ asio::awaitable<std::error_code> TcpClient::connect_once() {
     result = std::make_error_code(std::errc::timed_out);
   }
   co_return result;
+}
+
+asio::awaitable<std::error_code> TcpClient::upgrade() {
+  // Spawned so that the deadline and stop() can cancel it through upgrade_cancel_, whatever the
+  // upgrade awaits inside.
+  auto [failure, result] =
+      co_await asio::co_spawn(executor_, options_.upgrade(std::move(socket_), options_.link),
+                              asio::bind_cancellation_slot(upgrade_cancel_.slot(), kNoError));
+  upgrade_cancel_.slot().clear();
+  socket_ = tcp::socket(executor_);
+  if (failure) co_return std::make_error_code(std::errc::protocol_error);  // it threw
+  if (!result.link && !result.error) co_return std::make_error_code(std::errc::protocol_error);
+  if (result.error) co_return result.error;
+  upgraded_ = std::move(result.link);
+  co_return std::error_code{};
 }
 
 asio::awaitable<void> TcpClient::back_off() {

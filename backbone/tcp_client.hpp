@@ -4,6 +4,7 @@
 
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
+#include <boost/asio/cancellation_signal.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <chrono>
@@ -12,8 +13,8 @@
 #include <memory>
 #include <string>
 
-#include "backbone/reconnect_backoff.hpp"
 #include "backbone/link_upgrade.hpp"
+#include "backbone/reconnect_backoff.hpp"
 #include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
@@ -27,14 +28,15 @@ struct ClientOptions {
   // Bounds resolve + connect, so a silently dropped SYN does not stall reconnection for minutes.
   std::chrono::milliseconds connect_timeout{5000};
   StreamLinkOptions link;
-  // Plain when empty; the TLS handshake otherwise (backbone/tls_*). Bounded by connect_timeout.
+  // Plain when empty; the TLS handshake otherwise (backbone/tls_*). Bounded by connect_timeout;
+  // a failed upgrade backs off like a failed connect.
   LinkUpgrade upgrade;
 };
 
 struct ClientCounters {
   std::uint64_t attempts = 0;  // connects begun (after a successful resolve)
   std::uint64_t connects = 0;
-  std::uint64_t connect_failures = 0;  // failed resolves, refused/timed-out connects
+  std::uint64_t connect_failures = 0;  // failed resolves, refused/timed-out connects or upgrades
 };
 
 // Not thread-safe: call every member on the executor's thread.
@@ -67,6 +69,8 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
 
   boost::asio::awaitable<void> run();
   boost::asio::awaitable<std::error_code> connect_once();
+  // Runs options_.upgrade on socket_ into upgraded_, cancelled by upgrade_cancel_.
+  boost::asio::awaitable<std::error_code> upgrade();
   boost::asio::awaitable<void> back_off();
 
   boost::asio::any_io_executor executor_;
@@ -77,6 +81,8 @@ class TcpClient : public std::enable_shared_from_this<TcpClient> {
   boost::asio::ip::tcp::socket socket_;  // the connection being attempted
   boost::asio::steady_timer deadline_;   // connect_timeout of the current attempt
   boost::asio::steady_timer backoff_timer_;
+  boost::asio::cancellation_signal upgrade_cancel_;  // deadline or stop() during the upgrade
+  std::shared_ptr<StreamLink> upgraded_;             // the link the upgrade made
   ReconnectBackoff backoff_;
   ConnectedHandler on_connected_;
   std::shared_ptr<StreamLink> link_;

@@ -4,7 +4,10 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
+#include <boost/asio/post.hpp>
 #include <boost/asio/use_awaitable.hpp>
+#include <exception>
+#include <tuple>
 
 #include "coro/spawn_owned.hpp"
 
@@ -15,18 +18,23 @@ using asio::ip::tcp;
 
 namespace {
 constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
-}
+using Clock = AdmissionControl::Clock;
+// Connections taken from the kernel's queue per wake-up; then the loop yields to other work.
+constexpr int kAcceptBatch = 256;
+}  // namespace
 
 std::shared_ptr<TcpServer> TcpServer::create(asio::any_io_executor executor,
                                              ServerOptions options) {
-  return std::shared_ptr<TcpServer>(new TcpServer(std::move(executor), options));
+  return std::shared_ptr<TcpServer>(new TcpServer(std::move(executor), std::move(options)));
 }
 
 TcpServer::TcpServer(asio::any_io_executor executor, ServerOptions options)
     : executor_(std::move(executor)),
-      options_(options),
+      options_(std::move(options)),
       acceptor_(executor_),
-      retry_timer_(executor_) {}
+      retry_timer_(executor_),
+      deadline_timer_(executor_, asio::steady_timer::time_point::max()),
+      admission_(options_.admission) {}
 
 TcpServer::~TcpServer() = default;
 
@@ -50,7 +58,7 @@ std::error_code TcpServer::start(const tcp::endpoint& endpoint, AcceptedHandler 
                          ec);
   }
   if (!ec) acceptor_.bind(endpoint, ec);
-  if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
+  if (!ec) acceptor_.listen(std::max(options_.listen_backlog, 1), ec);
   if (!ec) port_ = acceptor_.local_endpoint(ec).port();
   if (ec) {
     boost::system::error_code ignored;
@@ -61,15 +69,16 @@ std::error_code TcpServer::start(const tcp::endpoint& endpoint, AcceptedHandler 
   started_ = true;
   on_accepted_ = std::move(on_accepted);
   spdlog::info("backbone: listening on {}:{}", endpoint.address().to_string(), port_);
-  // The loop holds the server alive until stop() lets it finish; if it fails (a handler threw),
-  // the server says why and stops: its links close, and nothing is left half-listening.
-  coro::spawn_owned(
-      executor_, accept_loop(), [self = shared_from_this()](const std::string& failure) {
-        if (failure.empty()) return;
-        spdlog::error("backbone: server on port {} stopped: {}", self->port_, failure);
-        self->stop();
-        self->on_accepted_ = nullptr;
-      });
+  // The loops hold the server alive until stop() lets them finish; if one fails (a handler
+  // threw), the server says why and stops: its links close, and nothing is left half-listening.
+  auto on_end = [self = shared_from_this()](const std::string& failure) {
+    if (failure.empty()) return;
+    spdlog::error("backbone: server on port {} stopped: {}", self->port_, failure);
+    self->stop();
+    self->on_accepted_ = nullptr;
+  };
+  coro::spawn_owned(executor_, accept_loop(), on_end);
+  coro::spawn_owned(executor_, deadline_loop(), on_end);
   return {};
 }
 
@@ -79,46 +88,214 @@ void TcpServer::stop() {
   boost::system::error_code ignored;
   acceptor_.close(ignored);
   retry_timer_.cancel();
-  for (auto& weak : links_) {
-    if (auto link = weak.lock()) link->close();
+  deadline_timer_.cancel();
+  // Each connection's coroutine ends on its own once cancelled or its link closed, and erases it.
+  for (auto& [id, connection] : std::unordered_map(connections_)) {
+    admission_.on_closed(id);
+    cancel(*connection);
   }
-  links_.clear();
+}
+
+void TcpServer::cancel(Connection& connection) {
+  if (connection.link) {
+    connection.link->close();
+  } else if (!connection.cancelled) {
+    connection.cancelled = true;
+    connection.cancel.emit(asio::cancellation_type::terminal);
+  }
+}
+
+ServerCounters TcpServer::counters() const {
+  ServerCounters counters = counters_;
+  counters.admission = admission_.counters();
+  return counters;
 }
 
 std::vector<std::shared_ptr<StreamLink>> TcpServer::links() const {
   std::vector<std::shared_ptr<StreamLink>> live;
-  for (const auto& weak : links_) {
-    if (auto link = weak.lock(); link && link->is_open()) live.push_back(std::move(link));
+  for (const auto& [id, connection] : connections_) {
+    if (connection->link && connection->link->is_open()) live.push_back(connection->link);
   }
   return live;
 }
 
+void TcpServer::admitted(const MessageLink& link) {
+  const auto it = std::find_if(connections_.begin(), connections_.end(),
+                               [&](const auto& c) { return c.second->link.get() == &link; });
+  if (it == connections_.end()) return;  // not ours (a serial line), or gone already
+  Connection& connection = *it->second;
+  switch (admission_.on_admitted(connection.id)) {
+    case AdmissionControl::Admission::admitted:
+      return;
+    case AdmissionControl::Admission::refused:
+      if (!warned_link_cap_) {
+        warned_link_cap_ = true;
+        spdlog::warn(
+            "backbone: {} links are bound already (max_links): {} closed; further refusals are "
+            "only counted",
+            admission_.limits().max_links, connection.link->peer_name());
+      }
+      break;
+    case AdmissionControl::Admission::not_pending:
+      break;  // timed out or evicted in the meantime: closing already
+  }
+  connection.link->close();
+}
+
 asio::awaitable<void> TcpServer::accept_loop() {
-  while (!stopped_) {
-    auto [ec, socket] = co_await acceptor_.async_accept(kNoError);
+  boost::system::error_code ec;
+  acceptor_.non_blocking(true, ec);
+  while (!stopped_ && !ec) {
+    // Wait until connections are queued, then take every one queued (up to a batch) at once: a
+    // real peer queued behind a flood must not wait a scheduler turn per connection ahead of it.
+    std::tie(ec) = co_await acceptor_.async_wait(tcp::acceptor::wait_read, kNoError);
+    for (int taken = 0; !stopped_ && !ec && taken < kAcceptBatch; ++taken) {
+      tcp::socket socket(executor_);
+      acceptor_.accept(socket, ec);
+      if (ec == asio::error::would_block || ec == asio::error::try_again) {
+        ec = {};
+        break;
+      }
+      if (!ec) take(std::move(socket));
+    }
     if (stopped_) break;
     if (ec) {
       ++counters_.accept_errors;
       spdlog::warn("backbone: accept on port {} failed: {}", port_, ec.message());
       retry_timer_.expires_after(options_.accept_retry_delay);
       co_await retry_timer_.async_wait(kNoError);
-      continue;
-    }
-    ++counters_.accepted;
-    auto link = StreamLink::create(std::move(socket), options_.link);
-    spdlog::info("backbone: accepted {}", link->peer_name());
-    std::erase_if(links_, [](const std::weak_ptr<StreamLink>& weak) {
-      auto live = weak.lock();
-      return !live || !live->is_open();
-    });
-    links_.push_back(link);
-    if (on_accepted_) on_accepted_(link);
-    if (!link->started()) {
-      spdlog::error("backbone: accepted handler did not start the link");
-      link->close();
+      ec = {};
     }
   }
   on_accepted_ = nullptr;  // drops anything the handler captured, e.g. the server itself
+}
+
+void TcpServer::take(tcp::socket socket) {
+  ++counters_.accepted;
+  auto connection = std::make_shared<Connection>();
+  connection->id = ++next_id_;
+  connections_.emplace(connection->id, connection);
+  // A real peer speaks at once (TLS ClientHello, session hello): usually its bytes are here
+  // before we accept it, which protects it from eviction by connections that only hold a slot.
+  boost::system::error_code ignored;
+  const bool talking = socket.available(ignored) > 0;
+  if (const auto evicted = admission_.on_accepted(connection->id, Clock::now(), talking)) {
+    if (!warned_evicted_) {
+      warned_evicted_ = true;
+      spdlog::warn(
+          "backbone: {} handshakes in progress on port {} (max_pending_handshakes): a pending "
+          "one (silent ones first) is closed for each new connection; further evictions are "
+          "only counted",
+          admission_.limits().max_pending_handshakes, port_);
+    }
+    end_connection(*evicted);
+  }
+  arm_deadline();
+  // Each connection waits and upgrades in its own coroutine, so a slow or silent peer never holds
+  // up the accept loop. The connection outlives the coroutine (its signal is bound to it): the
+  // last reference goes on a later turn of the loop.
+  auto slot = connection->cancel.slot();
+  coro::spawn_owned(executor_, serve(connection, std::move(socket), talking), slot,
+                    [self = shared_from_this(), connection](const std::string& failure) mutable {
+                      self->connection_done(*connection, failure);
+                      asio::post(self->executor_, [c = std::move(connection)] {});
+                    });
+}
+
+asio::awaitable<UpgradeResult> TcpServer::upgrade(tcp::socket socket) {
+  if (!options_.upgrade) {
+    co_return UpgradeResult{StreamLink::create(std::move(socket), options_.link), {}};
+  }
+  // The upgrade is code of its own (TLS): whatever it throws, cancellation included (a co_await
+  // after the deadline cancelled it throws operation_aborted), fails this one connection only.
+  try {
+    co_return co_await options_.upgrade(std::move(socket), options_.link);
+  } catch (const boost::system::system_error& e) {
+    co_return UpgradeResult{nullptr, e.code()};
+  } catch (const std::system_error& e) {
+    co_return UpgradeResult{nullptr, e.code()};
+  } catch (const std::exception&) {
+    co_return UpgradeResult{nullptr, std::make_error_code(std::errc::protocol_error)};
+  }
+}
+
+asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, tcp::socket socket,
+                                       bool talking) {
+  // Evicted before it ran: the cancellation found nothing to cancel yet.
+  if (stopped_ || !admission_.is_pending(connection->id)) co_return;
+  if (!talking) {
+    // A silent connection costs only its socket until its peer says something: no link, no
+    // session, no TLS state. Cancelled when evicted or at the deadline.
+    auto [ec] = co_await socket.async_wait(tcp::socket::wait_read, kNoError);
+    if (ec || stopped_ || !admission_.is_pending(connection->id)) co_return;
+    boost::system::error_code ignored;
+    if (socket.available(ignored) == 0) {  // the peer left without a word
+      ++counters_.left_silent;
+      co_return;
+    }
+    admission_.on_talking(connection->id);
+  }
+  UpgradeResult result = co_await upgrade(std::move(socket));
+  const bool ended = stopped_ || !admission_.is_pending(connection->id);
+  if (!result.link || ended) {
+    ++counters_.upgrade_failures;
+    if (result.link) result.link->close();
+    spdlog::debug("backbone: connection {} ended before its handshake completed: {}",
+                  connection->id, result.error ? result.error.message() : "evicted or timed out");
+    co_return;
+  }
+  std::shared_ptr<StreamLink> link = std::move(result.link);
+  connection->link = link;
+  spdlog::debug("backbone: accepted {}", link->peer_name());
+  if (on_accepted_) on_accepted_(link);
+  if (!link->started()) {
+    spdlog::error("backbone: accepted handler did not start the link");
+    link->close();
+  }
+  co_await link->async_wait_closed();
+}
+
+void TcpServer::connection_done(const Connection& connection, const std::string& failure) {
+  admission_.on_closed(connection.id);
+  connections_.erase(connection.id);
+  if (failure.empty()) return;
+  if (connection.cancelled) {
+    // A coroutine cancelled before it ran ends with operation_aborted at its first co_await.
+    spdlog::debug("backbone: connection {} cancelled: {}", connection.id, failure);
+    return;
+  }
+  // The handler threw: a bug, which stops the server as one in the accept loop would.
+  spdlog::error("backbone: server on port {} stopped: {}", port_, failure);
+  stop();
+  on_accepted_ = nullptr;
+}
+
+asio::awaitable<void> TcpServer::deadline_loop() {
+  while (!stopped_) {
+    co_await deadline_timer_.async_wait(kNoError);  // also wakes when arm_deadline() moves it
+    if (stopped_) break;
+    const auto expired = admission_.expired(Clock::now());
+    if (!expired.empty() && !warned_timeout_) {
+      warned_timeout_ = true;
+      spdlog::warn(
+          "backbone: a connection on port {} did not complete its handshake within {} ms: "
+          "closed; further timeouts are only counted",
+          port_, admission_.limits().handshake_timeout.count());
+    }
+    for (ConnectionId id : expired) end_connection(id);
+    deadline_timer_.expires_at(admission_.next_deadline().value_or(Clock::time_point::max()));
+  }
+}
+
+void TcpServer::arm_deadline() {
+  const auto next = admission_.next_deadline();
+  if (next && *next < deadline_timer_.expiry()) deadline_timer_.expires_at(*next);
+}
+
+void TcpServer::end_connection(ConnectionId id) {
+  const auto it = connections_.find(id);
+  if (it == connections_.end()) return;
+  cancel(*it->second);
 }
 
 }  // namespace canbridge::backbone

@@ -1,8 +1,10 @@
-// Accepts backbone connections on one address and hands each as a StreamLink to the user.
+// Accepts backbone connections on one address and hands each as a StreamLink to the user, under
+// admission control: handshakes in progress are capped and time out, admitted links are capped.
 #pragma once
 
 #include <boost/asio/any_io_executor.hpp>
 #include <boost/asio/awaitable.hpp>
+#include <boost/asio/cancellation_signal.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <chrono>
@@ -11,8 +13,10 @@
 #include <memory>
 #include <string>
 #include <system_error>
+#include <unordered_map>
 #include <vector>
 
+#include "backbone/admission_control.hpp"
 #include "backbone/link_upgrade.hpp"
 #include "backbone/stream_link.hpp"
 
@@ -24,18 +28,30 @@ struct ServerOptions {
   std::chrono::milliseconds accept_retry_delay{100};
   // Plain when empty; the TLS handshake otherwise (backbone/tls_*).
   LinkUpgrade upgrade;
+  // A connection is pending from accept until admitted() (TLS and session hello done); see
+  // AdmissionControl for the caps and the deadline. The surface's process sets them from its
+  // config; unlimited here for owners that never call admitted() (tests, benches).
+  AdmissionLimits admission = AdmissionLimits::unlimited();
+  // Connections the kernel queues before accept(); large, so a flood of connects does not make a
+  // real peer's SYN wait (the accept loop drains the queue quickly). The kernel caps it at
+  // net.core.somaxconn.
+  int listen_backlog = 4096;
 };
 
 struct ServerCounters {
   std::uint64_t accepted = 0;
   std::uint64_t accept_errors = 0;
+  std::uint64_t upgrade_failures = 0;  // the upgrade (TLS handshake) failed or was cancelled
+  std::uint64_t left_silent = 0;       // the peer closed before it said anything
+  AdmissionCounters admission;
 };
 
 // Not thread-safe: call every member on the executor's thread.
 class TcpServer : public std::enable_shared_from_this<TcpServer> {
  public:
-  // Called with every accepted link; the handler must call link->start(...) (a link it does not
-  // start is closed).
+  // Called with every accepted link once upgraded; the handler must call link->start(...) (a link
+  // it does not start is closed). The link stays pending (and is closed at the handshake
+  // deadline) until admitted(link) is called.
   using AcceptedHandler = std::function<void(std::shared_ptr<StreamLink> link)>;
 
   static std::shared_ptr<TcpServer> create(boost::asio::any_io_executor executor,
@@ -54,24 +70,61 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   // Closes the acceptor and every live link; nothing of the server stays pending. Idempotent.
   void stop();
 
+  // The owner accepted this link's peer (its session is bound): it is no longer pending, and
+  // counts against max_links (a link beyond it is closed here). Links not from this server (a
+  // serial line) are ignored.
+  void admitted(const MessageLink& link);
+
   // The bound port (the real one when started with port 0); 0 before a successful start().
   std::uint16_t port() const noexcept { return port_; }
-  ServerCounters counters() const { return counters_; }
+  ServerCounters counters() const;
   // Links accepted and not yet closed.
   std::vector<std::shared_ptr<StreamLink>> links() const;
+  // Connections accepted whose coroutine still runs (upgrading, pending or admitted, or closing).
+  std::size_t connections() const noexcept { return connections_.size(); }
 
  private:
+  using ConnectionId = AdmissionControl::ConnectionId;
+  // One accepted socket: its upgrade, then its link until the link closes. Small on purpose.
+  struct Connection {
+    ConnectionId id = 0;
+    boost::asio::cancellation_signal cancel;  // ends the upgrade (eviction, deadline, stop)
+    std::shared_ptr<StreamLink> link;         // once upgraded and handed to the user
+    bool cancelled = false;                   // `cancel` was emitted
+  };
+
   TcpServer(boost::asio::any_io_executor executor, ServerOptions options);
 
   boost::asio::awaitable<void> accept_loop();
+  // Takes one accepted socket under admission control and starts serve() on it.
+  void take(boost::asio::ip::tcp::socket socket);
+  // Waits until a silent peer speaks, upgrades the socket, hands the link over and waits until it
+  // closes.
+  boost::asio::awaitable<void> serve(std::shared_ptr<Connection> connection,
+                                     boost::asio::ip::tcp::socket socket, bool talking);
+  boost::asio::awaitable<UpgradeResult> upgrade(boost::asio::ip::tcp::socket socket);
+  // Closes every pending connection past its deadline; one timer for all of them.
+  boost::asio::awaitable<void> deadline_loop();
+  void arm_deadline();
+  // Ends a connection admission gave up on: cancels its upgrade or closes its link.
+  void end_connection(ConnectionId id);
+  void cancel(Connection& connection);
+  void connection_done(const Connection& connection, const std::string& failure);
 
   boost::asio::any_io_executor executor_;
   ServerOptions options_;
   boost::asio::ip::tcp::acceptor acceptor_;
   boost::asio::steady_timer retry_timer_;
+  boost::asio::steady_timer deadline_timer_;
   AcceptedHandler on_accepted_;
-  std::vector<std::weak_ptr<StreamLink>> links_;
+  AdmissionControl admission_;
+  // Every connection whose coroutine runs; erased when it ends, so nothing outlives a close.
+  std::unordered_map<ConnectionId, std::shared_ptr<Connection>> connections_;
+  ConnectionId next_id_ = 0;
   ServerCounters counters_;
+  bool warned_evicted_ = false;  // each said once, then only counted
+  bool warned_timeout_ = false;
+  bool warned_link_cap_ = false;
   std::uint16_t port_ = 0;
   bool started_ = false;
   bool stopped_ = false;

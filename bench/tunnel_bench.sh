@@ -8,11 +8,12 @@
 # older canbridge executable (path "before"), so a change is compared with its baseline in the
 # same boot, against the same raw ceiling.
 #
-# Per run, three paths (four with a baseline) carry a 100,000-frame `cangen -g 0` burst (id 0x181, 8 bytes, counter
+# Per run, four paths (five with a baseline) carry a 100,000-frame `cangen -g 0` burst (id 0x181, 8 bytes, counter
 # payload) to a receiver that counts loss and order (bench/can_counter):
 #   raw    cangen vcan0 -> receiver on vcan0                      (the ceiling)
 #   can-gw cangen vcan1 -> kernel can-gw -> vcan0                 (in-kernel reference)
 #   tunnel cangen vcan1 -> canbridge gateway -> TCP -> canbridge surface -> vcan0
+#   tls    the same over TLS 1.3 with a pre-shared key (auth mode psk, key made per boot)
 # and then a paced 2,000-frame run (cangen -g 1, about 1,000 frames/s) measures one-way latency
 # from the module bus to the surface bus with kernel receive timestamps on both.
 # Prints each run and the medians; rates are also given as a ratio of the raw rate of the same run.
@@ -30,7 +31,7 @@ fi
 counter=$build/bench/can_counter
 canbridge=$build/app/canbridge
 baseline=${CANBRIDGE_BASELINE:-}
-paths="raw cangw tunnel"
+paths="raw cangw tunnel tls"
 [[ -n $baseline ]] && paths="$paths before"
 work=$(mktemp -d /tmp/canbridge-bench.XXXXXX)
 trap 'kill $(jobs -p) 2>/dev/null || true; rm -rf "$work"' EXIT
@@ -77,6 +78,14 @@ modules:
   - {id: 0, bus: vcan1}
 log: {level: info, stats_interval_s: 0}
 YAML
+# The same pair over TLS 1.3 PSK (issue 15's cost): a key made for this boot only.
+mkdir -p "$work/tls"
+(umask 077 && openssl rand -hex 32 >"$work/tls/bench-gw.key")
+sed -e 's|auth: {mode: plain}|auth: {mode: psk}|' \
+  -e "s|gateways: \[{name: bench-gw, modules: \[0\]}\]|gateways: [{name: bench-gw, modules: [0], key_file: $work/tls/bench-gw.key}]|" \
+  "$work/surface.yaml" >"$work/tls/surface.yaml"
+sed -e "s|auth: {mode: plain}|auth: {mode: psk, key_file: $work/tls/bench-gw.key}|" \
+  "$work/gateway.yaml" >"$work/tls/gateway.yaml"
 # A baseline from before issue 15 knows neither 'auth' nor 'gateways' (and refuses unknown keys).
 mkdir -p "$work/before"
 for role in surface gateway; do
@@ -96,6 +105,7 @@ for ((r = 1; r <= runs; r++)); do
   tunnel_path() {
     local name=$1 exe=$2 configs=$work
     [[ $name == before ]] && configs=$work/before
+    [[ $name == tls ]] && configs=$work/tls
     "$exe" surface --config "$configs/surface.yaml" >"$work/${name}-surface.log" 2>&1 &
     local spid=$!
     wait_line "$work/${name}-surface.log" listening
@@ -108,6 +118,7 @@ for ((r = 1; r <= runs; r++)); do
     kill -TERM $gpid $spid; wait $gpid $spid || true
   }
   tunnel_path tunnel "$canbridge"
+  tunnel_path tls "$canbridge"
   [[ -n $baseline ]] && tunnel_path before "$baseline"
 
   raw_rate=$(val raw rate_fps)
@@ -120,6 +131,7 @@ for ((r = 1; r <= runs; r++)); do
       "$(val $paced_name latency_us_p99)" "$(val $paced_name latency_us_max)" | tee -a "$work/table"
   done
   grep -h "kernel-drops\|dropped" "$work/tunnel-gateway.log" "$work/tunnel-surface.log" | tail -2 | sed 's/^/     /'
+  grep -h "TLS handshake.*failed" "$work/tls-gateway.log" "$work/tls-surface.log" | head -2 | sed 's/^/     /' || true
 done
 
 echo

@@ -5,6 +5,8 @@
 #pragma once
 
 #include <boost/asio/awaitable.hpp>
+#include <boost/asio/bind_cancellation_slot.hpp>
+#include <boost/asio/cancellation_signal.hpp>
 #include <boost/asio/co_spawn.hpp>
 #include <exception>
 #include <string>
@@ -34,6 +36,18 @@ void spawn_owned(Executor&& executor, boost::asio::awaitable<void> task, OnEnd o
                         [on_end = std::move(on_end)](std::exception_ptr error) mutable {
                           on_end(describe_exception(error));
                         });
+}
+
+// The same, cancellable: emitting on the signal that owns `slot` cancels what the coroutine is
+// awaiting (e.g. a handshake past its deadline). That signal must outlive the coroutine.
+template <typename Executor, typename OnEnd>
+void spawn_owned(Executor&& executor, boost::asio::awaitable<void> task,
+                 boost::asio::cancellation_slot slot, OnEnd on_end) {
+  boost::asio::co_spawn(std::forward<Executor>(executor), std::move(task),
+                        boost::asio::bind_cancellation_slot(
+                            slot, [on_end = std::move(on_end)](std::exception_ptr error) mutable {
+                              on_end(describe_exception(error));
+                            }));
 }
 
 // The same for a loop that ends by returning an error (a bus gone for good): its message is the

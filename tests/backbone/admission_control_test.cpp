@@ -1,0 +1,120 @@
+#include "backbone/admission_control.hpp"
+
+#include <gtest/gtest.h>
+
+namespace canbridge::backbone {
+namespace {
+
+using namespace std::chrono_literals;
+using Admission = AdmissionControl::Admission;
+using Ids = std::vector<AdmissionControl::ConnectionId>;
+
+const AdmissionControl::Clock::time_point t0{};
+
+AdmissionControl make(std::size_t max_pending, std::size_t max_links) {
+  return AdmissionControl({max_pending, 2000ms, max_links});
+}
+
+TEST(AdmissionControl, AcceptsUpToTheCapThenEvictsTheOldestPending) {
+  auto admission = make(3, 10);
+  EXPECT_EQ(admission.on_accepted(1, t0), std::nullopt);
+  EXPECT_EQ(admission.on_accepted(2, t0 + 1ms), std::nullopt);
+  EXPECT_EQ(admission.on_accepted(3, t0 + 2ms), std::nullopt);
+  EXPECT_EQ(admission.on_accepted(4, t0 + 3ms), 1u);
+  EXPECT_EQ(admission.on_accepted(5, t0 + 4ms), 2u);
+  EXPECT_EQ(admission.pending(), 3u);
+  EXPECT_EQ(admission.counters().accepted, 5u);
+  EXPECT_EQ(admission.counters().evicted_pending, 2u);
+  EXPECT_EQ(admission.counters().pending_peak, 3u);
+  // The evicted ones are gone: admitting one now says so.
+  EXPECT_EQ(admission.on_admitted(1), Admission::not_pending);
+}
+
+TEST(AdmissionControl, SilentConnectionsAreEvictedBeforeOnesWhosePeerSpoke) {
+  auto admission = make(3, 10);
+  admission.on_accepted(1, t0, true);  // a gateway's hello was there at accept
+  admission.on_accepted(2, t0);
+  admission.on_accepted(3, t0);
+  admission.on_talking(3);  // spoke later
+  EXPECT_EQ(admission.on_accepted(4, t0), 2u);
+  EXPECT_EQ(admission.on_accepted(5, t0), 4u);
+  EXPECT_EQ(admission.on_accepted(6, t0), 5u);
+  EXPECT_EQ(admission.counters().evicted_talking, 0u);
+  admission.on_talking(6);
+  // Every pending one spoke: the oldest goes.
+  EXPECT_EQ(admission.on_accepted(7, t0, true), 1u);
+  EXPECT_EQ(admission.counters().evicted_talking, 1u);
+  EXPECT_EQ(admission.counters().evicted_pending, 4u);
+}
+
+TEST(AdmissionControl, AdmittedConnectionsLeaveThePendingCapAndAreNeverEvicted) {
+  auto admission = make(2, 10);
+  admission.on_accepted(1, t0);
+  EXPECT_EQ(admission.on_admitted(1), Admission::admitted);
+  EXPECT_EQ(admission.on_admitted(1), Admission::admitted);  // again: no change
+  admission.on_accepted(2, t0 + 1ms);
+  admission.on_accepted(3, t0 + 2ms);
+  EXPECT_EQ(admission.on_accepted(4, t0 + 3ms), 2u);  // not 1: it is admitted
+  EXPECT_EQ(admission.admitted(), 1u);
+  EXPECT_EQ(admission.counters().admitted, 1u);
+}
+
+TEST(AdmissionControl, PendingPastTheTimeoutExpireOldestFirstAndAdmittedNever) {
+  auto admission = make(10, 10);
+  admission.on_accepted(1, t0);
+  admission.on_accepted(2, t0 + 500ms);
+  admission.on_accepted(3, t0 + 1000ms);
+  EXPECT_EQ(admission.on_admitted(2), Admission::admitted);
+  EXPECT_EQ(admission.next_deadline(), t0 + 2000ms);
+  EXPECT_EQ(admission.expired(t0 + 1999ms), Ids{});
+  EXPECT_EQ(admission.expired(t0 + 2000ms), Ids{1});
+  EXPECT_EQ(admission.next_deadline(), t0 + 3000ms);
+  EXPECT_EQ(admission.expired(t0 + 10s), Ids{3});
+  EXPECT_EQ(admission.next_deadline(), std::nullopt);
+  EXPECT_EQ(admission.counters().handshake_timeouts, 2u);
+  EXPECT_EQ(admission.admitted(), 1u);
+  EXPECT_EQ(admission.on_admitted(3), Admission::not_pending);
+}
+
+TEST(AdmissionControl, LinksBeyondMaxLinksAreRefusedUntilOneCloses) {
+  auto admission = make(10, 2);
+  for (AdmissionControl::ConnectionId id = 1; id <= 4; ++id) admission.on_accepted(id, t0);
+  EXPECT_EQ(admission.on_admitted(1), Admission::admitted);
+  EXPECT_EQ(admission.on_admitted(2), Admission::admitted);
+  EXPECT_EQ(admission.on_admitted(3), Admission::refused);
+  EXPECT_EQ(admission.counters().refused_link_cap, 1u);
+  EXPECT_EQ(admission.pending(), 1u);  // 3 is no longer tracked: the caller closes it
+  admission.on_closed(1);
+  EXPECT_EQ(admission.on_admitted(4), Admission::admitted);
+  EXPECT_EQ(admission.admitted(), 2u);
+}
+
+TEST(AdmissionControl, ClosedConnectionsFreeTheirPlaceAndUnknownIdsAreIgnored) {
+  auto admission = make(2, 10);
+  admission.on_accepted(1, t0);
+  admission.on_accepted(2, t0);
+  admission.on_closed(1);
+  admission.on_closed(99);
+  EXPECT_EQ(admission.on_accepted(3, t0), std::nullopt);  // room again: nothing evicted
+  EXPECT_EQ(admission.pending(), 2u);
+  EXPECT_EQ(admission.expired(t0 + 2s), (Ids{2, 3}));
+  EXPECT_EQ(admission.pending(), 0u);
+}
+
+TEST(AdmissionControl, ACapOfZeroStillLetsOneHandshakeRun) {
+  auto admission = make(0, 10);
+  EXPECT_EQ(admission.on_accepted(1, t0), std::nullopt);
+  EXPECT_EQ(admission.on_accepted(2, t0), 1u);
+}
+
+TEST(AdmissionControl, UnlimitedNeverEvictsNorExpires) {
+  AdmissionControl admission(AdmissionLimits::unlimited());
+  for (AdmissionControl::ConnectionId id = 1; id <= 1000; ++id) {
+    ASSERT_EQ(admission.on_accepted(id, t0), std::nullopt);
+  }
+  EXPECT_EQ(admission.expired(t0 + std::chrono::hours(24 * 365)), Ids{});
+  EXPECT_EQ(admission.on_admitted(1000), Admission::admitted);
+}
+
+}  // namespace
+}  // namespace canbridge::backbone

@@ -1,0 +1,234 @@
+// TcpServer's admission control over loopback: pending connections are capped (the oldest goes),
+// closed at the handshake deadline unless admitted, slow upgrades cancelled, admitted links capped.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <boost/asio/as_tuple.hpp>
+#include <boost/asio/use_awaitable.hpp>
+#include <boost/asio/write.hpp>
+
+#include "backbone/tcp_server.hpp"
+#include "tests/backbone/test_support.hpp"
+
+namespace canbridge::backbone {
+namespace {
+
+namespace asio = boost::asio;
+using asio::ip::tcp;
+using namespace std::chrono_literals;
+using testing::run_until;
+using Clock = std::chrono::steady_clock;
+
+// A raw client that says nothing (or one byte) and notes when the server closes the connection.
+class SilentClient {
+ public:
+  // `talk`: sends one byte after connecting (then nothing more), as a peer starting a handshake.
+  SilentClient(asio::io_context& io, std::uint16_t port, bool talk = false)
+      : state_(std::make_shared<State>(io)) {
+    state_->socket.connect(tcp::endpoint(asio::ip::address_v4::loopback(), port));
+    if (talk) asio::write(state_->socket, asio::buffer("\x00", 1));
+    local_port = state_->socket.local_endpoint().port();
+    // The state outlives this client until the read's handler ran.
+    state_->socket.async_read_some(asio::buffer(&state_->byte, 1),
+                                   [state = state_](boost::system::error_code ec, std::size_t) {
+                                     state->closed_by_server = ec == asio::error::eof ||
+                                                               ec == asio::error::connection_reset;
+                                     state->closed_at = Clock::now();
+                                   });
+  }
+  ~SilentClient() {
+    boost::system::error_code ignored;
+    state_->socket.close(ignored);
+  }
+  bool closed_by_server() const { return state_->closed_by_server; }
+  Clock::time_point closed_at() const { return state_->closed_at; }
+  std::uint16_t local_port = 0;
+
+ private:
+  struct State {
+    explicit State(asio::io_context& io) : socket(io) {}
+    tcp::socket socket;
+    char byte = 0;
+    bool closed_by_server = false;
+    Clock::time_point closed_at;
+  };
+  std::shared_ptr<State> state_;
+};
+
+// An upgrade that waits forever (a TLS peer that stops mid-handshake) unless cancelled.
+struct StuckUpgrade {
+  int started = 0;
+  int ended = 0;
+  std::error_code last_error;
+  LinkUpgrade upgrade() {
+    return [this](tcp::socket socket, StreamLinkOptions) -> asio::awaitable<UpgradeResult> {
+      ++started;
+      asio::steady_timer never(socket.get_executor(), asio::steady_timer::time_point::max());
+      auto [ec] = co_await never.async_wait(asio::as_tuple(asio::use_awaitable));
+      ++ended;
+      last_error = ec;
+      co_return UpgradeResult{nullptr, ec};
+    };
+  }
+};
+
+class TcpAdmission : public ::testing::Test {
+ protected:
+  void start(AdmissionLimits limits, LinkUpgrade upgrade = {}) {
+    ServerOptions options;
+    options.admission = limits;
+    options.upgrade = std::move(upgrade);
+    server = TcpServer::create(io.get_executor(), options);
+    const auto ec = server->start("127.0.0.1", 0, [this](std::shared_ptr<StreamLink> link) {
+      accepted.push_back(link);
+      link->start([](std::span<const std::uint8_t>) {}, [](std::string&) {}, nullptr);
+      if (admit_every_link) server->admitted(*link);
+    });
+    ASSERT_FALSE(ec) << ec.message();
+  }
+  void TearDown() override {
+    if (server) server->stop();
+    clients.clear();
+    accepted.clear();
+    EXPECT_TRUE(testing::drains_within(io, 2s)) << "a connection's coroutine did not end";
+  }
+  SilentClient& connect(bool talk = false) {
+    clients.push_back(std::make_unique<SilentClient>(io, server->port(), talk));
+    return *clients.back();
+  }
+  // Waits until the server has handed `n` links over.
+  bool accepted_count(std::size_t n) {
+    return run_until(
+        io, [&] { return accepted.size() >= n; }, 5s);
+  }
+  std::vector<std::uint16_t> open_link_ports() {
+    std::vector<std::uint16_t> ports;
+    for (const auto& link : server->links()) ports.push_back(link->remote_endpoint().port());
+    std::sort(ports.begin(), ports.end());
+    return ports;
+  }
+
+  StuckUpgrade stuck;  // outlives the server's coroutines
+  asio::io_context io;
+  std::shared_ptr<TcpServer> server;
+  std::vector<std::shared_ptr<StreamLink>> accepted;
+  std::vector<std::unique_ptr<SilentClient>> clients;
+  bool admit_every_link = false;
+};
+
+TEST_F(TcpAdmission, IdleConnectionsBeyondThePendingCapEvictTheOldest) {
+  start({3, 10s, 10});
+  SilentClient& oldest = connect();
+  for (int i = 0; i < 3; ++i) connect();
+  ASSERT_TRUE(run_until(
+      io, [&] { return oldest.closed_by_server(); }, 5s));
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 3; }, 5s));
+  EXPECT_EQ(server->counters().admission.evicted_pending, 1u);
+  EXPECT_EQ(server->counters().admission.pending_peak, 3u);
+  for (std::size_t i = 1; i < clients.size(); ++i) EXPECT_FALSE(clients[i]->closed_by_server());
+  EXPECT_TRUE(accepted.empty()) << "a silent connection got a link";
+}
+
+TEST_F(TcpAdmission, AConnectionWhosePeerSpokeOutlivesSilentOnesBeyondTheCap) {
+  start({3, 10s, 10});
+  SilentClient& speaking = connect(true);
+  ASSERT_TRUE(accepted_count(1));
+  SilentClient& silent = connect();
+  for (int i = 0; i < 3; ++i) connect();
+  ASSERT_TRUE(run_until(
+      io, [&] { return silent.closed_by_server(); }, 5s));
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->counters().admission.evicted_pending == 2; }, 5s));
+  EXPECT_FALSE(speaking.closed_by_server());
+  EXPECT_TRUE(accepted[0]->is_open());
+  EXPECT_EQ(server->counters().admission.evicted_talking, 0u);
+}
+
+TEST_F(TcpAdmission, AConnectionThatSaysNothingIsClosedAtTheDeadlineAndNothingIsKept) {
+  start({32, 300ms, 10});
+  const auto connected_at = Clock::now();
+  SilentClient& silent = connect();
+  ASSERT_TRUE(run_until(
+      io, [&] { return silent.closed_by_server(); }, 5s));
+  EXPECT_GE(silent.closed_at() - connected_at, 300ms);
+  EXPECT_LT(silent.closed_at() - connected_at, 2s);
+  EXPECT_EQ(server->counters().admission.handshake_timeouts, 1u);
+  accepted.clear();
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 0; }, 5s));
+  EXPECT_TRUE(server->links().empty());
+}
+
+TEST_F(TcpAdmission, AnAdmittedLinkIsNotClosedAtTheDeadline) {
+  start({32, 200ms, 10});
+  SilentClient& admitted = connect(true);
+  ASSERT_TRUE(accepted_count(1));
+  server->admitted(*accepted[0]);
+  SilentClient& pending = connect();  // its deadline is later than the admitted one's was
+  ASSERT_TRUE(run_until(
+      io, [&] { return pending.closed_by_server(); }, 5s));
+  EXPECT_FALSE(admitted.closed_by_server());
+  EXPECT_TRUE(accepted[0]->is_open());
+  EXPECT_EQ(server->counters().admission.handshake_timeouts, 1u);
+  EXPECT_EQ(server->counters().admission.admitted, 1u);
+}
+
+TEST_F(TcpAdmission, AStuckUpgradeIsCancelledAtTheDeadlineAndItsCoroutineEnds) {
+  start({32, 300ms, 10}, stuck.upgrade());
+  const auto connected_at = Clock::now();
+  SilentClient& client = connect(true);
+  ASSERT_TRUE(run_until(
+      io, [&] { return stuck.ended == 1; }, 5s));
+  EXPECT_GE(Clock::now() - connected_at, 300ms);
+  EXPECT_TRUE(stuck.last_error == std::errc::operation_canceled) << stuck.last_error.message();
+  ASSERT_TRUE(run_until(
+      io, [&] { return client.closed_by_server(); }, 5s));
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 0; }, 5s));
+  EXPECT_EQ(server->counters().upgrade_failures, 1u);
+  EXPECT_EQ(server->counters().admission.handshake_timeouts, 1u);
+  EXPECT_TRUE(accepted.empty());
+}
+
+TEST_F(TcpAdmission, AStuckUpgradeIsCancelledWhenANewerConnectionEvictsIt) {
+  start({1, 60s, 10}, stuck.upgrade());
+  SilentClient& first = connect(true);
+  ASSERT_TRUE(run_until(
+      io, [&] { return stuck.started == 1; }, 5s));
+  connect(true);
+  ASSERT_TRUE(run_until(
+      io, [&] { return stuck.ended == 1 && first.closed_by_server(); }, 5s));
+  EXPECT_EQ(server->counters().admission.evicted_pending, 1u);
+  EXPECT_EQ(server->connections(), 1u);  // the newer one, still upgrading
+}
+
+TEST_F(TcpAdmission, LinksBeyondMaxLinksAreClosedWhenAdmitted) {
+  admit_every_link = true;
+  start({32, 60s, 2});
+  connect(true);
+  connect(true);
+  SilentClient& third = connect(true);
+  ASSERT_TRUE(run_until(
+      io, [&] { return third.closed_by_server(); }, 5s));
+  EXPECT_EQ(server->counters().admission.refused_link_cap, 1u);
+  EXPECT_EQ(server->counters().admission.admitted, 2u);
+  std::vector<std::uint16_t> first_two{clients[0]->local_port, clients[1]->local_port};
+  std::sort(first_two.begin(), first_two.end());
+  EXPECT_EQ(open_link_ports(), first_two);
+}
+
+TEST_F(TcpAdmission, ManyShortConnectionsLeaveNothingBehind) {
+  start({4, 60s, 10});
+  for (int i = 0; i < 50; ++i) connect(i % 2 == 0);
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->counters().accepted == 50; }, 5s));
+  clients.clear();  // the peers leave: each link reads EOF and closes
+  accepted.clear();
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 0; }, 5s));
+  EXPECT_EQ(server->counters().admission.evicted_pending, 46u);
+}
+
+}  // namespace
+}  // namespace canbridge::backbone
