@@ -8,6 +8,7 @@
 #include "app/open_file_limit.hpp"
 #include "app/ordered_shutdown.hpp"
 #include "app/periodic_stats.hpp"
+#include "app/plain_warning.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
@@ -110,6 +111,7 @@ std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
 
 int run_gateway(const config::GatewayOptions& options) {
   apply_log_level(options.log);
+  warn_if_plain(options);
   asio::io_context io(1);
   NodeMap map;
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
@@ -155,6 +157,7 @@ int run_gateway(const config::GatewayOptions& options) {
 
 int run_surface(const config::SurfaceOptions& options) {
   apply_log_level(options.log);
+  warn_if_plain(options);
   asio::io_context io(1);
   Surface surface(io.get_executor(), options.name,
                   open_bus(io.get_executor(), options.bus, options.can),

@@ -90,7 +90,8 @@ cat >"$work/surface.yaml" <<YAML
 role: surface
 name: bench-surface
 bus: vcan0
-backbone: {listen: 127.0.0.1:7300}
+backbone: {listen: 127.0.0.1:7300, auth: {mode: plain}}
+gateways: [{name: bench-gw, modules: [0], surface_nodes: [1]}]
 log: {level: info, stats_interval_s: 1}
 YAML
 # write_gateway MODE PORT: module 0 with the pdop profile, node 1 shown as surface node 1.
@@ -100,7 +101,7 @@ write_gateway() {
   cat >"$work/gateway.yaml" <<YAML
 role: gateway
 name: bench-gw
-backbone: {connect: 127.0.0.1:$2, reconnect_min_ms: 20}
+backbone: {connect: 127.0.0.1:$2, auth: {mode: plain}, reconnect_min_ms: 20}
 modules:
   - id: 0
     bus: vcan1

@@ -88,13 +88,14 @@ write_configs() {  # tcp | serial
 role: surface
 name: bench-surface
 bus: vcan0
-backbone: {listen: 127.0.0.1:7100}
+backbone: {listen: 127.0.0.1:7100, auth: {mode: plain}}
+gateways: [{name: bench-gw, modules: [1]}]
 log: {level: info, stats_interval_s: 0}
 YAML
     cat >"$work/gateway.yaml" <<YAML
 role: gateway
 name: bench-gw
-backbone: {connect: 127.0.0.1:7100, reconnect_min_ms: 20}
+backbone: {connect: 127.0.0.1:7100, auth: {mode: plain}, reconnect_min_ms: 20}
 modules:
   - {id: 1, bus: vcan1}
 log: {level: info, stats_interval_s: 0}
@@ -105,15 +106,18 @@ role: surface
 name: bench-surface
 bus: vcan0
 backbone:
+  auth: {mode: plain}
   serial:
-    - {device: $work/surface.tty, baud: 115200}
+    - {device: $work/surface.tty, baud: 115200, gateway: bench-gw}
 $slow_line
+gateways: [{name: bench-gw, modules: [1]}]
 log: {level: info, stats_interval_s: 0}
 YAML
     cat >"$work/gateway.yaml" <<YAML
 role: gateway
 name: bench-gw
 backbone:
+  auth: {mode: plain}
   serial: {device: $work/gw.tty, baud: 115200}
   reconnect_min_ms: 100
 $slow_line

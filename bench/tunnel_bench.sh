@@ -60,17 +60,28 @@ cat >"$work/surface.yaml" <<YAML
 role: surface
 name: bench-surface
 bus: vcan0
-backbone: {listen: 127.0.0.1:7000}
+backbone:
+  listen: 127.0.0.1:7000
+  auth: {mode: plain}
+gateways: [{name: bench-gw, modules: [0]}]
 log: {level: info, stats_interval_s: 0}
 YAML
 cat >"$work/gateway.yaml" <<YAML
 role: gateway
 name: bench-gw
-backbone: {connect: 127.0.0.1:7000, reconnect_min_ms: 20}
+backbone:
+  connect: 127.0.0.1:7000
+  auth: {mode: plain}
+  reconnect_min_ms: 20
 modules:
   - {id: 0, bus: vcan1}
 log: {level: info, stats_interval_s: 0}
 YAML
+# A baseline from before issue 15 knows neither 'auth' nor 'gateways' (and refuses unknown keys).
+mkdir -p "$work/before"
+for role in surface gateway; do
+  grep -v '^  auth: \|^gateways: ' "$work/$role.yaml" >"$work/before/$role.yaml"
+done
 
 printf '%-4s %-7s %10s %6s %6s %6s %8s %8s %8s\n' run path frames/s ratio lost reord p50_us p99_us max_us
 for ((r = 1; r <= runs; r++)); do
@@ -83,11 +94,12 @@ for ((r = 1; r <= runs; r++)); do
 
   # tunnel_path NAME EXECUTABLE: the burst and the paced run through one canbridge build.
   tunnel_path() {
-    local name=$1 exe=$2
-    "$exe" surface --config "$work/surface.yaml" >"$work/${name}-surface.log" 2>&1 &
+    local name=$1 exe=$2 configs=$work
+    [[ $name == before ]] && configs=$work/before
+    "$exe" surface --config "$configs/surface.yaml" >"$work/${name}-surface.log" 2>&1 &
     local spid=$!
     wait_line "$work/${name}-surface.log" listening
-    "$exe" gateway --config "$work/gateway.yaml" >"$work/${name}-gateway.log" 2>&1 &
+    "$exe" gateway --config "$configs/gateway.yaml" >"$work/${name}-gateway.log" 2>&1 &
     local gpid=$!
     wait_line "$work/${name}-surface.log" "gateway 'bench-gw' ready"
     wait_line "$work/${name}-gateway.log" "ready"

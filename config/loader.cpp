@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "canopen/pdop.hpp"
+#include "config/backbone_auth_reader.hpp"
 #include "routing/node_map.hpp"
 #include "yaml/yaml_reader.hpp"
 
@@ -47,13 +48,19 @@ class Reader : public YamlReader {
     return ep;
   }
 
-  // A line of a serial backbone: {device, baud, flow_control}.
-  std::optional<SerialLineOptions> serial_line(const YAML::Node& node, const std::string& path) {
+  // A line of a serial backbone: {device, baud, flow_control}, and on the surface the gateway it
+  // serves (read with the surface's auth, which decides whether it is required).
+  std::optional<SerialLineOptions> serial_line(const YAML::Node& node, const std::string& path,
+                                               bool surface) {
     if (!node.IsMap()) {
       problem(node, path, "must be a mapping with device, baud and flow_control");
       return std::nullopt;
     }
-    only_keys(node, path, {"device", "baud", "flow_control"});
+    if (surface) {
+      only_keys(node, path, {"device", "baud", "flow_control", "gateway"});
+    } else {
+      only_keys(node, path, {"device", "baud", "flow_control"});
+    }
     SerialLineOptions line;
     bool ok = true;
     if (auto device = string(node, "device", path, true)) {
@@ -521,7 +528,7 @@ void read_gateway_link(Reader& in, const YAML::Node& backbone, GatewayOptions& o
       in.problem(serial, "backbone.serial",
                  "must be one mapping {device, baud, flow_control}: a gateway has one line");
     } else {
-      out.serial = in.serial_line(serial, "backbone.serial");
+      out.serial = in.serial_line(serial, "backbone.serial", false);
     }
   }
   // Also the back-off of reopening a serial line that failed or went dead.
@@ -549,11 +556,11 @@ void read_gateway_backbone(Reader& in, const YAML::Node& root, GatewayOptions& o
         backbone, "backbone",
         "must be a mapping with 'connect: host:port' (TCP) or 'serial:' (a serial line)");
   }
-  in.only_keys(
-      backbone, "backbone",
-      {"connect", "serial", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms", "dead_after_ms",
-       "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes",
-       "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+  in.only_keys(backbone, "backbone",
+               {"connect", "serial", "auth", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
+                "dead_after_ms", "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages",
+                "resend_buffer_bytes", "max_write_bytes", "queue_reliable_frames",
+                "queue_process_frames", "tcp_framing"});
   check_one_transport(in, root, backbone);
   read_gateway_link(in, backbone, out);
   in.session_tuning(backbone, out.session);
@@ -599,7 +606,7 @@ void read_surface_lines(Reader& in, const YAML::Node& serial, SurfaceOptions& ou
   std::map<std::string, std::size_t> devices;
   for (std::size_t i = 0; i < serial.size(); ++i) {
     const std::string path = item_path("backbone", "serial", i);
-    auto line = in.serial_line(serial[i], path);
+    auto line = in.serial_line(serial[i], path, true);
     // Checked on the device alone, so that it is reported even when another field is bad.
     const YAML::Node device = serial[i].IsMap() ? serial[i]["device"] : YAML::Node();
     if (device && device.IsScalar() && !device.Scalar().empty()) {
@@ -627,9 +634,9 @@ void read_surface_backbone(Reader& in, const YAML::Node& root, SurfaceOptions& o
   }
   in.only_keys(
       backbone, "backbone",
-      {"listen", "serial", "conflate_pdos", "keepalive_ms", "dead_after_ms", "retransmit_ms",
-       "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
-       "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+      {"listen", "serial", "auth", "admission", "conflate_pdos", "keepalive_ms", "dead_after_ms",
+       "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes",
+       "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
   // An empty list ("serial: []") reaches no gateway either.
   const YAML::Node lines = backbone["serial"];
   if (!key_of(backbone, "listen") && (!lines || (lines.IsSequence() && lines.size() == 0))) {
@@ -658,6 +665,7 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   read_gateway_backbone(in, root, out);
+  read_gateway_auth(in, root, out);
   read_modules(in, root, out);
   check_packets_fit(in, root, out);
   read_lss_module(in, root, out);
@@ -670,11 +678,12 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
 SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "surface");
   Reader in(file);
-  in.only_keys(root, "", {"role", "name", "backbone", "bus", "pdop", "can", "log"});
+  in.only_keys(root, "", {"role", "name", "backbone", "gateways", "bus", "pdop", "can", "log"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
   read_surface_backbone(in, root, out);
+  read_surface_auth(in, root, out);
   read_surface_pdop(in, root, out.rpdop_relay);
   // A packet crosses as one reliable message, which the resend buffer must be able to hold.
   if (out.rpdop_relay.max_packet_bytes + kPdopMessageOverhead > out.session.resend_buffer_bytes) {

@@ -16,6 +16,8 @@ links=$2
 # folder whose own entry has no "*"), so the folders of tests, benches and tools may use every
 # layer but one another only as listed. proto/session and proto/canbridge are proto/'s two
 # schemas (session.pb.h, canbridge.pb.h: libraries canbridge_session_proto, canbridge_proto).
+# backbone/auth is backbone/'s key files and peer proofs (pre_shared_keys.hpp,
+# peer_authenticator.hpp: library canbridge_backbone_auth), which config/ checks key files with.
 allowed_edges=(
   "coro:"
   "can: coro"
@@ -24,7 +26,7 @@ allowed_edges=(
   "canopen: can"
   "yaml:"
   "routing: can canopen"
-  "config: yaml canopen routing"
+  "config: yaml canopen routing backbone/auth"
   "sim: can canopen yaml coro"
   "bridge: can backbone canopen routing proto/canbridge coro"
   "app: can backbone canopen bridge config sim coro"
@@ -105,6 +107,7 @@ while IFS= read -r hit; do
   case $header in
     session.pb.h) to=proto/session ;;
     canbridge.pb.h) to=proto/canbridge ;;
+    backbone/pre_shared_keys.hpp | backbone/peer_authenticator.hpp) to=backbone/auth ;;
     */*)
       to=${header%%/*}
       if [[ ! -v allowed[$to] ]]; then continue; fi
@@ -123,6 +126,7 @@ while read -r target folder _; do
   case $target in
     canbridge_session_proto) target_node[$target]=proto/session ;;
     canbridge_proto) target_node[$target]=proto/canbridge ;;
+    canbridge_backbone_auth) target_node[$target]=backbone/auth ;;
     *) target_node[$target]=${folder%%/*} ;;
   esac
 done <"$links"

@@ -1,12 +1,15 @@
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <fstream>
 #include <iterator>
+#include <sstream>
 #include <string>
 
 #include "config/loader.hpp"
 #include "tests/support/config_problems.hpp"
+#include "tests/support/temp_key_dir.hpp"
 
 namespace canbridge::config {
 namespace {
@@ -17,6 +20,13 @@ const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/config/fixtures/";
 using test::dump;
 using test::has;
 using test::problems_of;
+
+// What a surface needs beyond its transport: the list of gateways it accepts, and (after a
+// block-style backbone, as its last key) the explicit choice of a plain bench.
+constexpr const char* kOneGateway = "gateways: [{name: gateway, modules: [1]}]\n";
+constexpr const char* kPlainTail =
+    "  auth: {mode: plain}\n"
+    "gateways: [{name: gateway, modules: [1]}]\n";
 
 // The samples give every session key at its default, documented beside it: this keeps what they
 // say true when a default changes in options.hpp.
@@ -55,11 +65,34 @@ void expect_default_relay(const bridge::RpdopRelayOptions& r) {
   EXPECT_EQ(r.outcome_timeout, d.outcome_timeout);
 }
 
+std::string file_text(const std::string& path) {
+  std::ifstream in(path);
+  return std::string((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+}
+
+// The samples name their key files under /etc/canbridge/keys, which a test machine lacks: the
+// tests install them (fresh keys, mode 600) in a temporary directory and point the sample there.
+class ConfigSamples : public ::testing::Test {
+ protected:
+  ConfigSamples() { keys_.key("tool-gateway.key"); }
+
+  std::string sample(const std::string& name) const {
+    std::string text = file_text(kConfigDir + name);
+    const std::string from = "/etc/canbridge/keys/";
+    for (auto at = text.find(from); at != std::string::npos; at = text.find(from, at)) {
+      text.replace(at, from.size(), keys_.path() + "/");
+    }
+    return text;
+  }
+
+  test::TempKeyDir keys_;
+};
+
 // A sample with its commented-out serial example switched on ("  # serial:" and the "  #   "
 // lines after it lose their "# "), without the lines starting with `drop` (if not empty): an
 // operator following the comments gets a file that loads.
-std::string with_serial_example(const std::string& path, const std::string& drop) {
-  std::ifstream in(path);
+std::string with_serial_example(const std::string& sample_text, const std::string& drop) {
+  std::istringstream in(sample_text);
   std::string text;
   bool block = false;
   for (std::string line; std::getline(in, line);) {
@@ -70,8 +103,12 @@ std::string with_serial_example(const std::string& path, const std::string& drop
   return text;
 }
 
-TEST(Config, SampleGatewayLoads) {
-  const GatewayOptions g = load_gateway(kConfigDir + "gateway.yaml");
+TEST_F(ConfigSamples, SampleGatewayLoads) {
+  const GatewayOptions g = parse_gateway(sample("gateway.yaml"), "gateway.yaml");
+  EXPECT_EQ(g.auth.mode, AuthMode::psk);
+  EXPECT_EQ(g.auth.key_file, keys_.path() + "/tool-gateway.key");
+  EXPECT_EQ(g.auth.surface, "surface");
+  EXPECT_EQ(g.auth.mac_tag_bytes, 16u);
   EXPECT_EQ(g.connect.to_string(), "127.0.0.1:7000");
   ASSERT_EQ(g.modules.size(), 2u);
   EXPECT_EQ(g.modules[0].bus, "vcan1");
@@ -83,8 +120,19 @@ TEST(Config, SampleGatewayLoads) {
   for (const ModuleOptions& m : g.modules) expect_default_pdop(m);
 }
 
-TEST(Config, SampleSurfaceLoads) {
-  const SurfaceOptions s = load_surface(kConfigDir + "surface.yaml");
+TEST_F(ConfigSamples, SampleSurfaceLoads) {
+  const SurfaceOptions s = parse_surface(sample("surface.yaml"), "surface.yaml");
+  EXPECT_EQ(s.auth.mode, AuthMode::psk);
+  EXPECT_EQ(s.listen.host, "127.0.0.1");
+  ASSERT_EQ(s.gateways.size(), 1u);
+  EXPECT_EQ(s.gateways[0].name, "tool-gateway");  // gateway.yaml's name and modules
+  EXPECT_EQ(s.gateways[0].modules, (std::vector<std::uint32_t>{1, 2}));
+  EXPECT_EQ(s.gateways[0].surface_nodes.size(), 62u);
+  EXPECT_EQ(s.gateways[0].key_file, keys_.path() + "/tool-gateway.key");
+  const AdmissionOptions a;  // the sample shows every admission key at its default
+  EXPECT_EQ(s.admission.max_pending_handshakes, a.max_pending_handshakes);
+  EXPECT_EQ(s.admission.handshake_timeout, a.handshake_timeout);
+  EXPECT_EQ(s.admission.max_links, a.max_links);
   EXPECT_EQ(s.bus, "vcan0");
   EXPECT_EQ(s.listen.port, 7000);
   EXPECT_TRUE(s.serial.empty());
@@ -92,9 +140,7 @@ TEST(Config, SampleSurfaceLoads) {
   expect_default_session(s.session);
   expect_default_relay(s.rpdop_relay);
   // The block is given (with every key at its default), not merely absent.
-  std::ifstream in(kConfigDir + "surface.yaml");
-  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  EXPECT_NE(text.find("\npdop:\n  # "), std::string::npos);
+  EXPECT_NE(file_text(kConfigDir + "surface.yaml").find("\npdop:\n  # "), std::string::npos);
 }
 
 // The sample's commented-out pdop module, uncommented under a minimal header (it does not fit
@@ -110,9 +156,11 @@ TEST(Config, SamplePdopModuleExampleLoadsWhenUncommented) {
   }
   ASSERT_NE(modules.find("\n    pdop:\n"), std::string::npos) << modules;
   ASSERT_NE(modules.find("      max_held_bytes: "), std::string::npos) << modules;
-  const GatewayOptions g =
-      parse_gateway("role: gateway\nbackbone:\n  connect: 127.0.0.1:7000\nmodules:\n" + modules,
-                    "gateway.yaml (pdop example)");
+  const GatewayOptions g = parse_gateway(
+      "role: gateway\nbackbone:\n  connect: 127.0.0.1:7000\n  auth: {mode: plain}\n"
+      "modules:\n" +
+          modules,
+      "gateway.yaml (pdop example)");
   ASSERT_EQ(g.modules.size(), 1u);
   EXPECT_EQ(g.modules[0].profile, bridge::IdProfile::pdop);
   expect_default_pdop(g.modules[0]);
@@ -151,16 +199,37 @@ TEST(Config, SurfacePdopBlockSetsTheRelayLimits) {
   EXPECT_EQ(s.rpdop_relay.window, 8u);
   EXPECT_EQ(s.rpdop_relay.outcome_timeout, std::chrono::milliseconds(30000));
   // Without a block: the relay's defaults.
-  const SurfaceOptions d =
-      parse_surface("role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000}\n", "d.yaml");
+  const SurfaceOptions d = parse_surface(
+      "role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000, auth: {mode: "
+      "plain}}\n" +
+          std::string(kOneGateway),
+      "d.yaml");
   EXPECT_EQ(d.rpdop_relay.max_packet_bytes, 4096u);
   EXPECT_EQ(d.rpdop_relay.fragment_timeout, std::chrono::milliseconds(200));
   EXPECT_EQ(d.rpdop_relay.window, 4u);
   EXPECT_EQ(d.rpdop_relay.outcome_timeout, std::chrono::milliseconds(10000));
 }
 
-TEST(Config, SampleSerialExamplesLoadWhenUncommented) {
-  const std::string gateway_text = with_serial_example(kConfigDir + "gateway.yaml", "  connect:");
+// As shipped, the samples ask for their key files by line, field and path, and for nothing else:
+// what an operator sees before installing keys (docs/security.md).
+TEST(Config, SamplesAsShippedAskOnlyForTheirKeyFiles) {
+  if (::access("/etc/canbridge/keys/tool-gateway.key", F_OK) == 0) GTEST_SKIP() << "keys installed";
+  const auto g = problems_of([] { load_gateway(kConfigDir + "gateway.yaml"); });
+  ASSERT_EQ(g.size(), 1u) << dump(g);
+  EXPECT_EQ(g[0].field, "backbone.auth.key_file");
+  EXPECT_NE(g[0].message.find("/etc/canbridge/keys/tool-gateway.key: cannot open"),
+            std::string::npos)
+      << dump(g);
+  const auto s = problems_of([] { load_surface(kConfigDir + "surface.yaml"); });
+  ASSERT_EQ(s.size(), 1u) << dump(s);
+  EXPECT_EQ(s[0].field, "gateways[0].key_file");
+  EXPECT_NE(s[0].message.find("/etc/canbridge/keys/tool-gateway.key: cannot open"),
+            std::string::npos)
+      << dump(s);
+}
+
+TEST_F(ConfigSamples, SampleSerialExamplesLoadWhenUncommented) {
+  const std::string gateway_text = with_serial_example(sample("gateway.yaml"), "  connect:");
   ASSERT_NE(gateway_text.find("\n  serial:\n"), std::string::npos) << gateway_text;
   const GatewayOptions g = parse_gateway(gateway_text, "gateway.yaml (serial example)");
   ASSERT_TRUE(g.serial.has_value());
@@ -168,13 +237,14 @@ TEST(Config, SampleSerialExamplesLoadWhenUncommented) {
   EXPECT_EQ(g.serial->baud, 115200u);
   EXPECT_FALSE(g.serial->hardware_flow_control);
 
-  const std::string surface_text = with_serial_example(kConfigDir + "surface.yaml", "");
+  const std::string surface_text = with_serial_example(sample("surface.yaml"), "");
   const SurfaceOptions s = parse_surface(surface_text, "surface.yaml (serial example)");
   EXPECT_EQ(s.listen.port, 7000);
-  ASSERT_EQ(s.serial.size(), 2u) << surface_text;
-  EXPECT_EQ(s.serial[1].device, "/dev/ttyUSB0");
-  EXPECT_EQ(s.serial[1].baud, 460800u);
-  EXPECT_TRUE(s.serial[1].hardware_flow_control);
+  ASSERT_EQ(s.serial.size(), 1u) << surface_text;
+  EXPECT_EQ(s.serial[0].device, "/dev/ttyUSB0");
+  EXPECT_EQ(s.serial[0].baud, 460800u);
+  EXPECT_TRUE(s.serial[0].hardware_flow_control);
+  EXPECT_EQ(s.serial[0].gateway, "tool-gateway");
 }
 
 TEST(Config, SerialGatewayLoads) {
@@ -202,7 +272,7 @@ TEST(Config, SerialGatewayLoads) {
 
 TEST(Config, SurfaceWithListenerAndTwoSerialLinesLoads) {
   const SurfaceOptions s = load_surface(kFixtures + "surface_serial.yaml");
-  EXPECT_EQ(s.listen.to_string(), "0.0.0.0:7000");
+  EXPECT_EQ(s.listen.to_string(), "127.0.0.1:7000");
   ASSERT_EQ(s.serial.size(), 2u);
   EXPECT_EQ(s.serial[0].device, "/dev/ttyS1");
   EXPECT_EQ(s.serial[0].baud, 115200u);  // the default
@@ -218,8 +288,10 @@ TEST(Config, SurfaceWithListenerAndTwoSerialLinesLoads) {
 }
 
 TEST(Config, SurfaceWithOnlySerialLinesHasNoListener) {
-  const SurfaceOptions s = parse_surface(
-      "role: surface\nbus: vcan0\nbackbone:\n  serial:\n    - device: /dev/ttyS0\n", "s.yaml");
+  const SurfaceOptions s =
+      parse_surface("role: surface\nbus: vcan0\nbackbone:\n  serial:\n    - device: /dev/ttyS0\n" +
+                        std::string(kPlainTail),
+                    "s.yaml");
   EXPECT_TRUE(s.listen.host.empty());
   ASSERT_EQ(s.serial.size(), 1u);
 }
@@ -259,29 +331,29 @@ TEST_P(BadBackboneFile, ReportsTheOneProblemWithFileLineAndField) {
 INSTANTIATE_TEST_SUITE_P(
     Config, BadBackboneFile,
     ::testing::Values(
-        BadCase{"gateway_both_transports.yaml", 4, "backbone",
-                "'connect' (line 3) and 'serial' (line 4) are both given"},
+        BadCase{"gateway_both_transports.yaml", 5, "backbone",
+                "'connect' (line 4) and 'serial' (line 5) are both given"},
         BadCase{"gateway_no_transport.yaml", 2, "backbone",
                 "needs 'connect: host:port' (TCP) or 'serial:' (a serial line): neither"},
         BadCase{"surface_no_transport.yaml", 3, "backbone",
                 "needs 'listen: host:port' (TCP), 'serial:' lines, or both: neither"},
-        BadCase{"gateway_bad_baud.yaml", 5, "backbone.serial.baud",
+        BadCase{"gateway_bad_baud.yaml", 6, "backbone.serial.baud",
                 "100000 is not a standard serial rate (e.g. 9600"},
-        BadCase{"gateway_dead_after.yaml", 5, "backbone.dead_after_ms",
+        BadCase{"gateway_dead_after.yaml", 6, "backbone.dead_after_ms",
                 "2000 must exceed keepalive_ms (2000)"},
-        BadCase{"gateway_reliable_max_age.yaml", 5, "backbone.reliable_max_age_ms",
+        BadCase{"gateway_reliable_max_age.yaml", 6, "backbone.reliable_max_age_ms",
                 "800 must exceed retransmit_ms (1000), or a frame lost once could never be "
                 "resent"},
-        BadCase{"surface_reliable_max_age_default.yaml", 5, "backbone.reliable_max_age_ms",
+        BadCase{"surface_reliable_max_age_default.yaml", 6, "backbone.reliable_max_age_ms",
                 "the default 4000 does not exceed retransmit_ms (5000)"},
-        BadCase{"surface_duplicate_device.yaml", 7, "backbone.serial[2].device",
+        BadCase{"surface_duplicate_device.yaml", 8, "backbone.serial[2].device",
                 "'/dev/ttyS1' is also the device of backbone.serial[0]"},
-        BadCase{"gateway_serial_unknown_key.yaml", 5, "backbone.serial.parity", "unknown key"},
-        BadCase{"surface_bad_flow_control.yaml", 6, "backbone.serial[0].flow_control",
+        BadCase{"gateway_serial_unknown_key.yaml", 6, "backbone.serial.parity", "unknown key"},
+        BadCase{"surface_bad_flow_control.yaml", 7, "backbone.serial[0].flow_control",
                 "'xonxoff' is not one of none, hardware"},
-        BadCase{"gateway_conflate_not_bool.yaml", 7, "modules[0].conflate_pdos",
+        BadCase{"gateway_conflate_not_bool.yaml", 8, "modules[0].conflate_pdos",
                 "must be true or false"},
-        BadCase{"surface_conflate_not_bool.yaml", 5, "backbone.conflate_pdos",
+        BadCase{"surface_conflate_not_bool.yaml", 6, "backbone.conflate_pdos",
                 "must be true or false"}),
     bad_case_name);
 
@@ -294,32 +366,32 @@ TEST_P(BadPdopFile, ReportsTheOneProblemWithFileLineAndField) {
 INSTANTIATE_TEST_SUITE_P(
     Config, BadPdopFile,
     ::testing::Values(
-        BadCase{"gateway_pdop_on_cia301.yaml", 7, "modules[0].pdop",
+        BadCase{"gateway_pdop_on_cia301.yaml", 8, "modules[0].pdop",
                 "applies to pdop modules only (this module's profile is cia301)"},
-        BadCase{"gateway_pdop_window_zero.yaml", 10, "modules[0].pdop.window",
+        BadCase{"gateway_pdop_window_zero.yaml", 11, "modules[0].pdop.window",
                 "0 is out of range 1..255"},
-        BadCase{"gateway_pdop_packet_zero.yaml", 9, "modules[0].pdop.max_packet_bytes",
+        BadCase{"gateway_pdop_packet_zero.yaml", 10, "modules[0].pdop.max_packet_bytes",
                 "0 is out of range 1..524280"},
-        BadCase{"gateway_pdop_packet_too_big.yaml", 9, "modules[0].pdop.max_packet_bytes",
+        BadCase{"gateway_pdop_packet_too_big.yaml", 10, "modules[0].pdop.max_packet_bytes",
                 "600000 is out of range 1..524280"},
-        BadCase{"gateway_pdop_unknown_key.yaml", 10, "modules[0].pdop.credit", "unknown key"},
+        BadCase{"gateway_pdop_unknown_key.yaml", 11, "modules[0].pdop.credit", "unknown key"},
         // Found by the segmenter's own validator, named as in the file.
-        BadCase{"gateway_pdop_held_below_packet.yaml", 10, "modules[0].pdop.max_held_bytes",
+        BadCase{"gateway_pdop_held_below_packet.yaml", 11, "modules[0].pdop.max_held_bytes",
                 "4096 is outside max_packet_bytes (8192)..1073741824"},
-        BadCase{"gateway_pdop_fragment_timeout_zero.yaml", 9, "modules[0].pdop.fragment_timeout_ms",
-                "0 is out of range 1..10000"},
+        BadCase{"gateway_pdop_fragment_timeout_zero.yaml", 10,
+                "modules[0].pdop.fragment_timeout_ms", "0 is out of range 1..10000"},
         // Issue 6: a pdop node cannot be presented above surface id 31, and the message says why.
-        BadCase{"gateway_pdop_node_above_31.yaml", 8, "modules[0]",
+        BadCase{"gateway_pdop_node_above_31.yaml", 9, "modules[0]",
                 "surface node id 40 must be 1..31: a pdop bus keeps the node id in bits 4-0 "
                 "(bits 6-5 are the PDO Packet toggle and continued bits)"},
         // One reliable message per packet: the resend buffer must hold the largest.
-        BadCase{"gateway_pdop_packet_above_resend_buffer.yaml", 10,
+        BadCase{"gateway_pdop_packet_above_resend_buffer.yaml", 11,
                 "modules[0].pdop.max_packet_bytes",
                 "65536 does not fit in backbone.resend_buffer_bytes (65536) with its message"},
-        BadCase{"surface_pdop_packet_above_resend_buffer.yaml", 7, "pdop.max_packet_bytes",
+        BadCase{"surface_pdop_packet_above_resend_buffer.yaml", 8, "pdop.max_packet_bytes",
                 "4096 does not fit in backbone.resend_buffer_bytes (4096) with its message"},
-        BadCase{"surface_pdop_window_zero.yaml", 6, "pdop.window", "0 is out of range 1..255"},
-        BadCase{"surface_pdop_unknown_key.yaml", 7, "pdop.ack_timeout_ms", "unknown key"}),
+        BadCase{"surface_pdop_window_zero.yaml", 7, "pdop.window", "0 is out of range 1..255"},
+        BadCase{"surface_pdop_unknown_key.yaml", 8, "pdop.ack_timeout_ms", "unknown key"}),
     bad_case_name);
 
 TEST(Config, EveryPdopProblemOfAGatewayIsReportedAtOnce) {
@@ -327,38 +399,39 @@ TEST(Config, EveryPdopProblemOfAGatewayIsReportedAtOnce) {
       "role: gateway\n"                                     // 1
       "backbone:\n"                                         // 2
       "  connect: 127.0.0.1:7000\n"                         // 3
-      "modules:\n"                                          // 4
-      "  - id: 0\n"                                         // 5
-      "    bus: vcan1\n"                                    // 6
-      "    profile: pdop\n"                                 // 7
-      "    nodes: {1: 1}\n"                                 // 8
-      "    pdop:\n"                                         // 9
-      "      window: 256\n"                                 // 10
-      "      retries: 11\n"                                 // 11
-      "      max_packet_bytes: 600000\n"                    // 12
-      "      max_held_bytes: 2048\n"                        // 13
-      "  - id: 1\n"                                         // 14
-      "    bus: vcan2\n"                                    // 15
-      "    profile: qd\n"                                   // 16
-      "    nodes: {1: 20}\n"                                // 17
-      "    pdop: {ack_timeout_ms: 0, reassemble: maybe}\n"  // 18
-      "  - id: 2\n"                                         // 19
-      "    bus: vcan3\n"                                    // 20
-      "    profile: pdop\n"                                 // 21
-      "    nodes: {1: 21}\n"                                // 22
-      "    pdop:\n";                                        // 23
+      "  auth: {mode: plain}\n"                             // 4
+      "modules:\n"                                          // 5
+      "  - id: 0\n"                                         // 6
+      "    bus: vcan1\n"                                    // 7
+      "    profile: pdop\n"                                 // 8
+      "    nodes: {1: 1}\n"                                 // 9
+      "    pdop:\n"                                         // 10
+      "      window: 256\n"                                 // 11
+      "      retries: 11\n"                                 // 12
+      "      max_packet_bytes: 600000\n"                    // 13
+      "      max_held_bytes: 2048\n"                        // 14
+      "  - id: 1\n"                                         // 15
+      "    bus: vcan2\n"                                    // 16
+      "    profile: qd\n"                                   // 17
+      "    nodes: {1: 20}\n"                                // 18
+      "    pdop: {ack_timeout_ms: 0, reassemble: maybe}\n"  // 19
+      "  - id: 2\n"                                         // 20
+      "    bus: vcan3\n"                                    // 21
+      "    profile: pdop\n"                                 // 22
+      "    nodes: {1: 21}\n"                                // 23
+      "    pdop:\n";                                        // 24
   const auto ps = problems_of([&] { parse_gateway(yaml, "p.yaml"); });
   const std::string all = dump(ps);
-  EXPECT_TRUE(has(ps, 10, "modules[0].pdop.window", "256 is out of range 1..255")) << all;
-  EXPECT_TRUE(has(ps, 11, "modules[0].pdop.retries", "11 is out of range 0..10")) << all;
-  EXPECT_TRUE(has(ps, 12, "modules[0].pdop.max_packet_bytes", "out of range 1..524280")) << all;
-  EXPECT_TRUE(has(ps, 18, "modules[1].pdop",
+  EXPECT_TRUE(has(ps, 11, "modules[0].pdop.window", "256 is out of range 1..255")) << all;
+  EXPECT_TRUE(has(ps, 12, "modules[0].pdop.retries", "11 is out of range 0..10")) << all;
+  EXPECT_TRUE(has(ps, 13, "modules[0].pdop.max_packet_bytes", "out of range 1..524280")) << all;
+  EXPECT_TRUE(has(ps, 19, "modules[1].pdop",
                   "applies to pdop modules only (this module's "
                   "profile is qd)"))
       << all;
-  EXPECT_TRUE(has(ps, 18, "modules[1].pdop.ack_timeout_ms", "0 is out of range 1..10000")) << all;
-  EXPECT_TRUE(has(ps, 18, "modules[1].pdop.reassemble", "must be true or false")) << all;
-  EXPECT_TRUE(has(ps, 23, "modules[2].pdop", "must be a mapping")) << all;
+  EXPECT_TRUE(has(ps, 19, "modules[1].pdop.ack_timeout_ms", "0 is out of range 1..10000")) << all;
+  EXPECT_TRUE(has(ps, 19, "modules[1].pdop.reassemble", "must be true or false")) << all;
+  EXPECT_TRUE(has(ps, 24, "modules[2].pdop", "must be a mapping")) << all;
   // Nothing else: max_held_bytes is not compared with a max_packet_bytes already refused.
   EXPECT_EQ(ps.size(), 7u) << all;
 }
@@ -367,22 +440,22 @@ TEST(Config, EveryProblemOfABadSurfaceBackboneIsReportedAtOnce) {
   const std::string path = kFixtures + "surface_bad.yaml";
   const auto ps = problems_of([&] { load_surface(path); });
   const std::string all = dump(ps);
-  EXPECT_TRUE(has(ps, 6, "backbone.serial[0].baud", "115201 is not a standard serial rate")) << all;
-  EXPECT_TRUE(has(ps, 7, "backbone.serial[0].flow_control", "'software'")) << all;
-  EXPECT_TRUE(has(ps, 8, "backbone.serial[1].device", "also the device of backbone.serial[0]"))
+  EXPECT_TRUE(has(ps, 7, "backbone.serial[0].baud", "115201 is not a standard serial rate")) << all;
+  EXPECT_TRUE(has(ps, 8, "backbone.serial[0].flow_control", "'software'")) << all;
+  EXPECT_TRUE(has(ps, 9, "backbone.serial[1].device", "also the device of backbone.serial[0]"))
       << all;
-  EXPECT_TRUE(has(ps, 9, "backbone.serial[1].stop_bits", "unknown key")) << all;
-  EXPECT_TRUE(has(ps, 10, "backbone.serial[2].device", "missing (required)")) << all;
-  EXPECT_TRUE(has(ps, 11, "backbone.conflate_pdos", "must be true or false")) << all;
-  EXPECT_TRUE(has(ps, 12, "backbone.keepalive_ms", "out of range 10..600000")) << all;
-  EXPECT_TRUE(has(ps, 14, "backbone.retransmit_ms", "out of range 10..600000")) << all;
-  EXPECT_TRUE(has(ps, 15, "backbone.resend_buffer_messages", "out of range 1..1048576")) << all;
-  EXPECT_TRUE(has(ps, 16, "backbone.resend_buffer_bytes", "out of range 1024..1073741824")) << all;
-  EXPECT_TRUE(has(ps, 17, "backbone.max_write_bytes", "out of range 64..1048576")) << all;
-  EXPECT_TRUE(has(ps, 18, "backbone.queue_reliable_frames", "out of range 1..4194304")) << all;
-  EXPECT_TRUE(has(ps, 19, "backbone.queue_process_frames", "out of range 1..4194304")) << all;
-  EXPECT_TRUE(has(ps, 20, "backbone.linger_ms", "unknown key")) << all;
-  // Nothing else: dead_after_ms (line 13) is not compared with a keepalive_ms already refused.
+  EXPECT_TRUE(has(ps, 10, "backbone.serial[1].stop_bits", "unknown key")) << all;
+  EXPECT_TRUE(has(ps, 11, "backbone.serial[2].device", "missing (required)")) << all;
+  EXPECT_TRUE(has(ps, 12, "backbone.conflate_pdos", "must be true or false")) << all;
+  EXPECT_TRUE(has(ps, 13, "backbone.keepalive_ms", "out of range 10..600000")) << all;
+  EXPECT_TRUE(has(ps, 15, "backbone.retransmit_ms", "out of range 10..600000")) << all;
+  EXPECT_TRUE(has(ps, 16, "backbone.resend_buffer_messages", "out of range 1..1048576")) << all;
+  EXPECT_TRUE(has(ps, 17, "backbone.resend_buffer_bytes", "out of range 1024..1073741824")) << all;
+  EXPECT_TRUE(has(ps, 18, "backbone.max_write_bytes", "out of range 64..1048576")) << all;
+  EXPECT_TRUE(has(ps, 19, "backbone.queue_reliable_frames", "out of range 1..4194304")) << all;
+  EXPECT_TRUE(has(ps, 20, "backbone.queue_process_frames", "out of range 1..4194304")) << all;
+  EXPECT_TRUE(has(ps, 21, "backbone.linger_ms", "unknown key")) << all;
+  // Nothing else: dead_after_ms (line 14) is not compared with a keepalive_ms already refused.
   EXPECT_EQ(ps.size(), 14u) << all;
   for (const auto& p : ps) EXPECT_EQ(p.file, path);
 }
@@ -391,19 +464,21 @@ TEST(Config, EveryProblemOfABadSerialGatewayIsReportedAtOnce) {
   const std::string path = kFixtures + "gateway_serial_bad.yaml";
   const auto ps = problems_of([&] { load_gateway(path); });
   const std::string all = dump(ps);
-  EXPECT_TRUE(has(ps, 3, "backbone.connect", "port 0")) << all;
-  EXPECT_TRUE(has(ps, 4, "backbone", "both given")) << all;
-  EXPECT_TRUE(has(ps, 5, "backbone.serial.device", "non-empty string")) << all;
-  EXPECT_TRUE(has(ps, 6, "backbone.serial.baud", "'fast' is not an integer")) << all;
-  EXPECT_TRUE(has(ps, 8, "backbone.serial.parity", "unknown key")) << all;
-  EXPECT_TRUE(has(ps, 10, "backbone.dead_after_ms", "900 must exceed keepalive_ms (1000)")) << all;
-  EXPECT_TRUE(has(ps, 14, "modules[0].conflate_pdos", "must be true or false")) << all;
+  EXPECT_TRUE(has(ps, 4, "backbone.connect", "port 0")) << all;
+  EXPECT_TRUE(has(ps, 5, "backbone", "both given")) << all;
+  EXPECT_TRUE(has(ps, 6, "backbone.serial.device", "non-empty string")) << all;
+  EXPECT_TRUE(has(ps, 7, "backbone.serial.baud", "'fast' is not an integer")) << all;
+  EXPECT_TRUE(has(ps, 9, "backbone.serial.parity", "unknown key")) << all;
+  EXPECT_TRUE(has(ps, 11, "backbone.dead_after_ms", "900 must exceed keepalive_ms (1000)")) << all;
+  EXPECT_TRUE(has(ps, 15, "modules[0].conflate_pdos", "must be true or false")) << all;
   EXPECT_EQ(ps.size(), 7u) << all;
 }
 
 TEST(Config, AnEmptySerialListIsNoTransport) {
-  const auto ps = problems_of(
-      [] { parse_surface("role: surface\nbus: vcan0\nbackbone:\n  serial: []\n", "n.yaml"); });
+  const auto ps = problems_of([] {
+    parse_surface("role: surface\nbus: vcan0\nbackbone:\n  serial: []\n" + std::string(kPlainTail),
+                  "n.yaml");
+  });
   ASSERT_EQ(ps.size(), 1u) << dump(ps);
   EXPECT_TRUE(has(ps, 3, "backbone", "neither is given")) << dump(ps);
 }
@@ -412,6 +487,7 @@ TEST(Config, KeepaliveAboveTheDefaultDeadAfterAsksForDeadAfter) {
   const auto ps = problems_of([] {
     parse_gateway(
         "role: gateway\nbackbone:\n  connect: 127.0.0.1:7000\n  keepalive_ms: 3000\n"
+        "  auth: {mode: plain}\n"
         "modules: [{id: 1, bus: vcan1}]\n",
         "k.yaml");
   });
@@ -423,6 +499,7 @@ TEST(Config, KeepaliveAboveTheDefaultDeadAfterAsksForDeadAfter) {
 TEST(Config, TcpFramingChoosesTheCrcFramingOrRefusesAnUnknownOne) {
   const char* base =
       "role: gateway\nbackbone:\n  connect: 127.0.0.1:7000\n  tcp_framing: {}\n"
+      "  auth: {mode: plain}\n"
       "modules: [{id: 1, bus: vcan1}]\n";
   auto with = [&](const std::string& value) {
     std::string yaml = base;
@@ -440,14 +517,15 @@ TEST(Config, TcpFramingChoosesTheCrcFramingOrRefusesAnUnknownOne) {
 TEST(Config, SerialOfTheWrongShapeSaysWhatEachRoleTakes) {
   const auto gateway = problems_of([] {
     parse_gateway(
-        "role: gateway\nbackbone:\n  serial:\n    - device: /dev/ttyS1\n"
+        "role: gateway\nbackbone:\n  serial:\n    - device: /dev/ttyS1\n  auth: {mode: plain}\n"
         "modules: [{id: 1, bus: vcan1}]\n",
         "g.yaml");
   });
   EXPECT_TRUE(has(gateway, 4, "backbone.serial", "a gateway has one line")) << dump(gateway);
   EXPECT_EQ(gateway.size(), 1u) << dump(gateway);
   const auto surface = problems_of([] {
-    parse_surface("role: surface\nbus: vcan0\nbackbone:\n  serial: {device: /dev/ttyS1}\n",
+    parse_surface("role: surface\nbus: vcan0\nbackbone:\n  serial: {device: /dev/ttyS1}\n" +
+                      std::string(kPlainTail),
                   "s.yaml");
   });
   EXPECT_TRUE(has(surface, 4, "backbone.serial", "must be a list of serial lines"))
@@ -455,8 +533,10 @@ TEST(Config, SerialOfTheWrongShapeSaysWhatEachRoleTakes) {
   EXPECT_EQ(surface.size(), 1u) << dump(surface);
   // "serial:" left without its lines, as when only that line of the example is uncommented.
   const auto empty = problems_of([] {
-    parse_gateway("role: gateway\nbackbone:\n  serial:\nmodules: [{id: 1, bus: vcan1}]\n",
-                  "e.yaml");
+    parse_gateway(
+        "role: gateway\nbackbone:\n  auth: {mode: plain}\n  serial:\nmodules: [{id: 1, bus: "
+        "vcan1}]\n",
+        "e.yaml");
   });
   EXPECT_TRUE(has(empty, 0, "backbone.serial", "must be a mapping")) << dump(empty);
   EXPECT_EQ(empty.size(), 1u) << dump(empty);
@@ -467,7 +547,7 @@ TEST(Config, BaudRatesOutsideTheTermiosSetAreRefused) {
     const auto ps = problems_of([&] {
       parse_surface(std::string("role: surface\nbus: vcan0\nbackbone:\n  serial:\n"
                                 "    - {device: /dev/ttyS1, baud: ") +
-                        baud + "}\n",
+                        baud + "}\n" + kPlainTail,
                     "b.yaml");
     });
     EXPECT_TRUE(has(ps, 5, "backbone.serial[0].baud", "")) << baud << "\n" << dump(ps);
@@ -478,23 +558,23 @@ TEST(Config, BaudRatesOutsideTheTermiosSetAreRefused) {
 TEST(Config, EveryProblemOfABadFileIsReportedWithLineAndField) {
   auto ps = problems_of([] { load_gateway(kFixtures + "gateway_bad.yaml"); });
   const std::string all = dump(ps);
-  EXPECT_TRUE(has(ps, 3, "backbone.connect", "must be host:port")) << all;
-  EXPECT_TRUE(has(ps, 5, "backbone.reconnect_max_ms", "reconnect_min_ms")) << all;
-  EXPECT_TRUE(has(ps, 9, "modules[1].id", "no default node map")) << all;
-  EXPECT_TRUE(has(ps, 10, "modules[1].bus", "used by two modules")) << all;
-  EXPECT_TRUE(has(ps, 13, "modules[2].nodes.2", "out of range 1..127")) << all;
-  EXPECT_TRUE(has(ps, 14, "modules[3].id", "missing")) << all;
-  EXPECT_TRUE(has(ps, 15, "modules[3].speed", "unknown key")) << all;
-  EXPECT_TRUE(has(ps, 17, "log.level", "'loud'")) << all;
+  EXPECT_TRUE(has(ps, 4, "backbone.connect", "must be host:port")) << all;
+  EXPECT_TRUE(has(ps, 6, "backbone.reconnect_max_ms", "reconnect_min_ms")) << all;
+  EXPECT_TRUE(has(ps, 10, "modules[1].id", "no default node map")) << all;
+  EXPECT_TRUE(has(ps, 11, "modules[1].bus", "used by two modules")) << all;
+  EXPECT_TRUE(has(ps, 14, "modules[2].nodes.2", "out of range 1..127")) << all;
+  EXPECT_TRUE(has(ps, 15, "modules[3].id", "missing")) << all;
+  EXPECT_TRUE(has(ps, 16, "modules[3].speed", "unknown key")) << all;
+  EXPECT_TRUE(has(ps, 18, "log.level", "'loud'")) << all;
   EXPECT_EQ(ps.size(), 8u) << all;
-  EXPECT_NE(std::string(ConfigError(ps).what()).find("gateway_bad.yaml:17: log.level"),
+  EXPECT_NE(std::string(ConfigError(ps).what()).find("gateway_bad.yaml:18: log.level"),
             std::string::npos);
 }
 
 TEST(Config, OverlappingSurfaceIdsNameBothOwners) {
   auto ps = problems_of([] { load_gateway(kFixtures + "gateway_overlap.yaml"); });
   ASSERT_EQ(ps.size(), 1u) << dump(ps);
-  EXPECT_EQ(ps[0].line, 9);
+  EXPECT_EQ(ps[0].line, 10);
   EXPECT_NE(
       ps[0].message.find("module 4 node 6: surface node id 7 is already owned by module 0 node 7"),
       std::string::npos)
@@ -516,8 +596,8 @@ TEST(Config, ModuleProfilesLoadWithCia301ByDefault) {
 TEST(Config, LssModuleMustBeServedAndLostTimeInRange) {
   const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_lss_bad.yaml"); });
   ASSERT_EQ(ps.size(), 2u) << dump(ps);
-  EXPECT_TRUE(has(ps, 7, "modules[0].heartbeat_lost_ms", "10")) << dump(ps);
-  EXPECT_TRUE(has(ps, 10, "lss_module", "module 3 is not one of this gateway's modules"))
+  EXPECT_TRUE(has(ps, 8, "modules[0].heartbeat_lost_ms", "10")) << dump(ps);
+  EXPECT_TRUE(has(ps, 11, "lss_module", "module 3 is not one of this gateway's modules"))
       << dump(ps);
 }
 
@@ -525,7 +605,7 @@ TEST(Config, LssModuleMustBeServedAndLostTimeInRange) {
 TEST(Config, OverlappingProfileImagesNameBothOwnersAndTheCobId) {
   const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_overlap.yaml"); });
   ASSERT_EQ(ps.size(), 1u) << dump(ps);
-  EXPECT_TRUE(has(ps, 11, "modules[1]",
+  EXPECT_TRUE(has(ps, 12, "modules[1]",
                   "COB-ID 0x1A5: module 2 (cia301) local node 5 -> surface 37 TPDO1 collides "
                   "with module 1 (qd) local node 5 -> surface 5 TPDO2"))
       << dump(ps);
@@ -533,19 +613,22 @@ TEST(Config, OverlappingProfileImagesNameBothOwnersAndTheCobId) {
 
 TEST(Config, ProfileProblemsAreReportedWithLineAndField) {
   const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_bad.yaml"); });
-  EXPECT_TRUE(has(ps, 8, "modules[0]", "module 0 node 2 (pdop): surface node id 40 must be 1..31"))
+  EXPECT_TRUE(has(ps, 9, "modules[0]", "module 0 node 2 (pdop): surface node id 40 must be 1..31"))
       << dump(ps);
-  EXPECT_TRUE(has(ps, 11, "modules[1].profile", "a qd module needs surface node ids 1..31"))
+  EXPECT_TRUE(has(ps, 12, "modules[1].profile", "a qd module needs surface node ids 1..31"))
       << dump(ps);
-  EXPECT_TRUE(has(ps, 14, "modules[2].profile", "'canopen' is not one of cia301, pdop, qd"))
+  EXPECT_TRUE(has(ps, 15, "modules[2].profile", "'canopen' is not one of cia301, pdop, qd"))
       << dump(ps);
   EXPECT_EQ(ps.size(), 3u) << dump(ps);
 }
 
 TEST(Config, AKeyGivenTwiceIsRefusedNotSilentlyOverwritten) {
   const auto ps = problems_of([] {
-    parse_surface("role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000}\nbus: vcan1\n",
-                  "twice.yaml");
+    parse_surface(
+        "role: surface\nbus: vcan0\nbackbone: {listen: 127.0.0.1:7000, auth: {mode: "
+        "plain}}\nbus: vcan1\n" +
+            std::string(kOneGateway),
+        "twice.yaml");
   });
   EXPECT_TRUE(has(ps, 4, "bus", "given twice (first at line 2)")) << dump(ps);
 }
@@ -561,7 +644,7 @@ TEST(Config, WrongRoleSyntaxErrorAndMissingFile) {
   ASSERT_EQ(missing.size(), 1u);
   EXPECT_EQ(missing[0].message, "cannot open the file");
   auto empty = problems_of([] { parse_surface("role: surface\n", "z.yaml"); });
-  EXPECT_EQ(empty.size(), 2u) << dump(empty);  // bus and backbone
+  EXPECT_EQ(empty.size(), 3u) << dump(empty);  // bus, backbone and gateways
   EXPECT_TRUE(has(empty, 0, "backbone", "'listen: host:port' (TCP), 'serial:' lines, or both"))
       << dump(empty);
   auto no_backbone = problems_of(

@@ -68,6 +68,7 @@ TEST(BusRoom, EveryReliableFrameReachesARateLimitedBusOnceAndInOrder) {
   const std::string surface_cfg =
       write_file("bus_room_surface.yaml",
                  "role: surface\nname: room-surface\nbus: vcan0\nbackbone:\n  listen: 127.0.0.1:0\n"
+                 "  auth: {mode: plain}\ngateways: [{name: room-gateway, modules: [1]}]\n"
                  "log:\n  level: info\n  stats_interval_s: 0\n");
   ChildProcess surface({CANBRIDGE_BIN, "surface", "--config", surface_cfg});
   ASSERT_TRUE(surface.wait_for_line("listening on 127.0.0.1:", 10s)) << surface.output();
@@ -77,7 +78,8 @@ TEST(BusRoom, EveryReliableFrameReachesARateLimitedBusOnceAndInOrder) {
   const std::string gateway_cfg = write_file(
       "bus_room_gateway.yaml",
       "role: gateway\nname: room-gateway\nbackbone:\n  connect: 127.0.0.1:" + port[1].str() +
-          "\nmodules:\n  - id: 1\n    bus: vcan1\ncan:\n  transmit_queue_frames: 16\n"
+          "\n  auth: {mode: plain}\nmodules:\n  - id: 1\n    bus: vcan1\ncan:\n  "
+          "transmit_queue_frames: 16\n"
           "log:\n  level: info\n  stats_interval_s: 0\n");
   ChildProcess gateway({CANBRIDGE_BIN, "gateway", "--config", gateway_cfg});
   ASSERT_TRUE(gateway.wait_for_line("surface 'room-surface' ready", 10s)) << gateway.output();

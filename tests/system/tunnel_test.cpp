@@ -44,7 +44,8 @@ class Tunnel : public ::testing::Test {
     const std::string surface_cfg =
         write_file("surface.yaml",
                    "role: surface\nname: test-surface\nbus: vcan0\nbackbone:\n  listen: "
-                   "127.0.0.1:0\nlog:\n  level: info\n");
+                   "127.0.0.1:0\n  auth: {mode: plain}\n"
+                   "gateways: [{name: test-gateway, modules: [1, 2]}]\nlog:\n  level: info\n");
     surface_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{CANBRIDGE_BIN, "surface", "--config", surface_cfg});
     ASSERT_TRUE(surface_->wait_for_line("listening on 127.0.0.1:", 10s)) << surface_->output();
@@ -52,18 +53,23 @@ class Tunnel : public ::testing::Test {
     const std::string out = surface_->output();
     ASSERT_TRUE(std::regex_search(out, port, std::regex("listening on 127\\.0\\.0\\.1:([0-9]+)")))
         << out;
-    const std::string gateway_cfg =
-        write_file("gateway.yaml",
-                   "role: gateway\nname: test-gateway\nbackbone:\n  connect: "
-                   "127.0.0.1:" +
-                       port[1].str() +
-                       "\n  reconnect_min_ms: 20\nmodules:\n  - id: 1\n    bus: "
-                       "vcan1\n  - id: 2\n    bus: vcan2\n");
+    const std::string gateway_cfg = write_file(
+        "gateway.yaml",
+        "role: gateway\nname: test-gateway\nbackbone:\n  connect: "
+        "127.0.0.1:" +
+            port[1].str() +
+            "\n  auth: {mode: plain}\n  reconnect_min_ms: 20\nmodules:\n  - id: 1\n    bus: "
+            "vcan1\n  - id: 2\n    bus: vcan2\n");
     gateway_ = std::make_unique<ChildProcess>(
         std::vector<std::string>{CANBRIDGE_BIN, "gateway", "--config", gateway_cfg});
     ASSERT_TRUE(surface_->wait_for_line("gateway 'test-gateway' ready", 10s))
         << surface_->output() << gateway_->output();
     ASSERT_TRUE(gateway_->wait_for_line("surface 'test-surface' ready", 10s)) << gateway_->output();
+    // A plain backbone never runs silently.
+    EXPECT_NE(surface_->output().find("backbone is NOT authenticated"), std::string::npos)
+        << surface_->output();
+    EXPECT_NE(gateway_->output().find("backbone is NOT authenticated"), std::string::npos)
+        << gateway_->output();
     ready_ = true;
   }
 
@@ -235,6 +241,9 @@ TEST(TunnelStartup, BadConfigExitsWithStatus2NamingFileLineAndFieldOfEveryProble
   EXPECT_NE(r.output.find(path + ":10: modules[1].bus: bus 'vcan1' is used by two modules"),
             std::string::npos)
       << r.output;
+  // No auth block: plain operation is never a default.
+  EXPECT_NE(r.output.find(path + ":3: backbone.auth: missing (required)"), std::string::npos)
+      << r.output;
 }
 
 TEST(TunnelStartup, MissingConfigFileExitsNonZeroWithAClearMessage) {
@@ -245,10 +254,10 @@ TEST(TunnelStartup, MissingConfigFileExitsNonZeroWithAClearMessage) {
 }
 
 TEST(TunnelStartup, MissingCanInterfaceExitsNonZeroNamingIt) {
-  const std::string path =
-      write_file("gateway_vcan9.yaml",
-                 "role: gateway\nname: vcan9-gateway\nbackbone:\n  connect: 127.0.0.1:1\n"
-                 "modules:\n  - id: 1\n    bus: vcan1\n  - id: 2\n    bus: vcan9\n");
+  const std::string path = write_file(
+      "gateway_vcan9.yaml",
+      "role: gateway\nname: vcan9-gateway\nbackbone:\n  connect: 127.0.0.1:1\n"
+      "  auth: {mode: plain}\nmodules:\n  - id: 1\n    bus: vcan1\n  - id: 2\n    bus: vcan9\n");
   auto r = test::run({CANBRIDGE_BIN, "gateway", "--config", path}, 10s, Capture::stderr_only);
   EXPECT_NE(r.status, 0) << r.output;
   EXPECT_NE(r.output.find("'vcan9'"), std::string::npos) << r.output;

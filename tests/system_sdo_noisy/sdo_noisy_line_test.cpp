@@ -118,13 +118,16 @@ class SdoOnNoisyLine : public ::testing::Test {
 
     const std::string log = "log:\n  level: info\n  stats_interval_s: 0\n";
     const std::string surface_cfg = dir_ + "/surface.yaml";
+    // Plain: a bench line between two ptys (docs/security.md).
     std::ofstream(surface_cfg) << "role: surface\nname: noisy-surface\nbus: vcan0\nbackbone:\n"
-                                  "  serial:\n    - {device: "
-                               << surface_tty << ", baud: 115200}\n"
-                               << kSlowLineTuning << log;
+                                  "  auth: {mode: plain}\n  serial:\n    - {device: "
+                               << surface_tty << ", baud: 115200, gateway: noisy-gateway}\n"
+                               << kSlowLineTuning
+                               << "gateways: [{name: noisy-gateway, modules: [1]}]\n"
+                               << log;
     const std::string gateway_cfg = dir_ + "/gateway.yaml";
     std::ofstream(gateway_cfg) << "role: gateway\nname: noisy-gateway\nbackbone:\n"
-                                  "  serial: {device: "
+                                  "  auth: {mode: plain}\n  serial: {device: "
                                << gw_tty << ", baud: 115200}\n  reconnect_min_ms: 100\n"
                                << kSlowLineTuning << "modules:\n  - id: 1\n    bus: vcan1\n"
                                << log;

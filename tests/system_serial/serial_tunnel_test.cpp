@@ -132,14 +132,16 @@ class SerialTunnel : public ::testing::Test {
 
     const std::string surface_cfg = dir_ + "/surface.yaml";
     write_file(surface_cfg,
+               // Plain: a bench line between two ptys (docs/security.md).
                "role: surface\nname: serial-surface\nbus: vcan0\nbackbone:\n"
-               "  serial:\n    - {device: " +
-                   surface_tty_ + ", baud: 115200}\n" + kSlowLineTuning +
+               "  auth: {mode: plain}\n  serial:\n    - {device: " +
+                   surface_tty_ + ", baud: 115200, gateway: serial-gateway}\n" + kSlowLineTuning +
+                   "gateways: [{name: serial-gateway, modules: [1, 2]}]\n" +
                    "log:\n  level: " + log_level() + "\n  stats_interval_s: 0\n");
     const std::string gateway_cfg = dir_ + "/gateway.yaml";
     write_file(gateway_cfg,
                "role: gateway\nname: serial-gateway\nbackbone:\n"
-               "  serial: {device: " +
+               "  auth: {mode: plain}\n  serial: {device: " +
                    gw_tty_ + ", baud: 115200}\n  reconnect_min_ms: 100\n" + kSlowLineTuning +
                    "modules:\n  - id: 1\n    bus: vcan1\n  - id: 2\n    bus: vcan2\n"
                    "log:\n  level: " +
