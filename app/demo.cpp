@@ -156,6 +156,13 @@ class DemoRig {
   bool failed_ = false;
 };
 
+// The demo's one gateway, on loopback and in this process: plain, its modules by default mapping.
+SurfacePolicy demo_policy(const DemoOptions& options) {
+  AcceptedGateway gateway{"demo-gateway", {}, {}};
+  for (unsigned m = 0; m < options.modules; ++m) gateway.modules.push_back(m);
+  return {{gateway}, false};
+}
+
 DemoRig::DemoRig(asio::io_context& io, const DemoOptions& options)
     : io_(io),
       ex_(io.get_executor()),
@@ -163,7 +170,7 @@ DemoRig::DemoRig(asio::io_context& io, const DemoOptions& options)
       modules_(build_module_rig(ex_, options)),
       surface_bus_(ex_, "surface"),
       master_port_(surface_bus_.connect("master")),
-      surface_(ex_, "demo-surface", surface_bus_.connect("surface")),
+      surface_(ex_, "demo-surface", surface_bus_.connect("surface"), demo_policy(options)),
       gateway_(ex_, "demo-gateway", std::move(modules_.map), std::move(modules_.modules)),
       server_(backbone::TcpServer::create(ex_)),
       client_(nullptr),

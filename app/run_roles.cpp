@@ -107,6 +107,18 @@ std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
   return server;
 }
 
+// Who the surface binds: its configured `gateways:`, and whether a link must prove an identity
+// (every auth mode but plain).
+SurfacePolicy surface_policy(const config::SurfaceOptions& options) {
+  SurfacePolicy policy;
+  for (const config::AcceptedGatewayOptions& g : options.gateways) {
+    policy.gateways.push_back(
+        {g.name, g.modules, {g.surface_nodes.begin(), g.surface_nodes.end()}});
+  }
+  policy.require_authenticated_peers = options.auth.mode != config::AuthMode::plain;
+  return policy;
+}
+
 }  // namespace
 
 int run_gateway(const config::GatewayOptions& options) {
@@ -160,7 +172,7 @@ int run_surface(const config::SurfaceOptions& options) {
   warn_if_plain(options);
   asio::io_context io(1);
   Surface surface(io.get_executor(), options.name,
-                  open_bus(io.get_executor(), options.bus, options.can),
+                  open_bus(io.get_executor(), options.bus, options.can), surface_policy(options),
                   make_tuning(options.session), options.conflate_pdos, options.rpdop_relay);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     surface.attach(std::move(link));

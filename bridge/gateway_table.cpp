@@ -2,12 +2,25 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <map>
+#include <stdexcept>
 
 #include "canopen/cob_id.hpp"
+#include "routing/id_profile.hpp"
 
 namespace canbridge::bridge {
 
 namespace {
+
+// A peer-chosen name, safe for a log line: at most 64 characters, printable ASCII only.
+std::string printable(std::string_view text) {
+  std::string out(text.substr(0, 64));
+  for (char& c : out) {
+    if (c < 0x20 || c > 0x7E) c = '?';
+  }
+  if (text.size() > out.size()) out += "...";
+  return out;
+}
 
 std::string quoted(std::string_view name) {
   return "gateway '" + std::string(name) + "'";
@@ -38,9 +51,79 @@ ModuleId module_with_cob(const GatewayClaims& claims, std::uint32_t cob) {
 
 }  // namespace
 
-GatewayTable::GatewayTable(std::string surface_name) : surface_name_(std::move(surface_name)) {
+const char* to_string(NotItsOwn reason) {
+  switch (reason) {
+    case NotItsOwn::master_only:
+      return "master-only";
+    case NotItsOwn::outside_claims:
+      return "outside-claims";
+    case NotItsOwn::extended:
+      return "extended";
+    case NotItsOwn::count_:
+      break;
+  }
+  return "unknown";
+}
+
+std::bitset<kStandardCobIds> cob_image_of(const std::bitset<128>& surface_nodes) {
+  std::bitset<kStandardCobIds> image;
+  for (IdProfile profile : {IdProfile::cia301, IdProfile::pdop, IdProfile::qd}) {
+    for (NodeId node = 1; node <= max_node_id(profile); ++node) {
+      if (!surface_nodes.test(node)) continue;
+      for (const ProfileCobId& id : profile_cob_ids(profile)) image.set(id.base + node);
+    }
+  }
+  return image;
+}
+
+GatewayTable::GatewayTable(std::string surface_name, const std::vector<AcceptedGateway>& accepted,
+                           bool require_authenticated_peers)
+    : surface_name_(std::move(surface_name)),
+      require_authenticated_peers_(require_authenticated_peers) {
   node_owner_.fill(kNobody);
   cob_owner_.fill(kNobody);
+  std::map<ModuleId, std::string> module_of;
+  std::array<const std::string*, 128> node_of{};
+  for (const AcceptedGateway& g : accepted) {
+    if (g.name.empty() || find(g.name)) {
+      throw std::invalid_argument("accepted gateways: the name '" + g.name +
+                                  "' is empty or given twice");
+    }
+    Allowance allowance;
+    allowance.modules = g.modules;
+    for (ModuleId m : g.modules) {
+      if (auto [it, fresh] = module_of.emplace(m, g.name); !fresh) {
+        throw std::invalid_argument("accepted gateways: module " + std::to_string(m) +
+                                    " is given to both gateway '" + it->second + "' and '" +
+                                    g.name + "'");
+      }
+      if (!g.surface_nodes.empty()) continue;
+      for (auto [local, surface] : NodeMap::default_pairs(m)) allowance.nodes.set(surface);
+    }
+    for (NodeId node : g.surface_nodes) {
+      if (node == 0 || node > canopen::kMaxNodeId) {
+        throw std::invalid_argument("accepted gateways: gateway '" + g.name + "' surface node " +
+                                    std::to_string(node) + " is outside 1..127");
+      }
+      allowance.nodes.set(node);
+    }
+    for (NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
+      if (!allowance.nodes.test(node)) continue;
+      if (node_of[node] && *node_of[node] != g.name) {
+        throw std::invalid_argument("accepted gateways: surface node " + std::to_string(node) +
+                                    " is given to both gateway '" + *node_of[node] + "' and '" +
+                                    g.name + "'");
+      }
+    }
+    allowance.cobs = cob_image_of(allowance.nodes);
+    entries_.push_back({g.name, 0, {}, std::nullopt, false, false});
+    for (NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
+      if (allowance.nodes.test(node)) node_of[node] = &entries_.back().name;
+    }
+    allowed_.push_back(std::move(allowance));
+  }
+  accepted_.resize(entries_.size());
+  last_refusal_.resize(entries_.size());
 }
 
 std::optional<GatewayTable::GatewayId> GatewayTable::find(std::string_view name) const {
@@ -48,6 +131,62 @@ std::optional<GatewayTable::GatewayId> GatewayTable::find(std::string_view name)
     if (entries_[i].name == name) return static_cast<GatewayId>(i);
   }
   return std::nullopt;
+}
+
+// Who the peer is: a configured name, the one its link proved, and proven when that is required.
+std::string GatewayTable::identity_problem(const Hello& hello) const {
+  const std::string self = quoted(printable(hello.name));
+  if (!find(hello.name)) {
+    return self + " is not configured on surface '" + surface_name_ +
+           "': add it to the surface's `gateways:` (name, modules) if it belongs";
+  }
+  if (!hello.authenticated_peer.empty() && hello.authenticated_peer != hello.name) {
+    return "the link proved identity '" + printable(hello.authenticated_peer) +
+           "' but its hello names " + self +
+           ": give the gateway the name of its key or certificate";
+  }
+  if (hello.authenticated_peer.empty() && require_authenticated_peers_) {
+    return self + " proved no identity, and surface '" + surface_name_ +
+           "' accepts authenticated gateways only: give both the same auth mode and key";
+  }
+  return {};
+}
+
+// Modules and claims within what the configuration gives this gateway.
+std::string GatewayTable::allowance_problem(GatewayId gateway, const std::vector<ModuleId>& modules,
+                                            const std::optional<GatewayClaims>& claims) const {
+  const Allowance& allowed = allowed_[gateway];
+  const std::string self = quoted(entries_[gateway].name);
+  const std::string fix = ": configured on surface '" + surface_name_ +
+                          "' for other ones; change its `gateways:` entry or the gateway's file";
+  auto allowed_module = [&](ModuleId m) {
+    return std::find(allowed.modules.begin(), allowed.modules.end(), m) != allowed.modules.end();
+  };
+  for (ModuleId m : modules) {
+    if (!allowed_module(m)) return self + " announces module " + std::to_string(m) + fix;
+  }
+  if (!claims) return {};
+  for (const ModuleClaim& claim : claims->modules) {
+    if (std::find(modules.begin(), modules.end(), claim.id) == modules.end()) {
+      return self + " claims ids for module " + std::to_string(claim.id) +
+             ", which it does not announce";
+    }
+    for (NodeId node : claim.surface_nodes) {
+      if (!allowed.nodes.test(node)) {
+        return self + " module " + std::to_string(claim.id) + " claims surface node id " +
+               std::to_string(node) + fix;
+      }
+    }
+    for (const CobRange& r : claim.cob_ranges) {
+      for (std::uint32_t cob = r.first; cob <= r.last; ++cob) {
+        if (!allowed.cobs.test(cob)) {
+          return self + " module " + std::to_string(claim.id) + " claims surface COB-ID " +
+                 hex_cob(cob) + ", which none of its configured surface node ids uses" + fix;
+        }
+      }
+    }
+  }
+  return {};
 }
 
 // The first reason `hello` may not bind, "" when it may. Like the configuration check of one
@@ -60,8 +199,7 @@ std::string GatewayTable::conflict(const Hello& hello) const {
   return cob_conflict(hello);
 }
 
-// A module announced twice, the name held by another live process, or a module another
-// connected gateway serves.
+// A module announced twice, or the name held by another live process.
 std::string GatewayTable::module_conflict(const Hello& hello) const {
   const std::string self = quoted(hello.name);
   const auto& wanted = hello.modules;
@@ -77,23 +215,14 @@ std::string GatewayTable::module_conflict(const Hello& hello) const {
            surface_name_ + "' (another process): give this gateway another name, or stop the " +
            "other process";
   }
-  for (const Entry& other : entries_) {
-    if (!other.connected || other.name == hello.name) continue;
-    for (ModuleId m : wanted) {
-      if (std::find(other.modules.begin(), other.modules.end(), m) != other.modules.end()) {
-        return "module " + std::to_string(m) + " is already served by " + quoted(other.name) +
-               ", connected to surface '" + surface_name_ + "'; " + self +
-               " refused: give this gateway another name or module, or stop " + quoted(other.name);
-      }
-    }
-  }
+  // Another gateway's modules are outside this one's configuration: allowance_problem().
   return {};
 }
 
-// A claim held by a connected gateway other than `name` (its own, earlier session is no rival).
+// A claim another gateway holds, up or down: a gateway away keeps its ids (its own earlier
+// session is no rival).
 bool GatewayTable::held_by_other(std::int32_t owner, const std::string& name) const {
-  return owner != kNobody && entries_[static_cast<std::size_t>(owner)].connected &&
-         entries_[static_cast<std::size_t>(owner)].name != name;
+  return owner != kNobody && entries_[static_cast<std::size_t>(owner)].name != name;
 }
 
 // The refusal names the first shared id and counts the overlap with that same owner, so the
@@ -114,7 +243,7 @@ std::string GatewayTable::node_conflict(const Hello& hello) const {
       first = "surface node id " + std::to_string(node) + " of " + self + " module " +
               std::to_string(m.id) + " is already " + quoted(other.name) + " module " +
               std::to_string(other.claims ? module_with_node(*other.claims, node) : 0) +
-              "'s, connected to surface '" + surface_name_ + "'";
+              "'s on surface '" + surface_name_ + "'";
     }
   }
   if (overlaps == 0) return {};
@@ -141,7 +270,7 @@ std::string GatewayTable::cob_conflict(const Hello& hello) const {
         first = "surface COB-ID " + hex_cob(cob) + " of " + self + " module " +
                 std::to_string(m.id) + " collides with " + quoted(other.name) + " module " +
                 std::to_string(other.claims ? module_with_cob(*other.claims, cob) : 0) +
-                ", connected to surface '" + surface_name_ + "'";
+                ", on surface '" + surface_name_ + "'";
       }
     }
   }
@@ -153,26 +282,33 @@ std::string GatewayTable::cob_conflict(const Hello& hello) const {
          " does not use";
 }
 
+GatewayTable::Admission GatewayTable::refuse(const Hello& hello, std::optional<GatewayId> gateway,
+                                             std::string why) {
+  // Strangers share one slot: their names leave nothing behind.
+  std::string& last = gateway ? last_refusal_[*gateway] : last_stranger_refusal_;
+  const bool repeated = last == why;
+  last = why;
+  std::string to_peer = hello.authenticated_peer.empty() ? std::string("refused") : why;
+  return {std::nullopt, std::move(why), std::move(to_peer), repeated, !gateway.has_value()};
+}
+
 GatewayTable::Admission GatewayTable::admit(const Hello& hello) {
-  std::string why = conflict(hello);
-  if (!why.empty()) {
-    std::string& last = last_refusal_[hello.name];
-    const bool repeated = last == why;
-    last = why;
-    return {std::nullopt, std::move(why), repeated};
+  if (std::string why = identity_problem(hello); !why.empty()) {
+    // A configured name that proved nothing (or another identity) is no proof of being it.
+    return refuse(hello, std::nullopt, std::move(why));
   }
-  last_refusal_.erase(hello.name);
-  std::optional<GatewayId> id = find(hello.name);
-  if (!id) {
-    id = static_cast<GatewayId>(entries_.size());
-    entries_.push_back({hello.name, 0, {}, std::nullopt, false});
-  }
-  Entry& e = entries_[*id];
+  const GatewayId id = *find(hello.name);
+  std::string why = allowance_problem(id, hello.modules, hello.claims);
+  if (why.empty()) why = conflict(hello);
+  if (!why.empty()) return refuse(hello, id, std::move(why));
+  last_refusal_[id].clear();
+  Entry& e = entries_[id];
   e.session_id = hello.session_id;
   e.modules = hello.modules;
   e.claims = hello.claims;
-  take_claims(*id);
-  return {id, {}, false};
+  e.bound_once = true;
+  take_claims(id);
+  return {id, {}, {}, false, false};
 }
 
 void GatewayTable::take_claims(GatewayId gateway) {
@@ -180,12 +316,22 @@ void GatewayTable::take_claims(GatewayId gateway) {
   std::replace(node_owner_.begin(), node_owner_.end(), me, kNobody);
   std::replace(cob_owner_.begin(), cob_owner_.end(), me, kNobody);
   const Entry& e = entries_[gateway];
-  if (!e.claims) return;
-  // Ids held by a disconnected gateway pass to this one: conflict() let it through.
+  Accepted& accepted = accepted_[gateway];
+  if (!e.claims) {
+    // A gateway without claims (protocol minor < 3): what its configuration allows.
+    accepted.nodes = allowed_[gateway].nodes;
+    accepted.cobs = allowed_[gateway].cobs;
+    return;
+  }
+  accepted = {};
   for (const ModuleClaim& m : e.claims->modules) {
-    for (NodeId node : m.surface_nodes) node_owner_[node] = me;
+    for (NodeId node : m.surface_nodes) {
+      node_owner_[node] = me;
+      accepted.nodes.set(node);
+    }
     for (const CobRange& r : m.cob_ranges) {
       std::fill(cob_owner_.begin() + r.first, cob_owner_.begin() + r.last + 1, me);
+      for (std::uint32_t cob = r.first; cob <= r.last; ++cob) accepted.cobs.set(cob);
     }
   }
 }
@@ -193,7 +339,8 @@ void GatewayTable::take_claims(GatewayId gateway) {
 std::string GatewayTable::update_claims(GatewayId gateway, GatewayClaims claims) {
   if (gateway >= entries_.size()) return "no such gateway";
   Entry& e = entries_[gateway];
-  std::string why = conflict({e.name, e.session_id, e.modules, claims});
+  std::string why = allowance_problem(gateway, e.modules, claims);
+  if (why.empty()) why = conflict({e.name, e.session_id, e.modules, claims, {}});
   if (!why.empty()) return why;
   e.claims = std::move(claims);
   take_claims(gateway);
@@ -202,6 +349,24 @@ std::string GatewayTable::update_claims(GatewayId gateway, GatewayClaims claims)
 
 void GatewayTable::set_connected(GatewayId gateway, bool connected) {
   if (gateway < entries_.size()) entries_[gateway].connected = connected;
+}
+
+std::optional<NotItsOwn> GatewayTable::refuses(GatewayId gateway, const can::Frame& frame) const {
+  if (frame.is_extended()) return NotItsOwn::extended;
+  if (frame.id == canopen::cob::lss_slave) return std::nullopt;
+  if (frame.id == canopen::cob::nmt || frame.id == canopen::cob::sync ||
+      frame.id == canopen::cob::time || frame.id == canopen::cob::lss_master) {
+    return NotItsOwn::master_only;
+  }
+  if (gateway >= accepted_.size() || !accepted_[gateway].cobs.test(frame.id)) {
+    return NotItsOwn::outside_claims;
+  }
+  return std::nullopt;
+}
+
+bool GatewayTable::speaks_for(GatewayId gateway, NodeId node) const {
+  return gateway < accepted_.size() && node <= canopen::kMaxNodeId &&
+         accepted_[gateway].nodes.test(node);
 }
 
 std::optional<GatewayTable::GatewayId> GatewayTable::owner_of_node(NodeId surface_node) const {

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <bitset>
 #include <deque>
 
 #include "bridge/counter_text.hpp"
@@ -58,16 +59,20 @@ struct Surface::Gateway {
   std::deque<std::string> rpdop_out;  // serialized PdopPackets payloads
   backbone::PeerStream stream;
   LineLossCounter line_loss;
+  // Frames it sent that were not its to send, by NotItsOwn; which reasons were warned already.
+  std::array<std::uint64_t, kNotItsOwnReasons> not_its_own{};
+  std::bitset<kNotItsOwnReasons> warned_not_its_own;
 };
 
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-                 BackboneTuning tuning, bool conflate_pdos, RpdopRelayOptions rpdop_relay)
+                 SurfacePolicy policy, BackboneTuning tuning, bool conflate_pdos,
+                 RpdopRelayOptions rpdop_relay)
     : executor_(std::move(executor)),
       name_(std::move(name)),
       bus_(std::move(bus)),
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
-      table_(name_),
+      table_(name_, policy.gateways, policy.require_authenticated_peers),
       relay_(rpdop_relay),
       deadlines_(executor_),
       writer_(
@@ -78,6 +83,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
             counters_.to_bus += frames.size();
           },
           [this](bool backlogged) { on_bus_backlog(backlogged); }) {
+  by_id_.resize(table_.gateways().size(), nullptr);
   identity_.role = v1::Hello::ROLE_SURFACE;
   identity_.expected_peer = v1::Hello::ROLE_GATEWAY;
   identity_.name = name_;
@@ -153,35 +159,50 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   });
   auto session = backbone::SessionLink::create(
       std::move(link), identity_, tuning_.session, nullptr,
-      [this](const v1::Hello& hello, backbone::SessionLink& bound) {
-        backbone::BindResult result = bind(hello);
-        if (result.stream && link_bound_) link_bound_(*bound.message_link());
-        return result;
+      [this](const v1::Hello& hello, backbone::SessionLink& session_link) {
+        return bind(hello, session_link);
       },
       counters_.session, &session_log_);
   links_.push_back(session);
   session->start();
 }
 
-backbone::BindResult Surface::bind(const v1::Hello& hello) {
+backbone::BindResult Surface::bind(const v1::Hello& hello, backbone::SessionLink& link) {
   GatewayTable::Hello wanted{hello.name(),
                              hello.session_id(),
                              {hello.module_ids().begin(), hello.module_ids().end()},
-                             std::nullopt};
+                             std::nullopt,
+                             link.authenticated_peer()};
+  GatewayTable::Admission admission;
   if (!hello.application().empty()) {
     wanted.claims = decode_claims(hello.application());
-    if (!wanted.claims) {
-      return {nullptr, v1::Refusal::PROTOCOL_ERROR,
-              "gateway '" + hello.name() + "' sent claims the surface cannot read", false};
-    }
   }
-  const GatewayTable::Admission admission = table_.admit(wanted);
+  if (!hello.application().empty() && !wanted.claims) {
+    admission.refusal =
+        "gateway '" + hello.name().substr(0, 64) + "' sent claims the surface cannot read";
+    admission.to_peer = wanted.authenticated_peer.empty() ? "refused" : admission.refusal;
+    admission.stranger = true;
+  } else {
+    admission = table_.admit(wanted);
+  }
   if (!admission.id) {
-    return {nullptr, v1::Refusal::DUPLICATE_MODULE, admission.refusal, admission.repeated};
+    // The details stay here: a peer that proved nothing learns no names, modules or ids.
+    if (admission.stranger) {
+      ++counters_.refused_strangers;
+      warn_.warn(Warn::kStranger,
+                 "surface {}: refused a peer: {} (later refusals of unknown or unproven peers "
+                 "only counted as refused-strangers)",
+                 name_, admission.refusal);
+    } else if (!admission.repeated) {
+      spdlog::warn("surface {}: refused a gateway: {}", name_, admission.refusal);
+    }
+    const bool detailed = admission.to_peer != "refused";
+    return {nullptr, detailed ? v1::Refusal::DUPLICATE_MODULE : v1::Refusal::REASON_UNSPECIFIED,
+            std::move(admission.to_peer), admission.repeated || admission.stranger};
   }
-  if (*admission.id == by_id_.size()) {
+  if (by_id_[*admission.id] == nullptr) {
     auto gateway = std::make_unique<Gateway>(hello.name(), *admission.id, tuning_, *this);
-    by_id_.push_back(gateway.get());
+    by_id_[*admission.id] = gateway.get();
     if (writer_.queue().backlogged()) gateway->stream.pause_input(true);
     gateways_[hello.name()] = std::move(gateway);
   }
@@ -190,6 +211,7 @@ backbone::BindResult Surface::bind(const v1::Hello& hello) {
   // Its nodes are its from now on, seen or not: an SDO request to one is tracked (and aborted
   // if the link drops) even before the node has sent anything.
   if (wanted.claims) guard_.note_claims(gateway.id, *wanted.claims);
+  if (on_link_bound_) on_link_bound_(*link.message_link());
   return {&gateway.stream, {}, {}, false};
 }
 
@@ -233,8 +255,9 @@ asio::awaitable<std::error_code> Surface::read_bus() {
       // RPDOP to a pdop node behind a gateway: the relay acknowledges the master and forwards
       // whole packets.
       if (relay_.on_frame(frame, now, relay_out_)) continue;
-      const auto verdict = guard_.on_surface_frame(
-          frame, [this](SdoLinkGuard::GatewayId g) { return by_id_[g]->stream.up(); });
+      const auto verdict = guard_.on_surface_frame(frame, [this](SdoLinkGuard::GatewayId g) {
+        return by_id_[g] != nullptr && by_id_[g]->stream.up();
+      });
       if (verdict.reply) send_to_bus(*verdict.reply);
       if (verdict.forward) forward_.push_back(frame);
     }
@@ -243,11 +266,12 @@ asio::awaitable<std::error_code> Surface::read_bus() {
     for (const can::Frame& frame : forward_) {
       const GatewayTable::Route route = table_.route(frame);
       if (route.kind == GatewayTable::Route::one) {
-        forward_to(*by_id_[route.gateway], frame, now);
+        if (by_id_[route.gateway] != nullptr) forward_to(*by_id_[route.gateway], frame, now);
         continue;
       }
       bool sent = false;
       for (Gateway* gateway : by_id_) {
+        if (gateway == nullptr) continue;
         if (route.kind == GatewayTable::Route::all ||
             !table_.gateways()[gateway->id].claims.has_value()) {
           forward_to(*gateway, frame, now);
@@ -262,7 +286,9 @@ asio::awaitable<std::error_code> Surface::read_bus() {
                    frame.id);
       }
     }
-    for (Gateway* gateway : by_id_) gateway->stream.wake();
+    for (Gateway* gateway : by_id_) {
+      if (gateway != nullptr) gateway->stream.wake();
+    }
     flush_relay();
   }
 }
@@ -330,8 +356,25 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
                           decoded_.size());
   counters_.frames_received += decoded_.size();
   for (const can::Frame& frame : decoded_) {
+    // Only its own nodes' COB-IDs: never another module's heartbeat, never NMT or SYNC.
+    if (const std::optional<NotItsOwn> why = table_.refuses(from.id, frame)) {
+      drop_not_its_own(from, *why, frame.id);
+      continue;
+    }
     if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame);
   }
+}
+
+void Surface::drop_not_its_own(Gateway& from, NotItsOwn why, std::uint32_t cob) {
+  const auto r = static_cast<std::size_t>(why);
+  ++from.not_its_own[r];
+  ++counters_.not_its_own[r];
+  if (from.warned_not_its_own.test(r)) return;
+  from.warned_not_its_own.set(r);
+  spdlog::warn(
+      "surface {}: gateway '{}' sent COB-ID 0x{:03X}, not its to send on the surface bus ({}): "
+      "dropped (later ones only counted as not-its-own {})",
+      name_, from.name, cob, to_string(why), to_string(why));
 }
 
 // Node table events are rare (boot-ups, losses, renames): one log line each is what an operator
@@ -350,8 +393,10 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
   }
   for (const v1::NodeEvent& e : events.events()) {
     ++counters_.node_events;
-    if (e.surface_node() != 0)
+    if (e.surface_node() != 0 && e.surface_node() <= canopen::kMaxNodeId &&
+        table_.speaks_for(from.id, static_cast<canopen::NodeId>(e.surface_node()))) {
       guard_.note_owner(from.id, static_cast<canopen::NodeId>(e.surface_node()));
+    }
     const std::string node = fmt::format("gateway '{}' module {} node {} (surface {})", from.name,
                                          e.module_id(), e.local_node(), e.surface_node());
     switch (e.kind()) {
@@ -391,7 +436,8 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
 void Surface::on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes) {
   for (const v1::PdopNodes::Node& n : nodes.nodes()) {
     if (n.surface_node() < 1 || n.surface_node() > canopen::pdop::kMaxNode ||
-        std::find(from.modules.begin(), from.modules.end(), n.module_id()) == from.modules.end()) {
+        std::find(from.modules.begin(), from.modules.end(), n.module_id()) == from.modules.end() ||
+        !table_.speaks_for(from.id, static_cast<canopen::NodeId>(n.surface_node()))) {
       ++counters_.pdop_malformed;
       continue;
     }
@@ -417,6 +463,12 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
     const bool announced =
         std::find(from.modules.begin(), from.modules.end(), p.module_id()) != from.modules.end();
     std::vector<can::Frame> fragments;
+    if (announced && base != 0 && p.surface_node() >= 1 &&
+        p.surface_node() <= canopen::pdop::kMaxNode &&
+        !table_.speaks_for(from.id, static_cast<canopen::NodeId>(p.surface_node()))) {
+      drop_not_its_own(from, NotItsOwn::outside_claims, base + p.surface_node());
+      continue;
+    }
     if (announced && base != 0 && p.surface_node() >= 1 &&
         p.surface_node() <= canopen::pdop::kMaxNode) {
       fragments =
@@ -565,6 +617,10 @@ SurfaceCounters Surface::counters() const {
   for (const auto& [name, g] : gateways_) {
     c.outbox += g->outbox.counters();
     c.process_lost_on_line += g->line_loss.lost();
+    if (std::any_of(g->not_its_own.begin(), g->not_its_own.end(),
+                    [](std::uint64_t n) { return n != 0; })) {
+      c.not_its_own_by_gateway.emplace_back(name, g->not_its_own);
+    }
   }
   return c;
 }
@@ -603,6 +659,13 @@ std::string Surface::stats_line() const {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
                        c.bus_drops[r]);
+    }
+  }
+  s += fmt::format(", refused-strangers {}", c.refused_strangers);
+  for (const auto& [gateway, drops] : c.not_its_own_by_gateway) {
+    s += fmt::format(", not-its-own from '{}':", gateway);
+    for (std::size_t r = 0; r < kNotItsOwnReasons; ++r) {
+      if (drops[r] != 0) s += fmt::format(" {} {}", to_string(static_cast<NotItsOwn>(r)), drops[r]);
     }
   }
   s += "; " + lanes_summary(c.outbox);

@@ -10,9 +10,11 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "backbone/session.hpp"
+#include "bridge/accepted_gateway.hpp"
 #include "bridge/backbone_tuning.hpp"
 #include "bridge/bus_writer.hpp"
 #include "bridge/deadline_driver.hpp"
@@ -66,6 +68,29 @@ struct SurfaceCounters {
   std::uint64_t rpdop_forwarded = 0;        // RPDOP packets from the master sent to gateways
   std::uint64_t rpdop_complete = 0;         // ... acknowledged complete by the node
   std::uint64_t rpdop_failed = 0;           // ... any other outcome (the master saw the status)
+  // Who may speak (issue 15): hellos refused for who the peer is (a name not configured, an
+  // identity not proven), and frames bound gateways sent that are not theirs to send, by reason
+  // (NotItsOwn), summed and per gateway (configured names only: bounded).
+  std::uint64_t refused_strangers = 0;
+  std::array<std::uint64_t, kNotItsOwnReasons> not_its_own{};
+  std::vector<std::pair<std::string, std::array<std::uint64_t, kNotItsOwnReasons>>>
+      not_its_own_by_gateway;
+};
+
+// Which gateways the surface binds (docs/security.md): the configured ones only, each for its
+// configured modules and surface node ids.
+//
+// Memory per peer is bounded by the configuration, not by who connects: one table entry and
+// (once it has bound) one outbox per configured gateway, none per stranger. An outbox holds at
+// most BackboneTuning::outbox's lane bounds in frames (reliable 65,536 + latest 4,096 + process
+// 16,384 + fragments 16,384 by default), each a fixed-size entry (a can::Frame, its module and
+// time: sizeof(FrameOutbox entry), 88 bytes on x86-64), so the frame bound is a byte bound:
+// about 9 MB per configured gateway at the defaults, and nothing for a peer that never binds.
+struct SurfacePolicy {
+  std::vector<AcceptedGateway> gateways;
+  // A link that proved no identity (plain TCP, an unauthenticated serial line) binds nobody.
+  // False only when the configured auth mode is plain.
+  bool require_authenticated_peers = true;
 };
 
 // A whole TPDOP packet as the surface received it, for backbone clients and tests.
@@ -84,15 +109,20 @@ struct SurfacePdopPacket {
 class Surface {
  public:
   Surface(boost::asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
-          BackboneTuning tuning = {}, bool conflate_pdos = true,
+          SurfacePolicy policy, BackboneTuning tuning = {}, bool conflate_pdos = true,
           RpdopRelayOptions rpdop_relay = {});
   ~Surface();
 
   void start();
   // Takes a new gateway link (accepted TCP connection or opened serial line). Its hello decides
-  // which gateway it belongs to; a gateway announcing a module, surface node id or COB-ID another
-  // connected gateway claims is refused, with the reason sent to it (GatewayTable).
+  // which configured gateway it belongs to (GatewayTable::admit); a refused peer is told the
+  // reason only when its link proved who it is, else just "refused" (details: the local log).
   void attach(std::shared_ptr<backbone::MessageLink> link);
+  // Called when a hello on `link` was admitted and the link carries a gateway from now on (the
+  // TCP server stops counting it as pending: TcpServer::admitted). One observer.
+  void on_link_bound(std::function<void(backbone::MessageLink&)> observer) {
+    on_link_bound_ = std::move(observer);
+  }
   void stop();
   // Called once when the surface stops itself because one of its loops ended or threw (its bus
   // gone for good, a bug): the process shuts down in order and exits non-zero.
@@ -111,11 +141,6 @@ class Surface {
     pdop_observer_ = std::move(observer);
   }
   const RpdopRelay& rpdop_relay() const { return relay_; }
-  // Called with a link once its hello bound it to a gateway, e.g. so the TCP server stops timing
-  // its handshake (backbone::TcpServer::admitted). One observer.
-  void on_link_bound(std::function<void(const backbone::MessageLink&)> observer) {
-    link_bound_ = std::move(observer);
-  }
 
  private:
   struct Gateway;
@@ -124,7 +149,9 @@ class Surface {
   boost::asio::awaitable<std::error_code> read_bus();
   // Every loop the surface spawns ends here: one that ends while the surface runs stops it.
   void on_task_end(const std::string& task, const std::string& why);
-  backbone::BindResult bind(const v1::Hello& hello);
+  backbone::BindResult bind(const v1::Hello& hello, backbone::SessionLink& link);
+  // A bound gateway's frame for the surface bus that is not its to send: counted, warned once.
+  void drop_not_its_own(Gateway& from, NotItsOwn why, std::uint32_t cob);
   void on_payload(Gateway& from, std::span<const std::uint8_t> payload);
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
@@ -156,6 +183,7 @@ class Surface {
     kRpdopFailed,
     kPdopRepeat,
     kUnclaimed,
+    kStranger,
     kWarnKinds
   };
 
@@ -165,9 +193,11 @@ class Surface {
   BackboneTuning tuning_;
   bool conflate_pdos_;
   backbone::SessionLink::Identity identity_;
-  std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once seen
-  std::vector<Gateway*> by_id_;  // the same, by id (GatewayTable's, SdoLinkGuard's)
-  GatewayTable table_;           // who may bind, who owns which surface ids
+  std::map<std::string, std::unique_ptr<Gateway>> gateways_;  // by name, once bound
+  // The same, by id (GatewayTable's, SdoLinkGuard's): one slot per configured gateway, null
+  // until it first binds.
+  std::vector<Gateway*> by_id_;
+  GatewayTable table_;  // who may bind, who owns which surface ids
   SdoLinkGuard guard_;
   RpdopRelay relay_;
   RpdopRelay::Output relay_out_;
@@ -182,7 +212,6 @@ class Surface {
   // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
   std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
-  std::function<void(const backbone::MessageLink&)> link_bound_;
   LoopGuard loop_guard_;
   // Frames (TPDOP packets whole) waiting for room on the bus: bursts from the backbone outrun it.
   BusWriter writer_;
@@ -196,6 +225,7 @@ class Surface {
   WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
   std::function<void(const std::string&)> on_failure_;
+  std::function<void(backbone::MessageLink&)> on_link_bound_;
   std::string failure_;
 };
 

@@ -74,7 +74,8 @@ class BusRoom : public ::testing::Test {
   can::VirtualBus surface_bus{io.get_executor(), "surface-bus"};
   BusRecorder master{io, surface_bus.connect("master")};
   BusRecorder node{io, module_bus.connect("node")};
-  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface", 16), quick_tuning()};
+  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface", 16),
+                  SurfacePolicy{{{"gw", {kModule}, {kSurface}}}, false}, quick_tuning()};
   std::shared_ptr<backbone::TcpServer> server = backbone::TcpServer::create(io.get_executor());
   std::unique_ptr<Gateway> gateway;
   std::shared_ptr<backbone::TcpClient> client;

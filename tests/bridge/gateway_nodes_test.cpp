@@ -78,7 +78,9 @@ class GatewayNodes : public ::testing::Test {
   BusRecorder node{io, module_bus.connect("node")};
   BusRecorder local_master{io, module_bus.connect("local-master")};
   std::size_t node_seen = 0;
-  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface")};
+  // Surface ids 3 and 4, and 9, the free id a node is renamed to.
+  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface"),
+                  SurfacePolicy{{{"gw", {kModule}, {kSurface, 4, kFree}}}, false}};
   std::shared_ptr<backbone::TcpServer> server = backbone::TcpServer::create(io.get_executor());
   std::unique_ptr<Gateway> gateway;
   std::shared_ptr<backbone::TcpClient> client;

@@ -1,5 +1,6 @@
-// The surface's table of gateways: which hellos may bind (no module, surface node id or COB-ID
-// claimed twice among connected gateways, no name twice), and which gateway a surface frame is for.
+// The surface's table of gateways: which hellos may bind (configured and proven names only, each
+// within its configured modules and surface ids, no COB-ID claimed twice, no name twice), what a
+// bound gateway may send, and which gateway a surface frame is for.
 #include "bridge/gateway_table.hpp"
 
 #include <gmock/gmock.h>
@@ -25,7 +26,7 @@ GatewayClaims claims_for(
 GatewayTable::Hello hello(
     const std::string& name, std::uint64_t session,
     const std::vector<std::pair<ModuleId, std::vector<std::pair<NodeId, NodeId>>>>& modules) {
-  GatewayTable::Hello h{name, session, {}, claims_for(modules)};
+  GatewayTable::Hello h{name, session, {}, claims_for(modules), {}};
   for (const auto& m : modules) h.modules.push_back(m.first);
   return h;
 }
@@ -34,7 +35,17 @@ GatewayTable::Hello default_hello(const std::string& name, std::uint64_t session
   return hello(name, session, {{module, NodeMap::default_pairs(module)}});
 }
 
-// A and B admitted and connected: A serves module 1 (surface 33..63), B module 2 (65..95).
+// The surface's configuration (plain): A module 1, B module 2 (default mapping: 33..63,
+// 65..95), C modules 3 and 5 (97..127), Q module 7 at surface id 1, O (no claims) module 4.
+std::vector<AcceptedGateway> configured() {
+  return {{"gw-a", {1}, {}},
+          {"gw-b", {2}, {}},
+          {"gw-c", {3, 5}, {}},
+          {"gw-q", {7}, {1}},
+          {"gw-old", {4}, {2}}};
+}
+
+// A and B admitted and connected.
 struct TwoGateways : ::testing::Test {
   TwoGateways() {
     a = *table.admit(default_hello("gw-a", 0xA, 1)).id;
@@ -42,7 +53,7 @@ struct TwoGateways : ::testing::Test {
     table.set_connected(a, true);
     table.set_connected(b, true);
   }
-  GatewayTable table{"surface-1"};
+  GatewayTable table{"surface-1", configured(), false};
   GatewayTable::GatewayId a = 0;
   GatewayTable::GatewayId b = 0;
 };
@@ -74,21 +85,74 @@ TEST(GatewayClaims, ClaimsNamingImpossibleIdsAreNotRead) {
   EXPECT_FALSE(decode_claims("\xFF\xFF\xFF"));
 }
 
-TEST_F(TwoGateways, DisjointGatewaysAreAdmittedAndKeepTheirIdsByName) {
+TEST_F(TwoGateways, ConfiguredGatewaysAreAdmittedAndKeepTheirIdsByName) {
   EXPECT_NE(a, b);
   const auto again = table.admit(default_hello("gw-a", 0xA, 1));  // A's link came back
   ASSERT_TRUE(again.id);
   EXPECT_EQ(*again.id, a);
   ASSERT_TRUE(table.admit(default_hello("gw-c", 0xC, 3)).id);
-  EXPECT_EQ(table.gateways().size(), 3u);
+  EXPECT_EQ(table.gateways().size(), configured().size());
 }
 
-TEST_F(TwoGateways, AModuleAnotherConnectedGatewayServesIsRefusedNamingBothAndTheFix) {
-  const auto refused = table.admit(default_hello("gw-c", 0xC, 1));
+TEST_F(TwoGateways, ANameNotConfiguredIsRefusedLeavingNoEntry) {
+  for (int i = 0; i < 1000; ++i) {
+    const auto refused = table.admit(default_hello("rogue-" + std::to_string(i), 0x90, 3));
+    ASSERT_FALSE(refused.id);
+    EXPECT_TRUE(refused.stranger);
+    EXPECT_EQ(refused.to_peer, "refused");  // it proved nothing: no names, no modules
+    EXPECT_THAT(refused.refusal, HasSubstr("'rogue-" + std::to_string(i) + "' is not configured"));
+  }
+  EXPECT_EQ(table.gateways().size(), configured().size());
+  EXPECT_FALSE(table.find("rogue-1"));
+  // The same stranger again is marked repeated: one slot, whatever the names.
+  EXPECT_TRUE(table.admit(default_hello("rogue-999", 0x90, 3)).repeated);
+  // C, configured for module 3, binds as if nobody had knocked.
+  EXPECT_TRUE(table.admit(default_hello("gw-c", 0xC, 3)).id);
+}
+
+TEST_F(TwoGateways, AHelloNamingOtherThanItsProvenIdentityIsRefusedWithTheReason) {
+  GatewayTable::Hello h = default_hello("gw-c", 0xC, 3);
+  h.authenticated_peer = "gw-b";  // B's key, C's name
+  const auto refused = table.admit(h);
   EXPECT_FALSE(refused.id);
-  EXPECT_THAT(refused.refusal, HasSubstr("module 1 is already served by gateway 'gw-a'"));
-  EXPECT_THAT(refused.refusal, HasSubstr("gateway 'gw-c' refused"));
-  EXPECT_THAT(refused.refusal, HasSubstr("give this gateway another name or module"));
+  EXPECT_THAT(refused.refusal, HasSubstr("proved identity 'gw-b' but its hello names"));
+  EXPECT_EQ(refused.to_peer, refused.refusal);  // a proven peer may learn why
+  h.authenticated_peer = "gw-c";
+  EXPECT_TRUE(table.admit(h).id);
+}
+
+TEST(GatewayTable, ALinkThatProvedNothingBindsNobodyWhenAuthenticationIsOn) {
+  GatewayTable table{"surface-1", configured()};
+  GatewayTable::Hello h = default_hello("gw-a", 0xA, 1);
+  const auto refused = table.admit(h);
+  EXPECT_FALSE(refused.id);
+  EXPECT_TRUE(refused.stranger);
+  EXPECT_EQ(refused.to_peer, "refused");
+  EXPECT_THAT(refused.refusal, HasSubstr("proved no identity"));
+  h.authenticated_peer = "gw-a";
+  EXPECT_TRUE(table.admit(h).id);
+}
+
+TEST_F(TwoGateways, AModuleOutsideItsConfigurationIsRefused) {
+  const auto refused = table.admit(
+      hello("gw-c", 0xC, {{3, NodeMap::default_pairs(3)}, {1, NodeMap::default_pairs(1)}}));
+  EXPECT_FALSE(refused.id);
+  EXPECT_THAT(refused.refusal, HasSubstr("gateway 'gw-c' announces module 1"));
+  EXPECT_EQ(refused.to_peer, "refused");
+}
+
+TEST_F(TwoGateways, ClaimsOutsideItsConfiguredNodesAndTheirCobIdsAreRefused) {
+  // Module 5 (C's) mapped onto surface ids 36..38: A's, and outside C's 97..127.
+  const auto nodes = table.admit(hello("gw-c", 0xC, {{5, {{1, 36}, {2, 37}, {3, 38}}}}));
+  EXPECT_FALSE(nodes.id);
+  EXPECT_THAT(nodes.refusal, HasSubstr("gateway 'gw-c' module 5 claims surface node id 36"));
+  // Its own node ids, but a COB-ID of none of them (A's node 33's TPDO1).
+  GatewayTable::Hello cob{"gw-c", 0xC, {5}, GatewayClaims{{{5, {100}, {{0x1A1, 0x1A1}}}}}, {}};
+  const auto cobs = table.admit(cob);
+  EXPECT_FALSE(cobs.id);
+  EXPECT_THAT(cobs.refusal, HasSubstr("claims surface COB-ID 0x1A1"));
+  // Surface ids within its configuration are fine.
+  EXPECT_TRUE(table.admit(hello("gw-c", 0xC, {{5, {{1, 100}, {2, 101}}}})).id);
 }
 
 TEST_F(TwoGateways, ASecondProcessWithAConnectedNameIsRefused) {
@@ -103,24 +167,12 @@ TEST_F(TwoGateways, ASecondProcessWithAConnectedNameIsRefused) {
   EXPECT_EQ(*admitted.id, a);
 }
 
-TEST_F(TwoGateways, OverlappingSurfaceNodeIdsAreRefusedNamingBothGatewaysAndModules) {
-  // Module 5 maps its local nodes 1..3 onto surface ids 36..38: module 1's (gateway A).
-  const auto refused = table.admit(hello("gw-c", 0xC, {{5, {{1, 36}, {2, 37}, {3, 38}}}}));
-  EXPECT_FALSE(refused.id);
-  EXPECT_THAT(refused.refusal,
-              HasSubstr("surface node id 36 of gateway 'gw-c' module 5 is already gateway "
-                        "'gw-a' module 1's"));
-  EXPECT_THAT(refused.refusal, HasSubstr("(3 ids overlap in all)"));
-  EXPECT_THAT(refused.refusal, HasSubstr("map its nodes to surface ids gateway 'gw-a' does not"));
-  // Surface ids nobody uses are fine.
-  EXPECT_TRUE(table.admit(hello("gw-c", 0xC, {{5, {{1, 100}, {2, 101}}}})).id);
-}
-
 TEST_F(TwoGateways, OverlappingCobIdsAreRefusedEvenWhenTheNodeIdsDiffer) {
   // A qd node 1 at surface id 1 owns slots 1..3 too: 0x1A1 (TPDO1 of slot 1) is node 33's TPDO1
-  // on A's cia301 module. Hand-made claims: the node ids do not overlap, one COB-ID range does.
+  // on A's cia301 module. Within Q's configuration (its node 1's image under any profile), but
+  // A holds it.
   GatewayTable::Hello qd{
-      "gw-q", 0xD, {7}, GatewayClaims{{{7, {1}, {{0x181, 0x181}, {0x1A1, 0x1A1}}}}}};
+      "gw-q", 0xD, {7}, GatewayClaims{{{7, {1}, {{0x181, 0x181}, {0x1A1, 0x1A1}}}}}, {}};
   const auto refused = table.admit(qd);
   EXPECT_FALSE(refused.id);
   EXPECT_THAT(refused.refusal, HasSubstr("surface COB-ID 0x1A1 of gateway 'gw-q' module 7 collides "
@@ -128,42 +180,90 @@ TEST_F(TwoGateways, OverlappingCobIdsAreRefusedEvenWhenTheNodeIdsDiffer) {
   EXPECT_THAT(refused.refusal, HasSubstr("gateway 'gw-q' refused"));
 }
 
-TEST_F(TwoGateways, OnlyConnectedGatewaysRefuseAndAnAdmittedOneTakesOverTheirIds) {
+TEST_F(TwoGateways, ADownGatewaysModulesAndIdsStayItsOwnAndItRebindsAtOnce) {
   table.set_connected(a, false);
-  const auto c = table.admit(hello("gw-c", 0xC, {{5, {{1, 36}}}}));
-  ASSERT_TRUE(c.id);
-  EXPECT_EQ(table.owner_of_node(36), *c.id);
-  EXPECT_EQ(table.owner_of_node(37), a);  // A keeps what nobody else took
-  EXPECT_EQ(table.owner_of_cob(0x600 + 36), *c.id);
-  table.set_connected(*c.id, true);
-  // A comes back: its node 36 is C's now.
-  const auto back = table.admit(default_hello("gw-a", 0xA, 1));
-  EXPECT_FALSE(back.id);
-  EXPECT_THAT(back.refusal, HasSubstr("gateway 'gw-c' module 5"));
+  // Another configured gateway announcing A's module while A is down: refused.
+  const auto module = table.admit(
+      hello("gw-c", 0xC, {{3, NodeMap::default_pairs(3)}, {1, NodeMap::default_pairs(1)}}));
+  EXPECT_FALSE(module.id);
+  // ... or a COB-ID A's claims hold.
+  GatewayTable::Hello qd{"gw-q", 0xD, {7}, GatewayClaims{{{7, {1}, {{0x1A1, 0x1A1}}}}}, {}};
+  EXPECT_FALSE(table.admit(qd).id);
+  EXPECT_EQ(table.owner_of_node(33), a);
+  EXPECT_EQ(table.owner_of_cob(0x1A1), a);
+  // A returns (a new process): bound at once, nothing of the rogues in its way.
+  const auto back = table.admit(default_hello("gw-a", 0xA2, 1));
+  ASSERT_TRUE(back.id);
+  EXPECT_EQ(*back.id, a);
+  EXPECT_FALSE(back.repeated);
+}
+
+TEST_F(TwoGateways, ALiveClaimUpdateOutsideItsConfigurationIsRefusedAndTheOldClaimsStay) {
+  // A's node 33 moves to surface id 70: B's.
+  const GatewayClaims moved = claims_for({{1, {{1, 70}}}});
+  const std::string why = table.update_claims(a, moved);
+  EXPECT_THAT(why, HasSubstr("claims surface node id 70"));
+  EXPECT_EQ(table.owner_of_node(33), a);
+  EXPECT_EQ(table.owner_of_node(70), b);
+  // Within its configuration: taken.
+  EXPECT_EQ(table.update_claims(a, claims_for({{1, {{1, 40}}}})), "");
+  EXPECT_EQ(table.owner_of_node(40), a);
+  EXPECT_FALSE(table.owner_of_node(33));
+}
+
+TEST_F(TwoGateways, ABoundGatewayMaySendOnlyItsOwnNodesCobIds) {
+  auto refuses = [&](GatewayTable::GatewayId g, const can::Frame& f) {
+    return table.refuses(g, f);
+  };
+  // A's: TPDO1, SDO response, heartbeat, EMCY of its nodes 33..63; an LSS answer.
+  for (std::uint32_t cob : {0x1A1u, 0x5A5u, 0x725u, 0x0BFu, 0x7E4u}) {
+    EXPECT_FALSE(refuses(a, can::Frame::standard(cob, {0})).has_value()) << std::hex << cob;
+  }
+  // B's node 69 heartbeat, node 5's SDO response (nobody's): not A's.
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x745, {5})), NotItsOwn::outside_claims);
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x585, {0})), NotItsOwn::outside_claims);
+  // The master's own: NMT, SYNC, TIME, LSS requests.
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x000, {0x81, 0})), NotItsOwn::master_only);
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x080, {})), NotItsOwn::master_only);
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x100, {1, 2, 3, 4, 5, 6})), NotItsOwn::master_only);
+  EXPECT_EQ(refuses(a, can::Frame::standard(0x7E5, {0x04, 1})), NotItsOwn::master_only);
+  EXPECT_EQ(refuses(a, can::Frame::make(0x18FF0001, can::FrameFlags::extended, {1})),
+            NotItsOwn::extended);
+}
+
+TEST(GatewayTable, OverlappingConfigurationsAreRefusedAtStart) {
+  EXPECT_THROW(GatewayTable("s", {{"x", {1}, {}}, {"y", {1}, {}}}), std::invalid_argument);
+  EXPECT_THROW(GatewayTable("s", {{"x", {1}, {}}, {"y", {5}, {40}}}), std::invalid_argument);
+  EXPECT_THROW(GatewayTable("s", {{"x", {1}, {}}, {"x", {2}, {}}}), std::invalid_argument);
+  EXPECT_NO_THROW(GatewayTable("s", {{"x", {1}, {}}, {"y", {5}, {20}}}));
 }
 
 TEST_F(TwoGateways, ARefusalIsMarkedRepeatedUntilItsReasonChanges) {
-  const auto first = table.admit(default_hello("gw-c", 0xC, 1));
+  auto with_module_1 = [](std::uint64_t session) {
+    return hello("gw-c", session, {{3, NodeMap::default_pairs(3)}, {1, NodeMap::default_pairs(1)}});
+  };
+  const auto first = table.admit(with_module_1(0xC));
   EXPECT_FALSE(first.repeated);
-  const auto second = table.admit(default_hello("gw-c", 0xC, 1));
+  const auto second = table.admit(with_module_1(0xC));
   EXPECT_TRUE(second.repeated);
   EXPECT_EQ(second.refusal, first.refusal);
-  const auto other_reason = table.admit(default_hello("gw-c", 0xC, 2));
+  const auto other_reason = table.admit(hello("gw-c", 0xC, {{5, {{1, 36}}}}));
   EXPECT_FALSE(other_reason.repeated);
-  // Another name's refusal is its own.
-  EXPECT_FALSE(table.admit(default_hello("gw-d", 0xD, 1)).repeated);
   // Admitted once, then refused for the first reason again: reported again.
-  table.set_connected(a, false);
-  ASSERT_TRUE(table.admit(default_hello("gw-c", 0xC, 1)).id);
-  table.set_connected(a, true);
-  EXPECT_FALSE(table.admit(default_hello("gw-c", 0xC2, 1)).repeated);
+  ASSERT_TRUE(table.admit(default_hello("gw-c", 0xC, 3)).id);
+  EXPECT_FALSE(table.admit(with_module_1(0xC2)).repeated);
 }
 
 TEST_F(TwoGateways, AGatewayWithoutClaimsIsCheckedByModuleOnly) {
-  GatewayTable::Hello legacy{"gw-old", 0xE, {4}, std::nullopt};
-  ASSERT_TRUE(table.admit(legacy).id);
-  GatewayTable::Hello legacy_dup{"gw-old2", 0xF, {1}, std::nullopt};
-  EXPECT_FALSE(table.admit(legacy_dup).id);
+  GatewayTable::Hello legacy{"gw-old", 0xE, {4}, std::nullopt, {}};
+  const auto old = table.admit(legacy);
+  ASSERT_TRUE(old.id);
+  // Without claims it may send what its configured node (surface id 2) may.
+  EXPECT_FALSE(table.refuses(*old.id, can::Frame::standard(0x702, {5})));
+  EXPECT_EQ(table.refuses(*old.id, can::Frame::standard(0x703, {5})), NotItsOwn::outside_claims);
+  GatewayTable::Hello legacy_other{"gw-old", 0xF, {1}, std::nullopt, {}};
+  table.set_connected(*old.id, false);
+  EXPECT_FALSE(table.admit(legacy_other).id);
 }
 
 TEST_F(TwoGateways, NodeAddressedFramesGoToTheirOwnerBroadcastsToAll) {

@@ -1,7 +1,9 @@
 // A real Gateway and a real Surface on virtual CAN buses, linked by an in-memory pair instead of
 // TCP: frames cross translated both ways, a cut link and a new pair resume with every reliable
-// frame exactly once, and the surface, facing a scripted gateway, refuses one whose claims
-// overlap the real gateway's and routes to one whose claims do not.
+// frame exactly once, and the surface, facing scripted gateways, refuses one claiming the real
+// gateway's node and a stranger (telling each only "refused"), routes to one whose claims are its
+// own, and keeps a bound gateway's frames for nodes not its own off the surface bus.
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <boost/asio/io_context.hpp>
@@ -32,7 +34,6 @@ using backbone::testing::hello;
 using backbone::testing::hello_from;
 using backbone::testing::PeerIdentity;
 using backbone::testing::PeerScript;
-using backbone::testing::refusal_for;
 using backbone::testing::ScriptedPeer;
 using can::Frame;
 using test::BusRecorder;
@@ -40,6 +41,7 @@ using test::run_until;
 
 constexpr ModuleId kModule = 1;
 constexpr canopen::NodeId kLocal = 2, kSurface = 5;
+constexpr canopen::NodeId kTheirs = 20;  // "other-gw"'s one node
 
 BackboneTuning quick_tuning() {
   BackboneTuning t;
@@ -106,7 +108,13 @@ class MemoryRoles : public ::testing::Test {
   can::VirtualBus surface_bus{io.get_executor(), "surface-bus"};
   BusRecorder master{io, surface_bus.connect("master")};
   BusRecorder node{io, module_bus.connect("node")};
-  Surface surface{io.get_executor(), "surface", surface_bus.connect("surface"), quick_tuning()};
+  // Plain (the memory link proves nothing): the real gateway, and two the scripts play.
+  Surface surface{
+      io.get_executor(), "surface", surface_bus.connect("surface"),
+      SurfacePolicy{
+          {{"gw", {kModule}, {kSurface}}, {"other-gw", {7}, {kTheirs}}, {"intruder", {8}, {30}}},
+          false},
+      quick_tuning()};
   std::unique_ptr<Gateway> gateway;
   backbone::MemoryLinkPair link;
 };
@@ -162,14 +170,19 @@ TEST_F(MemoryRoles, ACutLinkAndANewPairDeliverEveryReliableFrameExactlyOnce) {
   EXPECT_EQ(gateway->counters().session.links, 2u);
 }
 
-TEST_F(MemoryRoles, TheSurfaceRefusesAScriptedGatewayWhoseClaimsOverlapAnother) {
-  // Another module, but one of its nodes mapped to the real gateway's surface id.
-  const PeerIdentity intruder = scripted_gateway("intruder", 7, 9, kSurface);
+// A refusal whose text is exactly "refused": what a peer that proved nothing is told.
+backbone::testing::EnvelopeMatch bare_refusal() {
+  return {"a refusal saying only \"refused\"", [](const v1::Envelope& e) {
+            return e.has_refusal() && e.refusal().detail() == "refused" &&
+                   e.refusal().reason() == v1::Refusal::REASON_UNSPECIFIED;
+          }};
+}
+
+TEST_F(MemoryRoles, AGatewayClaimingAnotherGatewaysNodeIsRefusedAndToldNothingMore) {
+  // A configured gateway, but claiming the real gateway's surface id for a module of its own.
+  const PeerIdentity intruder = scripted_gateway("intruder", 8, 9, kSurface);
   PeerScript script;
-  script.reply(hello(intruder))
-      .expect(refusal_for(v1::Refusal::DUPLICATE_MODULE,
-                          {"'intruder'", "'gw'", "surface node id " + std::to_string(kSurface)}))
-      .expect_closed();
+  script.reply(hello(intruder)).expect(bare_refusal()).expect_closed();
   auto pair = backbone::make_memory_link_pair(io.get_executor());
   ScriptedPeer peer(pair.b, std::move(script));
   surface.attach(pair.a);
@@ -181,8 +194,53 @@ TEST_F(MemoryRoles, TheSurfaceRefusesAScriptedGatewayWhoseClaimsOverlapAnother) 
   ASSERT_TRUE(run_until(io, [&] { return node.count(0x600u + kLocal) == 1; }));
 }
 
+TEST_F(MemoryRoles, ANameNotConfiguredIsRefusedLeavingNoTraceInTheTable) {
+  const PeerIdentity stranger = scripted_gateway("stranger", 9, 1, 40);
+  PeerScript script;
+  script.reply(hello(stranger)).expect(bare_refusal()).expect_closed();
+  auto pair = backbone::make_memory_link_pair(io.get_executor());
+  ScriptedPeer peer(pair.b, std::move(script));
+  surface.attach(pair.a);
+  ASSERT_TRUE(peer.finishes(io));
+  EXPECT_EQ(surface.counters().refused_strangers, 1u);
+  EXPECT_THAT(surface.stats_line(), ::testing::HasSubstr("1/1 gateway(s) up"));
+}
+
+// The forged heartbeat: a bound gateway sending the real gateway's node's heartbeat, NMT
+// and SYNC. None reaches the master; each is counted by gateway and reason; its own EMCY does.
+TEST_F(MemoryRoles, ABoundGatewaysFramesForNodesNotItsOwnNeverReachTheSurfaceBus) {
+  const PeerIdentity other = scripted_gateway("other-gw", 7, 9, kTheirs);
+  const Frame forged_heartbeat = Frame::standard(0x700u + kSurface, {0x05});
+  const Frame nmt_stop_all = Frame::standard(0x000, {0x81, 0x00});
+  const Frame sync = Frame::standard(0x080, {});
+  PeerScript script;
+  script.reply(hello(other))
+      .expect(hello_from(v1::Hello::ROLE_SURFACE))
+      .wait_for("both gateways are ready", [&] { return surface.gateways_ready() == 2; })
+      .reply(backbone::testing::payload(
+          1, frames_payload(7, {forged_heartbeat, nmt_stop_all, sync, emcy(kTheirs, 3)})))
+      .wait_for("its EMCY is on the surface bus", [&] { return master.saw(emcy(kTheirs, 3)); })
+      .tolerate(backbone::testing::any_keepalive());
+  auto pair = backbone::make_memory_link_pair(io.get_executor());
+  ScriptedPeer peer(pair.b, std::move(script));
+  surface.attach(pair.a);
+  ASSERT_TRUE(peer.finishes(io));
+  // The real gateway's own heartbeat still passes.
+  ASSERT_TRUE(node.send(Frame::standard(0x700u + kLocal, {0x05})));
+  ASSERT_TRUE(run_until(io, [&] { return master.saw(forged_heartbeat); }));
+  EXPECT_EQ(master.count(0x700u + kSurface), 1u);  // the real one only
+  EXPECT_EQ(master.count(0x000), 0u);
+  EXPECT_EQ(master.count(0x080), 0u);
+  const SurfaceCounters c = surface.counters();
+  EXPECT_EQ(c.not_its_own[static_cast<std::size_t>(NotItsOwn::outside_claims)], 1u);
+  EXPECT_EQ(c.not_its_own[static_cast<std::size_t>(NotItsOwn::master_only)], 2u);
+  ASSERT_EQ(c.not_its_own_by_gateway.size(), 1u);
+  EXPECT_EQ(c.not_its_own_by_gateway[0].first, "other-gw");
+  EXPECT_THAT(surface.stats_line(),
+              ::testing::HasSubstr("not-its-own from 'other-gw': master-only 2 outside-claims 1"));
+}
+
 TEST_F(MemoryRoles, AScriptedGatewayWithItsOwnIdsIsAdmittedAndGetsOnlyItsNodesRequests) {
-  constexpr canopen::NodeId kTheirs = 20;
   const PeerIdentity other = scripted_gateway("other-gw", 7, 9, kTheirs);
   const Frame request = Frame::standard(0x600u + kTheirs, {0x40, 0x00, 0x10, 0, 0, 0, 0, 0});
   std::vector<Frame> routed;

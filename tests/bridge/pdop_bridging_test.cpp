@@ -161,12 +161,14 @@ class PdopBridging : public ::testing::Test {
   can::VirtualBus surface_bus{io.get_executor(), "surface-bus"};
   BusRecorder master{io, surface_bus.connect("master")};
   RoomLimitedBus* surface_port = nullptr;
-  Surface surface{io.get_executor(), "surface", [this] {
+  Surface surface{io.get_executor(), "surface",
+                  [this] {
                     auto bus = std::make_unique<RoomLimitedBus>(io.get_executor(),
                                                                 surface_bus.connect("surface"));
                     surface_port = bus.get();
                     return bus;
-                  }()};
+                  }(),
+                  SurfacePolicy{{{"gw", {kModule}, {kSurfaceA, kSurfaceB}}}, false}};
   std::shared_ptr<backbone::TcpServer> server = backbone::TcpServer::create(io.get_executor());
   std::unique_ptr<BusRecorder> node;
   std::unique_ptr<Gateway> gateway;

@@ -86,7 +86,7 @@ TEST(RoleFailure, ASurfaceBusReaderThatThrowsStopsTheSurfaceAndSaysWhy) {
     asio::io_context io;
     auto bus = std::make_unique<ScriptedBus>(io.get_executor(), "surface-bus", receive);
     ScriptedBus* raw = bus.get();
-    Surface surface(io.get_executor(), "s", std::move(bus));
+    Surface surface(io.get_executor(), "s", std::move(bus), SurfacePolicy{{{"gw", {0, 1}, {}}}});
     std::vector<std::string> reports;
     surface.on_failure([&](const std::string& why) { reports.push_back(why); });
     surface.start();
@@ -106,7 +106,8 @@ TEST(RoleFailure, ASurfaceStoppedOnPurposeReportsNoFailure) {
   asio::io_context io;
   Surface surface(
       io.get_executor(), "s",
-      std::make_unique<ScriptedBus>(io.get_executor(), "b", ScriptedBus::Receive::waits));
+      std::make_unique<ScriptedBus>(io.get_executor(), "b", ScriptedBus::Receive::waits),
+      SurfacePolicy{{{"gw", {0, 1}, {}}}});
   std::vector<std::string> reports;
   surface.on_failure([&](const std::string& why) { reports.push_back(why); });
   surface.start();

@@ -60,7 +60,8 @@ TEST(StatsLine, TheSurfacePrintsFramesDroppedBeforeAnyGatewayConnected) {
   asio::io_context io;
   can::VirtualBus medium(io.get_executor(), "surface-bus");
   auto master = medium.connect("master");
-  Surface surface(io.get_executor(), "s", medium.connect("surface"));
+  Surface surface(io.get_executor(), "s", medium.connect("surface"),
+                  SurfacePolicy{{{"gw", {0}, {}}}, false});
   surface.start();
   for (int i = 0; i < 3; ++i) master->send(can::Frame::standard(0x601, {0x40, 0x00, 0x10, 0x00}));
   ASSERT_TRUE(test::run_until(
