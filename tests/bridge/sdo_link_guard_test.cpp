@@ -163,7 +163,7 @@ class SurfaceSdoModel {
     for (ModuleId module : {ModuleId{1}, ModuleId{2}}) {
       NodeMap map;
       EXPECT_TRUE(map.add_module(module, NodeMap::default_pairs(module)).empty());
-      hellos_.push_back({"gw-" + std::to_string(module), module, {module}, claims_of(map)});
+      hellos_.push_back({"gw-" + std::to_string(module), module, {module}, claims_of(map), {}});
       link_up(module - 1);
     }
   }
@@ -226,7 +226,7 @@ class SurfaceSdoModel {
   }
 
   bool claims_known_;
-  GatewayTable table_{"surface"};
+  GatewayTable table_{"surface", {{"gw-1", {1}, {}}, {"gw-2", {2}, {}}}, false};
   SdoLinkGuard guard_;
   std::vector<GatewayTable::Hello> hellos_;
   std::vector<bool> up_ = std::vector<bool>(2);
