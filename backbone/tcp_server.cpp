@@ -223,9 +223,12 @@ asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, t
                                        bool talking) {
   // Evicted before it ran: the cancellation found nothing to cancel yet.
   if (stopped_ || !admission_.is_pending(connection->id)) co_return;
-  if (!talking) {
-    // A silent connection costs only its socket until its peer says something: no link, no
-    // session, no TLS state. Cancelled when evicted or at the deadline.
+  // Under admission limits, a silent connection costs only its socket until its peer says
+  // something: no link, no session, no TLS state (cancelled when evicted or at the deadline).
+  // Unlimited (tests, benches), the link comes at once, for protocols where the server speaks.
+  const bool limited = admission_.limits().max_pending_handshakes !=
+                       AdmissionLimits::unlimited().max_pending_handshakes;
+  if (!talking && limited) {
     auto [ec] = co_await socket.async_wait(tcp::socket::wait_read, kNoError);
     if (ec || stopped_ || !admission_.is_pending(connection->id)) co_return;
     boost::system::error_code ignored;
