@@ -61,7 +61,7 @@ struct SerialLineOptions {
 // How a role proves who it is on the backbone and checks its peers (docs/security.md). The
 // loader requires `backbone.auth.mode`: plain operation is never a default.
 enum class AuthMode {
-  psk,           // TLS 1.3 with an external pre-shared key on TCP; challenge-response + MACs on serial
+  psk,  // TLS 1.3 with an external pre-shared key on TCP; challenge-response + MACs on serial
   certificates,  // TLS 1.3 with certificates of a private CA on TCP (serial lines still use PSK)
   plain,         // nothing proven: a lab bench on loopback only; warned at start
 };
