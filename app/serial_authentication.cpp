@@ -5,19 +5,32 @@
 #include <stdexcept>
 #include <string>
 
+#include "backbone/key_file_watch.hpp"
 #include "backbone/pre_shared_keys.hpp"
 
 namespace canbridge::bridge {
 
 namespace {
 
-std::vector<backbone::PreSharedKey> load_keys(const std::string& key_file, const std::string& who) {
+// Loaded now (a problem stops the start) and watched: every new link's handshake uses the
+// file's keys as they are then, so keys rotate without a restart.
+std::shared_ptr<backbone::KeyFileWatch> watch_keys(const std::string& key_file,
+                                                   const std::string& who) {
   if (key_file.empty()) {
     throw std::runtime_error(who + ": serial backbone authentication needs a key_file");
   }
-  backbone::KeyFileResult loaded = backbone::load_key_file(key_file);
-  if (!loaded) throw std::runtime_error(who + ": " + loaded.problem->message);
-  return std::move(loaded.keys);
+  try {
+    return std::make_shared<backbone::KeyFileWatch>(key_file);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error(who + ": " + e.what());
+  }
+}
+
+// One link's authenticator options: `o` with the watched file's current keys.
+backbone::PeerAuthenticatorOptions with_current_keys(backbone::PeerAuthenticatorOptions o,
+                                                     backbone::KeyFileWatch& watch) {
+  o.keys = watch.keys();
+  return o;
 }
 
 // Checks the options once (identities, tag size) so that a mistake stops the start, not a link.
@@ -38,16 +51,21 @@ SessionAuthenticatorFactory serial_authenticator(const config::GatewayOptions& o
   o.role = backbone::AuthRole::gateway;
   o.own_identity = options.name;
   o.peer_identity = options.auth.surface;
-  o.keys = load_keys(options.auth.key_file, "gateway " + options.name);
+  auto watch = watch_keys(options.auth.key_file, "gateway " + options.name);
+  o.keys = watch->keys();
   o.tag_size = options.auth.mac_tag_bytes;
-  return [o = checked(std::move(o))](const std::string&) {
-    return std::make_unique<backbone::PeerAuthenticator>(o);
+  return [o = checked(std::move(o)), watch](const std::string&) {
+    return std::make_unique<backbone::PeerAuthenticator>(with_current_keys(o, *watch));
   };
 }
 
 SessionAuthenticatorFactory serial_authenticators(const config::SurfaceOptions& options) {
   if (options.auth.mode == config::AuthMode::plain || options.serial.empty()) return nullptr;
-  std::map<std::string, backbone::PeerAuthenticatorOptions> by_device;
+  struct Line {
+    backbone::PeerAuthenticatorOptions options;
+    std::shared_ptr<backbone::KeyFileWatch> keys;
+  };
+  std::map<std::string, Line> by_device;
   for (const config::SerialLineOptions& line : options.serial) {
     const config::AcceptedGatewayOptions* gateway = nullptr;
     for (const auto& g : options.gateways) {
@@ -61,15 +79,17 @@ SessionAuthenticatorFactory serial_authenticators(const config::SurfaceOptions& 
     o.role = backbone::AuthRole::surface;
     o.own_identity = options.name;
     o.peer_identity = gateway->name;
-    o.keys = load_keys(gateway->key_file, "gateway " + gateway->name);
+    auto watch = watch_keys(gateway->key_file, "gateway " + gateway->name);
+    o.keys = watch->keys();
     o.tag_size = options.auth.mac_tag_bytes;
-    by_device.emplace(line.device, checked(std::move(o)));
+    by_device.emplace(line.device, Line{checked(std::move(o)), std::move(watch)});
   }
   return [by_device = std::move(by_device)](
              const std::string& link_name) -> std::unique_ptr<backbone::PeerAuthenticator> {
     const auto line = by_device.find(link_name);
     if (line == by_device.end()) return nullptr;  // a TCP link: TLS proves its peer
-    return std::make_unique<backbone::PeerAuthenticator>(line->second);
+    return std::make_unique<backbone::PeerAuthenticator>(
+        with_current_keys(line->second.options, *line->second.keys));
   };
 }
 

@@ -2,8 +2,11 @@
 
 #include <spdlog/spdlog.h>
 
+#include <map>
+#include <memory>
 #include <stdexcept>
 
+#include "backbone/key_file_watch.hpp"
 #include "backbone/pre_shared_keys.hpp"
 #include "backbone/tls_upgrade.hpp"
 
@@ -11,14 +14,15 @@ namespace canbridge::bridge {
 
 namespace {
 
-std::vector<backbone::PreSharedKey> load_keys(const std::string& file, const std::string& whose) {
+// The key file, loaded now (a problem stops the start) and watched: rotated keys are used from
+// the next handshake without a restart.
+std::shared_ptr<backbone::KeyFileWatch> watch_keys(const std::string& file,
+                                                   const std::string& whose) {
   if (file.empty()) {
     throw std::runtime_error("backbone.auth psk: no key_file for " + whose +
                              " (make one with `openssl rand -hex 32`, see docs/security.md)");
   }
-  backbone::KeyFileResult result = backbone::load_key_file(file);
-  if (!result) throw std::runtime_error(result.problem->message);
-  return std::move(result.keys);
+  return std::make_shared<backbone::KeyFileWatch>(file);
 }
 
 backbone::TlsCertificates certificates(const config::AuthOptions& auth, bool server,
@@ -39,12 +43,12 @@ backbone::LinkUpgrade gateway_link_upgrade(const config::GatewayOptions& options
   switch (auth.mode) {
     case config::AuthMode::plain:
       return {};
-    case config::AuthMode::psk:
-      return backbone::TlsUpgrade::create(
-                 backbone::TlsGatewayPsk{options.name,
-                                         load_keys(auth.key_file, "gateway " + options.name),
-                                         auth.surface})
-          ->link_upgrade();
+    case config::AuthMode::psk: {
+      auto watch = watch_keys(auth.key_file, "gateway " + options.name);
+      backbone::TlsGatewayPsk psk{options.name, watch->keys(), auth.surface, nullptr};
+      psk.current_keys = [watch] { return watch->keys(); };
+      return backbone::TlsUpgrade::create(std::move(psk))->link_upgrade();
+    }
     case config::AuthMode::certificates:
       return backbone::TlsUpgrade::create(certificates(auth, false, {auth.surface}))
           ->link_upgrade();
@@ -59,9 +63,17 @@ backbone::LinkUpgrade surface_link_upgrade(const config::SurfaceOptions& options
       return {};
     case config::AuthMode::psk: {
       backbone::TlsSurfacePsk psk;
+      std::map<std::string, std::shared_ptr<backbone::KeyFileWatch>, std::less<>> watches;
       for (const auto& gateway : options.gateways) {
-        psk.gateways.emplace(gateway.name, load_keys(gateway.key_file, "gateway " + gateway.name));
+        auto watch = watch_keys(gateway.key_file, "gateway " + gateway.name);
+        psk.gateways.emplace(gateway.name, watch->keys());
+        watches.emplace(gateway.name, std::move(watch));
       }
+      psk.current_keys = [watches = std::move(watches)](const std::string& gateway) {
+        const auto watch = watches.find(gateway);
+        return watch == watches.end() ? std::vector<backbone::PreSharedKey>{}
+                                      : watch->second->keys();
+      };
       return backbone::TlsUpgrade::create(std::move(psk))->link_upgrade();
     }
     case config::AuthMode::certificates: {

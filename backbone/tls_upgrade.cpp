@@ -30,7 +30,10 @@ using asio::ip::tcp;
 struct TlsUpgrade::Handshake {
   const TlsCredentials* credentials = nullptr;
   const std::string* gateway_identity = nullptr;
-  std::string peer;  // the identity the peer proved
+  // Gateway psk: the key this handshake proves with (the current one when keys are watched).
+  std::optional<PreSharedKey> gateway_key;
+  std::string rotated_identity;  // gateway_identity's storage when the key was watched
+  std::string peer;              // the identity the peer proved
   std::optional<TlsFailure> failure;
   std::string detail;
 
@@ -93,7 +96,8 @@ int use_psk_session(SSL* ssl, const EVP_MD* md, const unsigned char** id, std::s
   auto* handshake = handshake_of(ssl);
   if (!handshake) return 0;
   const auto& psk = std::get<TlsGatewayPsk>(*handshake->credentials);
-  SSL_SESSION* made = psk_session(ssl, psk.keys.front());
+  SSL_SESSION* made =
+      psk_session(ssl, handshake->gateway_key ? *handshake->gateway_key : psk.keys.front());
   if (!made) return 0;
   if (md && md != SSL_CIPHER_get_handshake_digest(SSL_SESSION_get0_cipher(made))) {
     SSL_SESSION_free(made);  // the server picked a suite our key is not set up for
@@ -126,7 +130,9 @@ int find_psk_session(SSL* ssl, const unsigned char* identity, std::size_t identi
                     "no configured gateway '" + printable(parsed->gateway_name) + "'");
     return 0;
   }
-  for (const PreSharedKey& key : gateway->second) {
+  const std::vector<PreSharedKey> keys =
+      psk.current_keys ? psk.current_keys(gateway->first) : gateway->second;
+  for (const PreSharedKey& key : keys) {
     if (key_id(key) != parsed->key_id) continue;
     *session = psk_session(ssl, key);
     if (!*session) return 0;
@@ -294,6 +300,14 @@ asio::awaitable<UpgradeResult> TlsUpgrade::upgrade(tcp::socket socket, StreamLin
   Handshake handshake;
   handshake.credentials = &credentials_;
   handshake.gateway_identity = &gateway_identity_;
+  if (const auto* psk = std::get_if<TlsGatewayPsk>(&credentials_); psk && psk->current_keys) {
+    std::vector<PreSharedKey> keys = psk->current_keys();
+    if (!keys.empty()) {
+      handshake.gateway_key = keys.front();
+      handshake.rotated_identity = psk_identity(psk->gateway_name, keys.front());
+      handshake.gateway_identity = &handshake.rotated_identity;
+    }
+  }
   SSL_set_ex_data(ssl, handshake_index(), &handshake);
   auto [ec] = co_await stream.async_handshake(
       server_ ? ssl::stream_base::server : ssl::stream_base::client, kNoError);

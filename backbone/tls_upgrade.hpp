@@ -7,6 +7,7 @@
 #include <boost/asio/awaitable.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/ssl/context.hpp>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -26,12 +27,19 @@ struct TlsGatewayPsk {
   std::string gateway_name;
   std::vector<PreSharedKey> keys;  // keys[0] is used; at least one
   std::string surface_name = "surface";
+  // When set, asked for the keys at every handshake instead of `keys` (a KeyFileWatch: a key
+  // rotated in the file is used from the next connection, no restart).
+  std::function<std::vector<PreSharedKey>()> current_keys;
 };
 
 // Surface (TLS server) accepting gateways by pre-shared key: each configured gateway's keys (one,
 // or two while rotating); the identity's key id picks the key. Unknown names and ids are refused.
 struct TlsSurfacePsk {
   std::map<std::string, std::vector<PreSharedKey>, std::less<>> gateways;
+  // When set, asked at every handshake for a configured gateway's keys as they are now (a
+  // KeyFileWatch per gateway: keys added to or removed from its file count from the next
+  // connection, no restart) instead of the ones in `gateways`, which then only lists the names.
+  std::function<std::vector<PreSharedKey>(const std::string& gateway)> current_keys;
 };
 
 // Either end with certificates of a private CA: this end's chain and private key (PEM; the key

@@ -186,7 +186,7 @@ class TlsTest : public ::testing::Test {
     return psk;
   }
   static TlsGatewayPsk gateway_psk(std::string name, std::vector<PreSharedKey> keys) {
-    return TlsGatewayPsk{std::move(name), std::move(keys), "surface"};
+    return TlsGatewayPsk{std::move(name), std::move(keys), "surface", nullptr};
   }
 
   asio::io_context io;
@@ -275,6 +275,45 @@ TEST_F(TlsTest, PskRotationSurfaceWithTwoKeysAcceptsAGatewayProvingWithEither) {
     client_result->link->close();
   }
   EXPECT_EQ(surface->counters().succeeded, 2u);
+}
+
+// Keys watched in their files (app/tls_setup: KeyFileWatch) rotate without a new TlsUpgrade:
+// each handshake asks both ends for the keys as they are then.
+TEST_F(TlsTest, PskRotationWithWatchedKeysNeedsNoRestartOfEitherEnd) {
+  std::vector<PreSharedKey> surface_file{key};
+  std::vector<PreSharedKey> gateway_file{key};
+  TlsSurfacePsk surface_psk_watched = surface_psk("gw1", {key});
+  surface_psk_watched.current_keys = [&](const std::string& gateway) {
+    return gateway == "gw1" ? surface_file : std::vector<PreSharedKey>{};
+  };
+  TlsGatewayPsk gateway_psk_watched = gateway_psk("gw1", {key});
+  gateway_psk_watched.current_keys = [&] { return gateway_file; };
+  auto surface = TlsUpgrade::create(std::move(surface_psk_watched));
+  auto gateway = TlsUpgrade::create(std::move(gateway_psk_watched));
+  const auto connect = [&] {
+    server_result.reset();
+    client_result.reset();
+    plain_client = tcp::socket(io);
+    handshake(surface, gateway);
+  };
+  // 1: the gateway moves to the new key before the surface knows it: refused.
+  gateway_file = {other_key, key};
+  connect();
+  EXPECT_FALSE(server_result->link);
+  EXPECT_EQ(server_result->error, TlsFailure::unknown_identity);
+  // 2: the surface's file gains the new key: accepted, proving with the new key.
+  surface_file = {key, other_key};
+  connect();
+  ASSERT_TRUE(server_result->link) << server_result->error.message();
+  ASSERT_TRUE(client_result->link) << client_result->error.message();
+  server_result->link->close();
+  client_result->link->close();
+  // 3: the old key leaves the surface's file: a gateway still proving with it is refused.
+  surface_file = {other_key};
+  gateway_file = {key};
+  connect();
+  EXPECT_FALSE(server_result->link);
+  EXPECT_EQ(surface->counters().succeeded, 1u);
 }
 
 TEST_F(TlsTest, CertificatesGoodPairWorksAndNamesThePeers) {
