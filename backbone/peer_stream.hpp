@@ -94,6 +94,7 @@ struct SessionCounters {
 struct SessionLogMemory {
   bool warned_malformed = false;
   bool warned_rejected = false;  // a sealed envelope that did not open
+  bool warned_protocol_error = false;
   std::string last_refusal;
 };
 

@@ -463,7 +463,12 @@ void SessionCore::refuse(v1::Refusal::Reason reason, const std::string& detail, 
 
 void SessionCore::protocol_error(const std::string& why) {
   ++counters_.protocol_errors;
-  spdlog::error("backbone: protocol error on {}: {}; closing the link", link_.peer_name, why);
+  // Once per side at error level: a flood of peers breaking the protocol is counted, not logged.
+  const bool first = !log_.warned_protocol_error;
+  log_.warned_protocol_error = true;
+  spdlog::log(first ? spdlog::level::err : spdlog::level::debug,
+              "backbone: protocol error on {}: {}; closing the link{}", link_.peer_name, why,
+              first ? " (first occurrence; further ones are only counted)" : "");
   close(make_error_code(errc::closed));
 }
 

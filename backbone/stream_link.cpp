@@ -339,8 +339,9 @@ void StreamLink::report_handler_error(const std::string& what) {
 void StreamLink::report_decode_error(std::error_code error) {
   const bool malformed = error == errc::malformed_length;
   ++(malformed ? counters_.malformed : counters_.oversize);
-  // Once per link and kind (counters keep the exact numbers); later ones go to debug.
-  bool& warned = malformed ? warned_malformed_ : warned_oversize_;
+  // Once per side (or link) and kind (counters keep the exact numbers); later ones go to debug.
+  if (!options_.warnings) options_.warnings = std::make_shared<StreamLinkWarnings>();
+  bool& warned = malformed ? options_.warnings->malformed : options_.warnings->oversize;
   if (!warned) {
     warned = true;
     spdlog::warn("backbone: dropping {} after {} (first occurrence; further ones are only counted)",

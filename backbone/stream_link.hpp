@@ -32,6 +32,14 @@ enum class LinkFraming {
   cobs_crc32c,  // COBS + CRC-32C per message: for anything that can corrupt, lose or cut bytes
 };
 
+// Which undecodable input the links of one side (a server's accepted links) have warned about
+// already: a flood of hostile connections, each sending garbage, then costs counters, not a log
+// line per connection.
+struct StreamLinkWarnings {
+  bool malformed = false;
+  bool oversize = false;
+};
+
 struct StreamLinkOptions {
   LinkFraming framing = LinkFraming::automatic;
   std::size_t max_message_size = kDefaultMaxMessageSize;
@@ -40,6 +48,8 @@ struct StreamLinkOptions {
   // how much data can queue in the kernel, so a slow link pushes back on the source (which can
   // then coalesce or drop) instead of hiding seconds of latency in socket buffers.
   int socket_buffer_size = 256 * 1024;
+  // Shared by the links of one side (TcpServer sets one for all it accepts); empty: per link.
+  std::shared_ptr<StreamLinkWarnings> warnings;
 };
 
 // Not thread-safe: every member must be called on the stream's executor (one io_context thread).
@@ -144,8 +154,6 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   LinkCounters counters_;
   int loops_running_ = 0;
   bool started_ = false;
-  bool warned_malformed_ = false;  // report_decode_error() said it once already
-  bool warned_oversize_ = false;
   bool closing_ = false;          // end() ran: loops are stopping
   bool finished_ = false;         // loops stopped and on_closed ran
   bool writer_sleeping_ = false;  // the writer waits on wake_

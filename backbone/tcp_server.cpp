@@ -34,7 +34,10 @@ TcpServer::TcpServer(asio::any_io_executor executor, ServerOptions options)
       acceptor_(executor_),
       retry_timer_(executor_),
       deadline_timer_(executor_, asio::steady_timer::time_point::max()),
-      admission_(options_.admission) {}
+      admission_(options_.admission) {
+  // Every accepted link warns once per kind of bad input for the whole server.
+  if (!options_.link.warnings) options_.link.warnings = std::make_shared<StreamLinkWarnings>();
+}
 
 TcpServer::~TcpServer() = default;
 

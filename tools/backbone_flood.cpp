@@ -1,16 +1,24 @@
 // canbridge-backbone-flood: hostile peers against a surface's backbone port, for the admission
 // tests and for operators checking a deployment: idle connections that never say anything, or
 // failing handshakes (garbage, a TLS ClientHello-like record, a session hello with an unknown
-// name). Reports what the server did with them.
+// name, or a real TLS 1.3 PSK handshake with a key the server does not know). Reports what the
+// server did with them.
 //
 //   canbridge-backbone-flood --connect 127.0.0.1:7000 --idle 1100 [--duration 10] [--rate 500]
 //   canbridge-backbone-flood --connect 127.0.0.1:7000 --bad-handshakes 1100 [--concurrency 1]
-//       [--kind mixed|bytes|garbage|tls|hello] [--linger-ms 500] [--cycle --duration 10]
+//       [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms 500] [--cycle --duration 10]
+//       [--psk-name NAME]
+//
+// --kind psk runs a real TLS 1.3 handshake (OpenSSL, as a gateway does) offering a fresh random
+// key: every even one under --psk-name (a configured gateway's name: a wrong key), every odd one
+// under an unknown name, so each costs the server a real handshake attempt. The final line then
+// also counts tls_refused (the server ended the handshake) and tls_accepted (it must stay 0).
 //
 // Prints "backbone-flood: holding N" once N idle connections are open at the same time (or
 // "backbone-flood: started" for handshakes), a progress line every --report-ms, and a final line
 // "backbone-flood: done ..." with the counts and the elapsed time. Ends after --duration seconds
 // (idle) or once every handshake ran, or at SIGINT/SIGTERM.
+#include <array>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/connect.hpp>
 #include <boost/asio/experimental/awaitable_operators.hpp>
@@ -24,11 +32,13 @@
 #include <cstdint>
 #include <cstdio>
 #include <iostream>
+#include <random>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "backbone/delimited_codec.hpp"
+#include "backbone/tls_upgrade.hpp"
 #include "coro/spawn_owned.hpp"
 #include "session.pb.h"
 
@@ -51,6 +61,7 @@ struct Options {
   bool reopen = true;           // idle: open a new connection for each one the server closed
   bool cycle = false;           // handshakes: start over after N until --duration
   std::string kind = "mixed";
+  std::string psk_name = "gateway";  // psk: the configured gateway name offered with a wrong key
   std::chrono::milliseconds linger{500};
   std::chrono::milliseconds report{1000};
 };
@@ -65,13 +76,17 @@ struct Counts {
   std::uint64_t held = 0;
   std::uint64_t held_peak = 0;
   std::uint64_t handshakes_done = 0;
+  std::uint64_t tls_refused = 0;   // psk: the server failed the handshake
+  std::uint64_t tls_accepted = 0;  // psk: the server completed it (a wrong key must never)
 };
 
 void usage() {
   std::cerr
       << "usage: canbridge-backbone-flood --connect HOST:PORT (--idle N | --bad-handshakes N)\n"
          "  [--concurrency C] [--rate CONNECTS_PER_S] [--duration S] [--no-reopen]\n"
-         "  [--kind mixed|bytes|garbage|tls|hello] [--linger-ms MS] [--report-ms MS] [--cycle]\n";
+         "  [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms MS] [--report-ms MS] "
+         "[--cycle]\n"
+         "  [--psk-name NAME]\n";
 }
 
 bool parse(int argc, char** argv, Options& o) {
@@ -103,6 +118,8 @@ bool parse(int argc, char** argv, Options& o) {
       o.reopen = false;
     } else if (arg == "--kind") {
       o.kind = value();
+    } else if (arg == "--psk-name") {
+      o.psk_name = value();
     } else if (arg == "--linger-ms") {
       o.linger = std::chrono::milliseconds(std::stol(value()));
     } else if (arg == "--report-ms") {
@@ -113,8 +130,9 @@ bool parse(int argc, char** argv, Options& o) {
   }
   if (o.port.empty() || (o.idle == 0) == (o.bad_handshakes == 0)) return false;
   if (o.kind != "mixed" && o.kind != "bytes" && o.kind != "garbage" && o.kind != "tls" &&
-      o.kind != "hello") {
-    throw std::invalid_argument("--kind: mixed, bytes (garbage and tls), garbage, tls or hello");
+      o.kind != "hello" && o.kind != "psk") {
+    throw std::invalid_argument(
+        "--kind: mixed, bytes (garbage and tls), garbage, tls, hello or psk");
   }
   return true;
 }
@@ -149,10 +167,24 @@ std::string bad_handshake(const std::string& kind, std::uint64_t n) {
   return out;
 }
 
+// A gateway's TLS PSK client offering a fresh random key under `name`: no server knows the key.
+std::shared_ptr<canbridge::backbone::TlsUpgrade> stranger_psk(const std::string& name) {
+  std::random_device random;
+  std::array<std::uint8_t, canbridge::backbone::kPreSharedKeySize> bytes{};
+  for (auto& b : bytes) b = static_cast<std::uint8_t>(random() & 0xffu);
+  return canbridge::backbone::TlsUpgrade::create(canbridge::backbone::TlsGatewayPsk{
+      name, {canbridge::backbone::PreSharedKey(bytes)}, "surface"});
+}
+
 class Flood {
  public:
   Flood(asio::io_context& io, Options options)
-      : io_(io), options_(std::move(options)), pacer_next_(Clock::now()), report_timer_(io) {}
+      : io_(io), options_(std::move(options)), pacer_next_(Clock::now()), report_timer_(io) {
+    if (options_.kind == "psk") {
+      psk_[0] = stranger_psk(options_.psk_name);
+      psk_[1] = stranger_psk(options_.psk_name + "-stranger");
+    }
+  }
 
   int run() {
     start_ = Clock::now();
@@ -280,6 +312,10 @@ class Flood {
       const std::uint64_t n = next_handshake_++;
       tcp::socket socket(io_);
       if (!co_await connect(socket)) continue;
+      if (psk_[0]) {
+        co_await tls_handshake(socket, n);
+        continue;
+      }
       const std::string hello = bad_handshake(options_.kind, n);
       auto [write_error, written] =
           co_await asio::async_write(socket, asio::buffer(hello), kNoError);
@@ -298,6 +334,29 @@ class Flood {
     }
   }
 
+  // One real TLS 1.3 handshake with a key the server does not know, bounded by --linger-ms.
+  asio::awaitable<void> tls_handshake(tcp::socket& socket, std::uint64_t n) {
+    const auto upgrade = psk_[n % 2];
+    tcp::socket handshaking = std::move(socket);
+    forget(socket);  // the moved-from socket; the handshake owns the connection now
+    asio::steady_timer linger(io_, options_.linger);
+    auto outcome =
+        co_await (upgrade->upgrade(std::move(handshaking), {}) || linger.async_wait(kNoError));
+    ++counts_.handshakes_done;
+    if (outcome.index() == 1) {
+      ++counts_.closed_by_us;  // the server neither finished nor refused it in time
+      co_return;
+    }
+    auto& result = std::get<0>(outcome);
+    if (result.link) {
+      ++counts_.tls_accepted;
+      result.link->close(std::make_error_code(std::errc::connection_aborted));
+    } else {
+      ++counts_.tls_refused;
+      ++counts_.closed_by_server;
+    }
+  }
+
   asio::awaitable<void> reporter() {
     while (running_ > 0) {
       report_timer_.expires_after(options_.report);
@@ -313,7 +372,7 @@ class Flood {
     std::printf(
         "backbone-flood: %s %s connected=%llu connect_failed=%llu closed_by_server=%llu "
         "closed_by_us=%llu write_failed=%llu held=%llu held_peak=%llu handshakes=%llu "
-        "elapsed_s=%.3f\n",
+        "tls_refused=%llu tls_accepted=%llu elapsed_s=%.3f\n",
         what, options_.idle > 0 ? "idle" : "handshakes",
         static_cast<unsigned long long>(counts_.connected),
         static_cast<unsigned long long>(counts_.connect_failed),
@@ -322,7 +381,9 @@ class Flood {
         static_cast<unsigned long long>(counts_.write_failed),
         static_cast<unsigned long long>(counts_.held),
         static_cast<unsigned long long>(counts_.held_peak),
-        static_cast<unsigned long long>(counts_.handshakes_done), elapsed);
+        static_cast<unsigned long long>(counts_.handshakes_done),
+        static_cast<unsigned long long>(counts_.tls_refused),
+        static_cast<unsigned long long>(counts_.tls_accepted), elapsed);
     std::fflush(stdout);
   }
 
@@ -339,6 +400,7 @@ class Flood {
   std::uint64_t next_handshake_ = 0;
   bool stopped_ = false;
   bool announced_ = false;
+  std::array<std::shared_ptr<canbridge::backbone::TlsUpgrade>, 2> psk_;  // psk: wrong key, stranger
 };
 
 }  // namespace

@@ -3,12 +3,15 @@
 #include "backbone/session_core.hpp"
 
 #include <gtest/gtest.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cstring>
 #include <deque>
 #include <functional>
 #include <optional>
+#include <sstream>
 #include <vector>
 
 #include "backbone/delimited_codec.hpp"
@@ -317,6 +320,32 @@ TEST_F(SessionCoreTest, DataBeforeHelloIsAProtocolErrorOnTcp) {
   feed(surface, out);
   EXPECT_EQ(surface.counters.protocol_errors, 1u);
   EXPECT_EQ(surface.shell.closed, make_error_code(errc::closed));
+}
+
+// A flood of peers breaking the protocol, one link each: the side's log memory says it once.
+TEST_F(SessionCoreTest, ProtocolErrorsOfManyLinksAreLoggedOncePerSide) {
+  std::ostringstream log;
+  auto previous = spdlog::default_logger();
+  auto capture = std::make_shared<spdlog::logger>(
+      "capture", std::make_shared<spdlog::sinks::ostream_sink_st>(log));
+  capture->set_level(spdlog::level::info);
+  spdlog::set_default_logger(capture);
+  constexpr int kLinks = 20;
+  for (int i = 0; i < kLinks; ++i) {
+    surface.open_link(false, now);
+    std::string out;
+    append_payload_envelope(out, {.seq = 1}, {});
+    feed(surface, out);
+  }
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(surface.counters.protocol_errors, std::uint64_t{kLinks});
+  const std::string text = log.str();
+  std::size_t lines = 0;
+  for (auto at = text.find("protocol error"); at != std::string::npos;
+       at = text.find("protocol error", at + 1)) {
+    ++lines;
+  }
+  EXPECT_EQ(lines, 1u) << text;
 }
 
 // ----------------------------------------------------------------------- keepalive, dead, stale

@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
 #include <sys/socket.h>
 
 #include <boost/asio/as_tuple.hpp>
@@ -12,6 +14,7 @@
 #include <boost/asio/use_awaitable.hpp>
 #include <boost/asio/write.hpp>
 #include <deque>
+#include <sstream>
 #include <stdexcept>
 
 #include "tests/backbone/link_test_support.hpp"
@@ -375,6 +378,55 @@ TEST_F(RawPeerTest, MessageTrickledByteByByteIsReassembled) {
   ASSERT_TRUE(run_until(io, [&] { return in.messages.size() == 1; }));
   EXPECT_EQ(in.messages[0], std::string(300, 'z'));
   EXPECT_EQ(link->counters().rx_bytes, stream.size());
+}
+
+// A flood of hostile connections to one server, each sending garbage: the links share the
+// server's StreamLinkWarnings, so the log says it once and the counters keep the number.
+TEST(StreamLinkWarningsTest, LinksSharingWarningsWarnOnceForTheirSide) {
+  std::ostringstream log;
+  auto previous = spdlog::default_logger();
+  auto capture = std::make_shared<spdlog::logger>(
+      "capture", std::make_shared<spdlog::sinks::ostream_sink_st>(log));
+  capture->set_level(spdlog::level::info);
+  spdlog::set_default_logger(capture);
+
+  asio::io_context io;
+  StreamLinkOptions options;
+  options.warnings = std::make_shared<StreamLinkWarnings>();
+  constexpr int kLinks = 5;
+  std::vector<std::unique_ptr<asio::ip::tcp::socket>> peers;
+  std::vector<std::shared_ptr<StreamLink>> links;
+  std::vector<Inbox> inboxes(kLinks);
+  Outbox out;
+  for (int i = 0; i < kLinks; ++i) {
+    auto sockets = testing::connected_sockets(io);
+    peers.push_back(std::make_unique<asio::ip::tcp::socket>(std::move(sockets.client)));
+    links.push_back(StreamLink::create(std::move(sockets.server), options));
+    links.back()->start(inboxes[i].on_message(), out.source(), inboxes[i].on_closed());
+    const std::string garbage(16, '\xFF');  // a length prefix that never ends
+    asio::write(*peers.back(), asio::buffer(garbage));
+  }
+  const bool all_closed = run_until(io, [&] {
+    for (const auto& in : inboxes) {
+      if (in.closed_calls != 1) return false;
+    }
+    return true;
+  });
+  spdlog::set_default_logger(previous);
+  ASSERT_TRUE(all_closed);
+  std::uint64_t malformed = 0;
+  for (const auto& l : links) malformed += l->counters().malformed;
+  EXPECT_EQ(malformed, std::uint64_t{kLinks});
+  EXPECT_TRUE(options.warnings->malformed);
+  const std::string text = log.str();
+  std::size_t warnings = 0;
+  for (auto at = text.find("dropping"); at != std::string::npos;
+       at = text.find("dropping", at + 1)) {
+    ++warnings;
+  }
+  EXPECT_EQ(warnings, 1u) << text;
+  for (auto& p : peers) p->close();
+  EXPECT_TRUE(testing::drains_within(io, 2s));
 }
 
 }  // namespace
