@@ -173,7 +173,7 @@ std::shared_ptr<canbridge::backbone::TlsUpgrade> stranger_psk(const std::string&
   std::array<std::uint8_t, canbridge::backbone::kPreSharedKeySize> bytes{};
   for (auto& b : bytes) b = static_cast<std::uint8_t>(random() & 0xffu);
   return canbridge::backbone::TlsUpgrade::create(canbridge::backbone::TlsGatewayPsk{
-      name, {canbridge::backbone::PreSharedKey(bytes)}, "surface"});
+      name, {canbridge::backbone::PreSharedKey(bytes)}, "surface", nullptr});
 }
 
 class Flood {
