@@ -254,17 +254,20 @@ class Flood {
     co_await timer.async_wait(kNoError);
   }
 
-  // Connects; the open socket is registered so stop() can close it.
+  // Connects; the socket is registered so stop() can close it, connecting or open.
   asio::awaitable<bool> connect(tcp::socket& socket) {
     co_await pace();
     if (stopping()) co_return false;
+    // Registered before connecting: when the server's accept queue is full the SYN waits for
+    // minutes, and stop() must be able to end such a connect as well.
+    open_.push_back(&socket);
     auto [ec] = co_await socket.async_connect(endpoint_, kNoError);
     if (ec) {
-      ++counts_.connect_failed;
+      std::erase(open_, &socket);
+      if (!stopping()) ++counts_.connect_failed;
       co_return false;
     }
     ++counts_.connected;
-    open_.push_back(&socket);
     counts_.held_peak = std::max(counts_.held_peak, ++counts_.held);
     if (options_.idle > 0 && counts_.held == options_.idle && !announced_) {
       announced_ = true;
