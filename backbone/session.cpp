@@ -53,7 +53,8 @@ SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& iden
       clock_(options.clock),
       binder_(std::move(binder)),
       core_(identity, options, preset, counters, log ? *log : own_log_, *this,
-            SessionCore::LinkFacts{link_->peer_name(), link_->crc_framed()}),
+            SessionCore::LinkFacts{link_->peer_name(), link_->crc_framed(),
+                                   link_->authenticated_peer()}),
       timer_(link_->executor()) {}
 
 SessionLink::~SessionLink() = default;

@@ -454,8 +454,11 @@ void SessionCore::refuse(v1::Refusal::Reason reason, const std::string& detail, 
               "backbone: refusing {}: {}", link_.peer_name, detail);
   scratch_.Clear();
   v1::Refusal& r = *scratch_.mutable_refusal();
-  r.set_reason(reason);
-  r.set_detail(detail);
+  // A peer that proved nothing learns only that it was refused: the names, versions and modules
+  // in use stay in this side's log (a plain link, or one refused before its proof).
+  const bool proven = !link_.proven_peer.empty() || !authenticated_peer_.empty();
+  r.set_reason(proven ? reason : v1::Refusal::REASON_UNSPECIFIED);
+  r.set_detail(proven ? detail : "refused");
   refusal_.clear();
   append_message(refusal_, scratch_);
   shell_.wake_writer();

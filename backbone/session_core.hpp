@@ -46,6 +46,9 @@ class SessionCore {
   struct LinkFacts {
     std::string peer_name;    // "address:port" or the serial device, for logs
     bool crc_framed = false;  // a serial line: the peer may still be on its previous link
+    // The identity the transport proved (TLS); empty when it proved none. A peer that proved
+    // nothing (here or by the session's own authentication) is refused without the reason.
+    std::string proven_peer;
   };
 
   // `preset`: the stream of a side with exactly one peer (the gateway), whose hello goes out

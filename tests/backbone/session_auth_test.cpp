@@ -124,7 +124,7 @@ struct End {
     shell.bind_to = &stream;
     const bool gateway = identity.role == v1::Hello::ROLE_GATEWAY;
     core.emplace(identity, options, gateway ? &stream : nullptr, counters, log, shell,
-                 SessionCore::LinkFacts{identity.name + "-link", crc_framed});
+                 SessionCore::LinkFacts{identity.name + "-link", crc_framed, {}});
     core->start(now);
   }
   void send(std::uint64_t first, std::uint64_t last) {

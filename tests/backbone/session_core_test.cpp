@@ -109,12 +109,13 @@ struct End {
   }
 
   // A new link (the previous one, if any, is gone): `preset` sends its hello first.
-  void open_link(bool preset, TimePoint now) {
+  // `proven_peer`: the identity the link's transport proved (TLS), empty for a plain link.
+  void open_link(bool preset, TimePoint now, std::string proven_peer = {}) {
     if (core && core->ready()) core->on_link_closed(true, "replaced");
     shell = FakeShell{};
     shell.bind_to = &stream;
     core.emplace(identity, options, preset ? &stream : nullptr, counters, log, shell,
-                 SessionCore::LinkFacts{identity.name + "-link", false});
+                 SessionCore::LinkFacts{identity.name + "-link", false, std::move(proven_peer)});
     core->start(now);
   }
 
@@ -277,8 +278,29 @@ TEST_F(SessionCoreTest, LostHelloIsSentAgain) {
   EXPECT_TRUE(ready());
 }
 
-TEST_F(SessionCoreTest, RefusesAnotherMajorVersion) {
+// A plain link's peer proved nothing: it learns only that it was refused, the reason stays in
+// the surface's log (issue 15).
+TEST_F(SessionCoreTest, APeerThatProvedNothingIsToldOnlyThatItWasRefused) {
   surface.open_link(false, now);
+  v1::Envelope hello;
+  hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
+  hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);
+  hello.mutable_hello()->set_name("stranger");
+  surface.core->on_message(bytes_of(hello.SerializeAsString()), now);
+  std::string out;
+  surface.core->fill(out, now);
+  const auto written = split(out);
+  ASSERT_EQ(written.size(), 1u);
+  v1::Envelope refusal;
+  ASSERT_TRUE(refusal.ParseFromString(written.front()));
+  EXPECT_EQ(refusal.refusal().reason(), v1::Refusal::REASON_UNSPECIFIED);
+  EXPECT_EQ(refusal.refusal().detail(), "refused");
+  EXPECT_EQ(surface.counters.refusals_sent, 1u);
+}
+
+// A peer whose transport proved its identity (TLS) is told why, so its operator can fix it.
+TEST_F(SessionCoreTest, RefusesAnotherMajorVersion) {
+  surface.open_link(false, now, "gw1");
   v1::Envelope hello;
   hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
   hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);

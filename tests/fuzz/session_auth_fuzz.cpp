@@ -85,7 +85,7 @@ struct End {
     identity.session_id = gateway ? 1 : 2;
     shell.stream = &stream;
     core.emplace(identity, options(gateway), gateway ? &stream : nullptr, counters, log, shell,
-                 SessionCore::LinkFacts{identity.name, crc_framed});
+                 SessionCore::LinkFacts{identity.name, crc_framed, {}});
     core->start(now);
   }
   static SessionOptions options(bool gateway) {
