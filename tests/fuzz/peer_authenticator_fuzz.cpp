@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "backbone/peer_authenticator.hpp"
+#include "tests/fuzz/fuzz_input.hpp"
 
 namespace {
 
@@ -35,32 +36,8 @@ using canbridge::backbone::PeerAuthenticator;
 using canbridge::backbone::PeerAuthenticatorOptions;
 using canbridge::backbone::PreSharedKey;
 
-void require(bool holds, const char* invariant) {
-  if (holds) return;
-  std::fprintf(stderr, "fuzz invariant violated: %s\n", invariant);
-  std::abort();
-}
-
-class Input {
- public:
-  explicit Input(std::span<const std::uint8_t> data) : data_(data) {}
-  bool empty() const { return data_.empty(); }
-  std::uint8_t byte() {
-    if (data_.empty()) return 0;
-    const std::uint8_t b = data_.front();
-    data_ = data_.subspan(1);
-    return b;
-  }
-  std::span<const std::uint8_t> take(std::size_t n) {
-    n = std::min(n, data_.size());
-    const auto out = data_.first(n);
-    data_ = data_.subspan(n);
-    return out;
-  }
-
- private:
-  std::span<const std::uint8_t> data_;
-};
+using canbridge::fuzz::Input;
+using canbridge::fuzz::require;
 
 PeerAuthenticatorOptions options(AuthRole role, std::size_t tag_size, std::uint8_t random_start) {
   std::array<std::uint8_t, kPreSharedKeySize> key{};
