@@ -5,26 +5,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "app/key_file_watches.hpp"
 #include "backbone/key_file_watch.hpp"
 #include "backbone/pre_shared_keys.hpp"
 
 namespace canbridge::bridge {
 
 namespace {
-
-// Loaded now (a problem stops the start) and watched: every new link's handshake uses the
-// file's keys as they are then, so keys rotate without a restart.
-std::shared_ptr<backbone::KeyFileWatch> watch_keys(const std::string& key_file,
-                                                   const std::string& who) {
-  if (key_file.empty()) {
-    throw std::runtime_error(who + ": serial backbone authentication needs a key_file");
-  }
-  try {
-    return std::make_shared<backbone::KeyFileWatch>(key_file);
-  } catch (const std::runtime_error& e) {
-    throw std::runtime_error(who + ": " + e.what());
-  }
-}
 
 // One link's authenticator options: `o` with the watched file's current keys.
 backbone::PeerAuthenticatorOptions with_current_keys(backbone::PeerAuthenticatorOptions o,
@@ -51,7 +38,7 @@ SessionAuthenticatorFactory serial_authenticator(const config::GatewayOptions& o
   o.role = backbone::AuthRole::gateway;
   o.own_identity = options.name;
   o.peer_identity = options.auth.surface;
-  auto watch = watch_keys(options.auth.key_file, "gateway " + options.name);
+  auto watch = watch_key_file(options.auth.key_file, "gateway " + options.name);
   o.keys = watch->keys();
   o.tag_size = options.auth.mac_tag_bytes;
   return [o = checked(std::move(o)), watch](const std::string&) {
@@ -79,7 +66,7 @@ SessionAuthenticatorFactory serial_authenticators(const config::SurfaceOptions& 
     o.role = backbone::AuthRole::surface;
     o.own_identity = options.name;
     o.peer_identity = gateway->name;
-    auto watch = watch_keys(gateway->key_file, "gateway " + gateway->name);
+    auto watch = watch_key_file(gateway->key_file, "gateway " + gateway->name);
     o.keys = watch->keys();
     o.tag_size = options.auth.mac_tag_bytes;
     by_device.emplace(line.device, Line{checked(std::move(o)), std::move(watch)});

@@ -6,6 +6,7 @@
 #include <memory>
 #include <stdexcept>
 
+#include "app/key_file_watches.hpp"
 #include "backbone/key_file_watch.hpp"
 #include "backbone/pre_shared_keys.hpp"
 #include "backbone/tls_upgrade.hpp"
@@ -13,17 +14,6 @@
 namespace canbridge::bridge {
 
 namespace {
-
-// The key file, loaded now (a problem stops the start) and watched: rotated keys are used from
-// the next handshake without a restart.
-std::shared_ptr<backbone::KeyFileWatch> watch_keys(const std::string& file,
-                                                   const std::string& whose) {
-  if (file.empty()) {
-    throw std::runtime_error("backbone.auth psk: no key_file for " + whose +
-                             " (make one with `openssl rand -hex 32`, see docs/security.md)");
-  }
-  return std::make_shared<backbone::KeyFileWatch>(file);
-}
 
 backbone::TlsCertificates certificates(const config::AuthOptions& auth, bool server,
                                        std::vector<std::string> accepted) {
@@ -44,7 +34,7 @@ backbone::LinkUpgrade gateway_link_upgrade(const config::GatewayOptions& options
     case config::AuthMode::plain:
       return {};
     case config::AuthMode::psk: {
-      auto watch = watch_keys(auth.key_file, "gateway " + options.name);
+      auto watch = watch_key_file(auth.key_file, "gateway " + options.name);
       backbone::TlsGatewayPsk psk{options.name, watch->keys(), auth.surface, nullptr};
       psk.current_keys = [watch] { return watch->keys(); };
       return backbone::TlsUpgrade::create(std::move(psk))->link_upgrade();
@@ -65,7 +55,7 @@ backbone::LinkUpgrade surface_link_upgrade(const config::SurfaceOptions& options
       backbone::TlsSurfacePsk psk;
       std::map<std::string, std::shared_ptr<backbone::KeyFileWatch>, std::less<>> watches;
       for (const auto& gateway : options.gateways) {
-        auto watch = watch_keys(gateway.key_file, "gateway " + gateway.name);
+        auto watch = watch_key_file(gateway.key_file, "gateway " + gateway.name);
         psk.gateways.emplace(gateway.name, watch->keys());
         watches.emplace(gateway.name, std::move(watch));
       }
