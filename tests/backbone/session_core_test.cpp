@@ -152,6 +152,7 @@ struct End {
 // A gateway and a surface, the wire between them, and the clock.
 class SessionCoreTest : public ::testing::Test {
  protected:
+  v1::Envelope refusal_of_a_future_gateway();
   using Filter = std::function<bool(const v1::Envelope&)>;  // true: lost on the wire
 
   // What `from` writes now reaches `to` (minus what `lose` drops); false if it wrote nothing.
@@ -278,21 +279,29 @@ TEST_F(SessionCoreTest, LostHelloIsSentAgain) {
   EXPECT_TRUE(ready());
 }
 
-// A plain link's peer proved nothing: it learns only that it was refused, the reason stays in
-// the surface's log (issue 15).
-TEST_F(SessionCoreTest, APeerThatProvedNothingIsToldOnlyThatItWasRefused) {
-  surface.open_link(false, now);
+// The surface's answer to a gateway hello of the next major version: the one envelope it writes.
+v1::Envelope SessionCoreTest::refusal_of_a_future_gateway() {
   v1::Envelope hello;
   hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
   hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);
-  hello.mutable_hello()->set_name("stranger");
+  hello.mutable_hello()->set_name("future-gw");
   surface.core->on_message(bytes_of(hello.SerializeAsString()), now);
   std::string out;
   surface.core->fill(out, now);
   const auto written = split(out);
-  ASSERT_EQ(written.size(), 1u);
   v1::Envelope refusal;
-  ASSERT_TRUE(refusal.ParseFromString(written.front()));
+  EXPECT_EQ(written.size(), 1u);
+  if (written.size() == 1) {
+    EXPECT_TRUE(refusal.ParseFromString(written.front()));
+  }
+  return refusal;
+}
+
+// A plain link's peer proved nothing: it learns only that it was refused, the reason stays in
+// the surface's log (issue 15).
+TEST_F(SessionCoreTest, APeerThatProvedNothingIsToldOnlyThatItWasRefused) {
+  surface.open_link(false, now);
+  const v1::Envelope refusal = refusal_of_a_future_gateway();
   EXPECT_EQ(refusal.refusal().reason(), v1::Refusal::REASON_UNSPECIFIED);
   EXPECT_EQ(refusal.refusal().detail(), "refused");
   EXPECT_EQ(surface.counters.refusals_sent, 1u);
@@ -301,16 +310,8 @@ TEST_F(SessionCoreTest, APeerThatProvedNothingIsToldOnlyThatItWasRefused) {
 // A peer whose transport proved its identity (TLS) is told why, so its operator can fix it.
 TEST_F(SessionCoreTest, RefusesAnotherMajorVersion) {
   surface.open_link(false, now, "gw1");
-  v1::Envelope hello;
-  hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
-  hello.mutable_hello()->set_role(v1::Hello::ROLE_GATEWAY);
-  surface.core->on_message(bytes_of(hello.SerializeAsString()), now);
+  const v1::Envelope refusal = refusal_of_a_future_gateway();
   std::string out;
-  surface.core->fill(out, now);
-  const auto written = split(out);
-  ASSERT_EQ(written.size(), 1u);
-  v1::Envelope refusal;
-  ASSERT_TRUE(refusal.ParseFromString(written.front()));
   EXPECT_EQ(refusal.refusal().reason(), v1::Refusal::INCOMPATIBLE_VERSION);
   EXPECT_NE(refusal.refusal().detail().find("incompatible major version"), std::string::npos);
   EXPECT_FALSE(surface.shell.closed);  // the refusal is written first
