@@ -21,6 +21,14 @@ using testing::fast_options;
 using testing::run_until;
 using testing::SessionEnd;
 
+// Nothing here tests the watchdog: a generous dead_after keeps a loaded machine (sanitizers, two
+// test processes) from declaring a link dead while this process waits for the CPU.
+SessionOptions patient_options() {
+  SessionOptions o = fast_options();
+  o.dead_after = 5s;
+  return o;
+}
+
 class SessionOverMemoryLinkTest : public ::testing::Test {
  protected:
   MemoryLinkPair connect(MemoryLinkOptions options = {}) {
@@ -38,8 +46,8 @@ class SessionOverMemoryLinkTest : public ::testing::Test {
   }
 
   asio::io_context io{1};
-  SessionEnd gateway{"gw", v1::Hello::ROLE_GATEWAY, fast_options(), {1, 2}};
-  SessionEnd surface{"surface", v1::Hello::ROLE_SURFACE, fast_options()};
+  SessionEnd gateway{"gw", v1::Hello::ROLE_GATEWAY, patient_options(), {1, 2}};
+  SessionEnd surface{"surface", v1::Hello::ROLE_SURFACE, patient_options()};
 };
 
 TEST_F(SessionOverMemoryLinkTest, HelloExchangeThenAReliablePayloadArrivesExactlyOnce) {
