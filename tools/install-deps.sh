@@ -7,6 +7,7 @@ packages=(
   libboost1.81-dev protobuf-compiler libprotobuf-dev
   libgtest-dev libgmock-dev libyaml-cpp-dev libspdlog-dev libssl-dev
   can-utils iproute2 kmod user-mode-linux
+  libcli11-dev tshark
 )
 missing=()
 for p in "${packages[@]}"; do
@@ -17,5 +18,8 @@ if ((${#missing[@]})); then
   sudo=""
   [[ $(id -u) -ne 0 ]] && sudo=sudo
   $sudo apt-get update -qq
+  # tshark reads the captures `canbridge capture` writes (tests); it never captures here, so
+  # no group may capture either.
+  echo "wireshark-common wireshark-common/install-setuid boolean false" | $sudo debconf-set-selections
   DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
