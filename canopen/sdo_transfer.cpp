@@ -156,7 +156,7 @@ void SdoTransfer::on_frame(const can::Frame& frame, TimePoint now, std::vector<c
 }
 
 bool SdoTransfer::take_server_abort(const can::Frame& frame) {
-  if (specifier_of(frame) != sdo::ccs::abort) return false;
+  if (specifier_of(frame) != sdo::scs::abort) return false;
   const Multiplexer mux = sdo::read_multiplexer(frame);
   // Once past the initiate, a server that lost the transfer (reset, its own timeout) cannot
   // relate our segment to an object and names none; that abort is for us too.
