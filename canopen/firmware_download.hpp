@@ -112,7 +112,6 @@ class FirmwareDownload {
   void enter(FirmwareStep step, TimePoint now, std::vector<can::Frame>& out);
   void after_transfer(TimePoint now, std::vector<can::Frame>& out);
   void fail(std::error_code error, std::string detail);
-  void succeed();
 
   NodeId node_ = 0;
   std::vector<std::uint8_t> image_;
@@ -122,8 +121,7 @@ class FirmwareDownload {
   FirmwareStep step_ = FirmwareStep::probe;
   std::optional<SdoTransfer> transfer_;  // the current step's SDO transfer, when it has one
   TimePoint boot_deadline_ = TimePoint::max();
-  bool boot_seen_ = false;  // the boot-up the current write step leads to already arrived
-  std::size_t bytes_done_ = 0;
+  std::size_t bytes_done_ = 0;  // after the download step
   std::optional<FirmwareResult> result_;
 };
 
