@@ -18,9 +18,9 @@
 #include <deque>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <set>
 #include <span>
-#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -125,18 +125,20 @@ std::string state_text(const NodeRow& row) {
   }
 }
 
-std::string or_dash(const std::string& text) { return text.empty() ? "-" : text; }
+std::string or_dash(const std::string& text) {
+  return text.empty() ? "-" : text;
+}
 
 // One `node ...` line of the nodes command (docs/remote-access.md), without sequence or CR LF.
 std::string node_line(const NodeRow& row) {
-  std::string line = "node net=" + std::to_string(row.net) +
-                     " module=" + std::to_string(row.module_id) + " gateway=" + or_dash(row.gateway) +
-                     " local=" + std::to_string(row.local_node) + " surface=" +
-                     (row.surface_node == 0 ? std::string("-") : std::to_string(row.surface_node)) +
-                     " profile=" + or_dash(row.profile) + " kind=" + or_dash(row.kind) +
-                     " state=" + state_text(row) + " hb_age_ms=" +
-                     (row.heartbeat_age ? std::to_string(row.heartbeat_age->count()) : "-") +
-                     " boot_count=" + std::to_string(row.boot_count) + " emcy=";
+  std::string line =
+      "node net=" + std::to_string(row.net) + " module=" + std::to_string(row.module_id) +
+      " gateway=" + or_dash(row.gateway) + " local=" + std::to_string(row.local_node) +
+      " surface=" + (row.surface_node == 0 ? std::string("-") : std::to_string(row.surface_node)) +
+      " profile=" + or_dash(row.profile) + " kind=" + or_dash(row.kind) +
+      " state=" + state_text(row) +
+      " hb_age_ms=" + (row.heartbeat_age ? std::to_string(row.heartbeat_age->count()) : "-") +
+      " boot_count=" + std::to_string(row.boot_count) + " emcy=";
   if (row.last_emcy_code) {
     char buf[16];
     std::snprintf(buf, sizeof buf, "%04X/%02X", static_cast<unsigned>(*row.last_emcy_code),
@@ -157,8 +159,7 @@ std::string frame_line(const MonitorFrame& frame) {
 std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& outcome) {
   const std::error_code& error = outcome.error;
   if (error.category() == canopen::sdo_category()) {
-    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()),
-                                    outcome.detail);
+    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()), outcome.detail);
   }
   const std::string detail = outcome.detail.empty() ? error.message() : outcome.detail;
   if (error == std::errc::no_such_device_or_address) {
@@ -322,9 +323,9 @@ class Session : public std::enable_shared_from_this<Session> {
           socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
       if (!open_) break;
       if (ec == asio::error::not_found) {
-        linger(canopen::ascii_error(std::nullopt, AsciiError::syntax,
-                                    "line longer than " + std::to_string(limit) +
-                                        " bytes; connection closed"));
+        linger(canopen::ascii_error(
+            std::nullopt, AsciiError::syntax,
+            "line longer than " + std::to_string(limit) + " bytes; connection closed"));
         break;
       }
       if (ec) break;  // the client left (end of file) or the socket failed
@@ -435,9 +436,8 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   auto ok_completion(const ReplyPtr& reply) {
-    return completion(reply, [seq = reply->sequence](const RemoteOutcome&) {
-      return canopen::ascii_ok(seq);
-    });
+    return completion(
+        reply, [seq = reply->sequence](const RemoteOutcome&) { return canopen::ascii_ok(seq); });
   }
 
   void handle_line(std::string_view line) {
@@ -474,8 +474,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (client == nullptr) {
       ++core_->counters.auth_failures;
       spdlog::warn("command endpoint: TCP client {} sent a wrong token; closed", peer_);
-      linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required,
-                                  "wrong token"));
+      linger(
+          canopen::ascii_error(cmd.sequence, AsciiError::authentication_required, "wrong token"));
       return;
     }
     ReplyPtr reply = new_reply(cmd.sequence);
@@ -544,11 +544,10 @@ class Session : public std::enable_shared_from_this<Session> {
         sdo.block_size = sdo_block_ ? kBlockSize : 0;
         if (sdo.upload) {
           const auto type = cmd.type.value_or(canopen::AsciiType::hex);
-          reply->request =
-              remote.sdo(std::move(sdo), completion(reply, [seq, type](const RemoteOutcome& o) {
-                           return canopen::ascii_line(seq,
-                                                      canopen::format_ascii_value(type, o.data));
-                         }));
+          reply->request = remote.sdo(
+              std::move(sdo), completion(reply, [seq, type](const RemoteOutcome& o) {
+                return canopen::ascii_line(seq, canopen::format_ascii_value(type, o.data));
+              }));
         } else {
           reply->request = remote.sdo(std::move(sdo), ok_completion(reply));
         }
@@ -612,14 +611,13 @@ class Session : public std::enable_shared_from_this<Session> {
       const auto self = weak.lock();
       if (!self || !self->open_ || reply->done) return;
       // Latest wins: a reply not yet first in line keeps only its newest progress line.
-      reply->progress = canopen::ascii_line(reply->sequence,
-                                            "PROGRESS " + p.step + " " +
-                                                std::to_string(p.bytes_done) + " " +
-                                                std::to_string(p.bytes_total));
+      reply->progress = canopen::ascii_line(
+          reply->sequence, "PROGRESS " + p.step + " " + std::to_string(p.bytes_done) + " " +
+                               std::to_string(p.bytes_total));
       self->wake_.cancel();
     };
-    reply->request = core_->remote.flash(*where, std::move(image), std::move(progress),
-                                         ok_completion(reply));
+    reply->request =
+        core_->remote.flash(*where, std::move(image), std::move(progress), ok_completion(reply));
   }
 
   // Reads a firmware image on the surface; why not, for the operator.
@@ -644,28 +642,27 @@ class Session : public std::enable_shared_from_this<Session> {
   void nodes(const ReplyPtr& reply, const AsciiCommand& cmd) {
     const auto net = network(cmd, reply);
     if (!net) return;
-    core_->remote.nodes(*net, [weak = weak_from_this(), reply](std::vector<NodeRow> rows,
-                                                                std::error_code error) {
-      const auto self = weak.lock();
-      if (!self || !self->open_) return;
-      if (error) {
-        self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}}));
-        return;
-      }
-      for (const auto& row : rows) {
-        reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
-      }
-      self->finish(reply, canopen::ascii_ok(reply->sequence));
-    });
+    core_->remote.nodes(
+        *net, [weak = weak_from_this(), reply](std::vector<NodeRow> rows, std::error_code error) {
+          const auto self = weak.lock();
+          if (!self || !self->open_) return;
+          if (error) {
+            self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}}));
+            return;
+          }
+          for (const auto& row : rows) {
+            reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
+          }
+          self->finish(reply, canopen::ascii_ok(reply->sequence));
+        });
   }
 
   void monitor(const ReplyPtr& reply, const AsciiCommand& cmd) {
     monitor_module_ = cmd.module;
     if (!subscription_) {
-      subscription_ = core_->remote.subscribe(
-          [weak = weak_from_this()](const MonitorFrame& frame) {
-            if (const auto self = weak.lock()) self->on_frame(frame);
-          });
+      subscription_ = core_->remote.subscribe([weak = weak_from_this()](const MonitorFrame& frame) {
+        if (const auto self = weak.lock()) self->on_frame(frame);
+      });
     }
     finish(reply, canopen::ascii_ok(reply->sequence));
   }
@@ -763,8 +760,7 @@ void CommandEndpoint::Core::start() {
     }
     unix_acceptor.listen(asio::socket_base::max_listen_connections, ec);
     if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + path + ": " +
-                               ec.message());
+      throw std::runtime_error("command endpoint: cannot listen on " + path + ": " + ec.message());
     }
     spdlog::info("command endpoint: listening on {}", path);
   }
@@ -786,8 +782,8 @@ void CommandEndpoint::Core::start() {
     if (!ec) tcp_acceptor.listen(asio::socket_base::max_listen_connections, ec);
     if (!ec) tcp_port = tcp_acceptor.local_endpoint(ec).port();
     if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address +
-                               ":" + std::to_string(options.tcp_port) + ": " + ec.message());
+      throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address + ":" +
+                               std::to_string(options.tcp_port) + ": " + ec.message());
     }
     if (options.clients.empty()) {
       spdlog::warn("command endpoint: TCP on port {} has no clients: every auth fails", tcp_port);
@@ -816,8 +812,8 @@ void CommandEndpoint::Core::stop() {
   retry_timer.cancel();
   // Only the file this endpoint made: a successor may have replaced it already.
   struct stat st {};
-  if (!socket_path.empty() && ::lstat(socket_path.c_str(), &st) == 0 &&
-      st.st_ino == socket_inode && S_ISSOCK(st.st_mode)) {
+  if (!socket_path.empty() && ::lstat(socket_path.c_str(), &st) == 0 && st.st_ino == socket_inode &&
+      S_ISSOCK(st.st_mode)) {
     ::unlink(socket_path.c_str());
   }
   for (auto& [id, session] : std::map(sessions)) session->close();
@@ -874,9 +870,9 @@ void CommandEndpoint::Core::admit(Socket socket, bool tcp, std::string peer) {
           "refusals are only counted)",
           options.max_clients, peer);
     }
-    refusal = canopen::ascii_error(std::nullopt, AsciiError::internal_state,
-                                   "too many clients (" + std::to_string(options.max_clients) +
-                                       ")");
+    refusal =
+        canopen::ascii_error(std::nullopt, AsciiError::internal_state,
+                             "too many clients (" + std::to_string(options.max_clients) + ")");
   } else {
     ++counters.clients;
     ++counters.sessions;
@@ -906,7 +902,9 @@ CommandEndpoint::CommandEndpoint(asio::any_io_executor executor, CommandEndpoint
                                  RemoteAccess& remote)
     : core_(std::make_shared<Core>(std::move(executor), std::move(options), remote)) {}
 
-CommandEndpoint::~CommandEndpoint() { core_->stop(); }
+CommandEndpoint::~CommandEndpoint() {
+  core_->stop();
+}
 
 void CommandEndpoint::start() {
   try {
@@ -917,10 +915,16 @@ void CommandEndpoint::start() {
   }
 }
 
-void CommandEndpoint::stop() { core_->stop(); }
+void CommandEndpoint::stop() {
+  core_->stop();
+}
 
-std::uint16_t CommandEndpoint::tcp_port() const { return core_->tcp_port; }
+std::uint16_t CommandEndpoint::tcp_port() const {
+  return core_->tcp_port;
+}
 
-CommandEndpointCounters CommandEndpoint::counters() const { return core_->counters; }
+CommandEndpointCounters CommandEndpoint::counters() const {
+  return core_->counters;
+}
 
 }  // namespace canbridge::bridge

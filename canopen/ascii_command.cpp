@@ -12,9 +12,13 @@ constexpr std::size_t kMaxAuthToken = 4096;
 constexpr std::uint32_t kMaxNet = 0xFFFF;  // as CANopenNode's gateway
 constexpr std::uint32_t kMaxNode = 127;
 
-bool is_space(char c) { return c == ' ' || c == '\t'; }
+bool is_space(char c) {
+  return c == ' ' || c == '\t';
+}
 
-bool is_digit(char c) { return c >= '0' && c <= '9'; }
+bool is_digit(char c) {
+  return c >= '0' && c <= '9';
+}
 
 std::string lower(std::string_view text) {
   std::string out(text);
@@ -109,7 +113,9 @@ class Parser {
 
  private:
   using Outcome = std::optional<Failure>;
-  static Outcome syntax(std::string detail) { return Failure{AsciiError::syntax, std::move(detail)}; }
+  static Outcome syntax(std::string detail) {
+    return Failure{AsciiError::syntax, std::move(detail)};
+  }
 
   Outcome parse(std::string_view raw) {
     for (std::size_t i = 0; i < raw.size(); ++i) {
@@ -215,8 +221,7 @@ class Parser {
   }
 
   // A number token that must fit [min, max]; `what` names it in the error.
-  Outcome number(std::string_view what, std::uint64_t min, std::uint64_t max,
-                 std::uint32_t& out) {
+  Outcome number(std::string_view what, std::uint64_t min, std::uint64_t max, std::uint32_t& out) {
     const std::string_view token = tokens_.next();
     if (token.empty()) return syntax("missing " + std::string(what));
     if (token.size() > kMaxAsciiToken) return syntax(std::string(what) + " too long");

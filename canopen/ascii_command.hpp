@@ -70,7 +70,7 @@ struct AsciiCommand {
   std::uint32_t number = 0;
   // auth: the token; flash: the path; help: the topic ("", "datatype", "lss"); lss: the command
   std::string text;
-  std::vector<std::uint32_t> args;  // lss arguments
+  std::vector<std::uint32_t> args;      // lss arguments
   std::optional<std::uint32_t> module;  // monitor module=<m>
 };
 

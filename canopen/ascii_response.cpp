@@ -25,7 +25,9 @@ std::string ascii_line(std::optional<std::uint32_t> sequence, std::string_view t
   return out;
 }
 
-std::string ascii_ok(std::optional<std::uint32_t> sequence) { return ascii_line(sequence, "OK"); }
+std::string ascii_ok(std::optional<std::uint32_t> sequence) {
+  return ascii_line(sequence, "OK");
+}
 
 std::string ascii_sdo_abort(std::optional<std::uint32_t> sequence, std::uint32_t code,
                             std::string_view detail) {

@@ -2,8 +2,8 @@
 
 #include <array>
 #include <charconv>
-#include <cmath>
 #include <cinttypes>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
@@ -30,9 +30,13 @@ constexpr std::array<TypeInfo, 20> kTypes{{
     {AsciiType::d, "d", 0},     {AsciiType::hex, "hex", 0},
 }};
 
-const TypeInfo& info(AsciiType type) { return kTypes[static_cast<std::size_t>(type)]; }
+const TypeInfo& info(AsciiType type) {
+  return kTypes[static_cast<std::size_t>(type)];
+}
 
-bool is_space(char c) { return c == ' ' || c == '\t'; }
+bool is_space(char c) {
+  return c == ' ' || c == '\t';
+}
 
 std::string_view trim(std::string_view text) {
   while (!text.empty() && is_space(text.front())) text.remove_prefix(1);
@@ -57,7 +61,9 @@ std::string quoted(std::string_view text) {
   return out + "\"";
 }
 
-AsciiValue fail(std::string error) { return AsciiValue{{}, std::move(error)}; }
+AsciiValue fail(std::string error) {
+  return AsciiValue{{}, std::move(error)};
+}
 
 AsciiValue little_endian(std::uint64_t value, std::size_t size) {
   AsciiValue out;
@@ -79,8 +85,7 @@ AsciiValue parse_unsigned_value(AsciiType type, std::string_view text) {
   const std::uint64_t max =
       size == 8 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t{1} << (8 * size)) - 1;
   if (!text.empty() && (text.front() == '-' || text.front() == '+')) {
-    return fail("value " + quoted(text) + ": no sign allowed for " +
-                std::string(info(type).name));
+    return fail("value " + quoted(text) + ": no sign allowed for " + std::string(info(type).name));
   }
   const auto value = parse_ascii_unsigned(text, std::numeric_limits<std::uint64_t>::max());
   if (!value) return fail("value " + quoted(text) + ": not a number");
@@ -163,7 +168,8 @@ AsciiValue parse_visible_string(std::string_view text) {
     }
     out.bytes.push_back(static_cast<std::uint8_t>(text[i]));
   }
-  if (i + 1 != text.size()) return fail("string " + quoted(text) + ": text after the closing quote");
+  if (i + 1 != text.size())
+    return fail("string " + quoted(text) + ": text after the closing quote");
   return out;
 }
 
@@ -219,9 +225,13 @@ std::optional<AsciiType> parse_ascii_type(std::string_view token) {
   return std::nullopt;
 }
 
-std::string_view ascii_type_name(AsciiType type) { return info(type).name; }
+std::string_view ascii_type_name(AsciiType type) {
+  return info(type).name;
+}
 
-std::size_t ascii_type_size(AsciiType type) { return info(type).size; }
+std::size_t ascii_type_size(AsciiType type) {
+  return info(type).size;
+}
 
 std::optional<std::uint64_t> parse_ascii_unsigned(std::string_view token, std::uint64_t max) {
   if (token.empty()) return std::nullopt;
