@@ -262,11 +262,13 @@ class Session : public std::enable_shared_from_this<Session> {
     loops_ = refusal ? 1 : 2;
     auto on_end = [self](const char* which) {
       return [self, which](const std::string& failure) {
+        // Each loop closes the client itself when it ends on its own (a lingering reader leaves
+        // that to the writer); a loop that threw closes it here.
         if (!failure.empty()) {
           spdlog::error("command endpoint: {} of client {} failed: {}; client closed", which,
                         self->peer_, failure);
+          self->close();
         }
-        self->close();
         if (--self->loops_ == 0) self->core_->session_ended(self->id_);
       };
     };
