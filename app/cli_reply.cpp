@@ -91,10 +91,18 @@ std::string describe(const ErrorReply& error) {
 
 std::optional<Progress> parse_progress(std::string_view rest) {
   if (next_word(rest) != "PROGRESS") return std::nullopt;
+  while (!rest.empty() && rest.back() == ' ') rest.remove_suffix(1);
+  // The step may contain spaces: the byte counts are the last two words.
+  const std::size_t total_at = rest.rfind(' ');
+  if (total_at == std::string_view::npos) return std::nullopt;
+  const std::size_t done_at = rest.substr(0, total_at).rfind(' ');
+  if (done_at == std::string_view::npos) return std::nullopt;
   Progress p;
-  p.step = std::string(next_word(rest));
-  if (p.step.empty() || !parse_number(next_word(rest), p.done) ||
-      !parse_number(next_word(rest), p.total) || !next_word(rest).empty()) {
+  std::string_view step = rest.substr(0, done_at);
+  while (!step.empty() && step.front() == ' ') step.remove_prefix(1);
+  p.step = std::string(step);
+  if (p.step.empty() || !parse_number(rest.substr(done_at + 1, total_at - done_at - 1), p.done) ||
+      !parse_number(rest.substr(total_at + 1), p.total)) {
     return std::nullopt;
   }
   return p;

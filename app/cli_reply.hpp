@@ -42,7 +42,7 @@ int exit_code_for(const ErrorReply& error);
 // message, which names the code>"; "error 107: <text>" for CiA 309-3 errors.
 std::string describe(const ErrorReply& error);
 
-// "PROGRESS <step> <done> <total>".
+// "PROGRESS <step> <done> <total>"; the step may contain spaces.
 struct Progress {
   std::string step;
   std::uint64_t done = 0;

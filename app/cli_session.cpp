@@ -110,7 +110,8 @@ int Session::call(std::string_view command, std::string& answer, const LineHandl
     if (!rest) {
       // An unnumbered error is the endpoint refusing before it parsed us (e.g. 401 on TCP).
       if (auto error = parse_error(line)) {
-        io_.err << "canbridge: " << describe(*error) << "\n";
+        io_.err << "canbridge: " << describe(*error)
+                << (error->code == 401 && !error->sdo_abort ? " (give --token-file)" : "") << "\n";
         return exit_code_for(*error);
       }
       continue;

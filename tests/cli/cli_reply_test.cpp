@@ -45,6 +45,10 @@ TEST(CliReply, ProgressNodeRowsFramesAndDrops) {
   EXPECT_EQ(p->done, 4096u);
   EXPECT_EQ(p->total, 262144u);
   EXPECT_FALSE(parse_progress("PROGRESS download 1"));
+  EXPECT_FALSE(parse_progress("PROGRESS 1 2"));
+  const auto spaced = parse_progress("PROGRESS wait for loader boot-up 0 0");
+  ASSERT_TRUE(spaced);
+  EXPECT_EQ(spaced->step, "wait for loader boot-up");
 
   const auto row = parse_node_row("node net=0 module=1 profile=qd emcy=-");
   ASSERT_TRUE(row);
