@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <ostream>
 
 #include "app/cli_base64.hpp"
@@ -221,6 +222,10 @@ int run_flash(const Connect& connect, const CommonOptions& common, const std::st
   // The surface process reads the image: it needs a path that does not depend on our cwd.
   const auto path = std::filesystem::absolute(image, ec);
   if (ec || !std::ifstream(path, std::ios::binary)) throw UsageError{"cannot read " + image};
+  if (path.string().find_first_of("#\r\n") != std::string::npos) {
+    // The endpoint reads '#' as the start of a comment and a line end as the end of the path.
+    throw UsageError{"the image path " + path.string() + " contains '#' or a line break"};
+  }
   int rc = exit_code::ok;
   const auto session = connect(rc);
   if (!session) return rc;
