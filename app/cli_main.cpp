@@ -9,13 +9,14 @@
 #include <iterator>
 #include <optional>
 #include <ostream>
+#include <span>
 
-#include "app/cli_base64.hpp"
 #include "app/cli_monitor.hpp"
 #include "app/cli_node_table.hpp"
 #include "app/cli_progress.hpp"
 #include "app/cli_reply.hpp"
 #include "app/cli_session.hpp"
+#include "canopen/ascii_value.hpp"
 
 namespace canbridge::cli {
 
@@ -138,10 +139,12 @@ int run_sdo_read(const Connect& connect, const CommonOptions& common, const SdoA
     // Domains and strings come back as base64 (d, os, us): the file gets the bytes.
     std::string bytes = value;
     if (a.type == "d" || a.type == "os" || a.type == "us") {
-      if (!base64_decode(value, bytes)) {
+      const auto decoded = canopen::base64_decode(value);
+      if (!decoded) {
         s.io().err << "canbridge: the endpoint's value is not base64: " << value << "\n";
         return exit_code::abort;
       }
+      bytes.assign(decoded->begin(), decoded->end());
     }
     std::ofstream f(a.file, std::ios::binary);
     f << bytes;
@@ -165,7 +168,9 @@ int run_sdo_write(const Connect& connect, const CommonOptions& common, SdoArgs a
     if (a.type != "d" && a.type != "os" && a.type != "us") {
       throw UsageError{"--file needs datatype d, os or us (sent as base64)"};
     }
-    value = base64_encode(read_file(a.file));
+    const std::string content = read_file(a.file);
+    value = canopen::base64_encode(std::span<const std::uint8_t>(
+        reinterpret_cast<const std::uint8_t*>(content.data()), content.size()));
   } else if (a.type == "vs") {
     value = quote_visible_string(value);
   }
