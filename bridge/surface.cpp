@@ -325,6 +325,11 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
       return on_pdop_reports(from, inbound_.pdop_reports());
     case v1::Payload::kPdopNodes:
       return on_pdop_nodes(from, inbound_.pdop_nodes());
+    // Remote access (issue 16): handled by the surface's remote part (helper u4's hooks).
+    case v1::Payload::kRemoteRequest:
+    case v1::Payload::kRemoteCancel:
+    case v1::Payload::kRemoteResult:
+    case v1::Payload::kRemoteProgress:
     case v1::Payload::BODY_NOT_SET:
       break;
   }
