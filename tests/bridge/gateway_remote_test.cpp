@@ -11,8 +11,15 @@
 #include <string>
 #include <vector>
 
+#include "backbone/memory_link.hpp"
+#include "backbone/session.hpp"
+#include "bridge/frame_batch_codec.hpp"
+#include "bridge/gateway.hpp"
+#include "can/virtual_bus.hpp"
 #include "sim/firmware_image.hpp"
 #include "sim/sim_node.hpp"
+#include "tests/support/bus_recorder.hpp"
+#include "tests/support/event_loop.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -448,6 +455,168 @@ TEST(GatewayRemote, ACorruptImageFailsNamingTheStepAndLeavesTheNodeInItsLoader) 
   EXPECT_NE(rig.result(7)->detail().find(':'), std::string::npos) << rig.result(7)->detail();
   EXPECT_TRUE(rig.node(4).in_loader());
   EXPECT_EQ(rig.results.size(), 1u);
+}
+
+// The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
+// (its own PeerStream over an in-memory link) that sends RemoteRequest payloads and frames.
+class GatewayWithScriptedSurface : public ::testing::Test {
+ protected:
+  static constexpr NodeId kLocal = 5, kSurface = 15;
+
+  void SetUp() override {
+    NodeMap map;
+    ASSERT_TRUE(map.add_module(1, {{kLocal, kSurface}}).empty());
+    std::vector<GatewayModule> modules;
+    GatewayModule m;
+    m.id = 1;
+    m.bus = module_bus.connect("gateway");
+    modules.push_back(std::move(m));
+    gateway =
+        std::make_unique<Gateway>(io.get_executor(), "gw", std::move(map), std::move(modules));
+    node_bus.on_frames = [this] {
+      for (; node_seen < node_bus.frames.size(); ++node_seen) {
+        for (const Frame& reply : node.on_frame(node_bus.frames[node_seen], Clock::now())) {
+          if (hold_replies) {
+            held.push_back(reply);
+          } else {
+            node_bus.send(reply);
+          }
+        }
+      }
+    };
+    gateway->start();
+    backbone::SessionIdentity identity;
+    identity.role = v1::Hello::ROLE_SURFACE;
+    identity.expected_peer = v1::Hello::ROLE_GATEWAY;
+    identity.name = "scripted-surface";
+    identity.session_id = backbone::random_session_id();
+    backbone::MemoryLinkOptions options;
+    options.name = "backbone";
+    auto pair = backbone::make_memory_link_pair(io.get_executor(), options);
+    gateway->attach(pair.a);
+    session = backbone::SessionLink::create(pair.b, identity, tuning.session, &stream, nullptr,
+                                            session_counters);
+    session->start();
+    ASSERT_TRUE(test::run_until(io, [&] { return gateway->connected() && stream.up(); }));
+    for (const Frame& f : node.boot(Clock::now())) node_bus.send(f);
+    // The node's boot-up crosses to the surface: frames do reach it.
+    ASSERT_TRUE(test::run_until(io, [&] { return saw_on_surface(0x700 + kSurface); }));
+  }
+  void TearDown() override {
+    session->close();
+    gateway->stop();
+    node_bus.close();
+    EXPECT_TRUE(test::run_until(io, [&] { return node_bus.done(); }));
+  }
+
+  void send(const v1::Payload& payload) {
+    outgoing.push_back(payload.SerializeAsString());
+    stream.wake();
+  }
+  void send_frame(const Frame& f) {
+    v1::Payload p;
+    FrameBatchBuilder b;
+    b.start(*p.mutable_frames(), kAnyModule);
+    b.append(*p.mutable_frames(), f);
+    send(p);
+  }
+  void on_payload(std::span<const std::uint8_t> bytes) {
+    v1::Payload p;
+    ASSERT_TRUE(p.ParseFromArray(bytes.data(), static_cast<int>(bytes.size())));
+    if (p.has_remote_result()) results.push_back(p.remote_result());
+    if (p.has_frames()) {
+      std::vector<Frame> frames;
+      ASSERT_EQ(decode_frame_batch(p.frames(), frames), BatchError::none);
+      surface_frames.insert(surface_frames.end(), frames.begin(), frames.end());
+    }
+  }
+  bool saw_on_surface(std::uint32_t id) const {
+    return std::any_of(surface_frames.begin(), surface_frames.end(),
+                       [id](const Frame& f) { return f.id == id; });
+  }
+
+  using Clock = std::chrono::steady_clock;
+  boost::asio::io_context io{1};
+  can::VirtualBus module_bus{io.get_executor(), "module-bus"};
+  test::BusRecorder node_bus{io, module_bus.connect("node")};
+  static sim::NodeSpec spec_with_value() {
+    sim::NodeSpec spec = node_spec(kLocal);
+    const std::string value = pattern(20);
+    spec.objects[0].value.assign(value.begin(), value.end());
+    return spec;
+  }
+  sim::SimNode node{spec_with_value()};
+  std::size_t node_seen = 0;
+  bool hold_replies = false;
+  std::vector<Frame> held;
+  std::unique_ptr<Gateway> gateway;
+  BackboneTuning tuning;
+  backbone::SessionCounters session_counters;
+  std::deque<std::string> outgoing;
+  std::vector<v1::RemoteResult> results;
+  std::vector<Frame> surface_frames;
+  backbone::PeerStream stream{
+      tuning.session,
+      {[this](backbone::PayloadSink& sink) {
+         while (!outgoing.empty() && sink.reliable_room(outgoing.front().size())) {
+           sink.send_reliable(std::move(outgoing.front()));
+           outgoing.pop_front();
+         }
+       },
+       [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
+       [](const v1::Hello&) {}, [] {}}};
+  std::shared_ptr<backbone::SessionLink> session;
+};
+
+TEST_F(GatewayWithScriptedSurface, ARequestGetsOneResultAndItsSdoFramesNeverReachTheSurface) {
+  // A segmented read (20 bytes) holds the node's answers back, so
+  // the surface master's request to the same node arrives while the gateway's transfer runs.
+  hold_replies = true;
+  v1::Payload request;
+  *request.mutable_remote_request() = sdo_request(41, kLocal, true, kDomain);
+  send(request);
+  ASSERT_TRUE(test::run_until(io, [&] { return !held.empty(); }));
+  send_frame(Frame::standard(0x600 + kSurface, {0x40, 0x00, 0x20, 0, 0, 0, 0, 0}));
+  ASSERT_TRUE(test::run_until(io, [&] { return saw_on_surface(0x580 + kSurface); }));
+  const auto refusal = std::find_if(surface_frames.begin(), surface_frames.end(),
+                                    [](const Frame& f) { return f.id == 0x580 + kSurface; });
+  EXPECT_EQ(*refusal,
+            Frame::standard(0x580 + kSurface, {0x80, 0x00, 0x20, 0, 0x21, 0x00, 0x00, 0x08}));
+  EXPECT_EQ(gateway->counters().sdo_collisions, 1u);
+  EXPECT_EQ(node_bus.count(0x600 + kLocal), 1u);  // the master's request never reached the node
+  // The node answers now: the gateway's transfer completes.
+  hold_replies = false;
+  for (const Frame& f : held) node_bus.send(f);
+  held.clear();
+  ASSERT_TRUE(test::run_until(io, [&] { return !results.empty(); }));
+  ASSERT_EQ(results.size(), 1u);
+  EXPECT_EQ(results[0].request_id(), 41u);
+  EXPECT_EQ(results[0].abort_code(), 0u) << results[0].detail();
+  EXPECT_EQ(results[0].data(), pattern(20));  // segmented
+  // A second request after it, and a repeat of the first: one more result, none for the repeat.
+  send(request);
+  *request.mutable_remote_request() = sdo_request(42, kLocal, true, 0x1000);
+  send(request);
+  ASSERT_TRUE(test::run_until(io, [&] { return results.size() >= 2; }));
+  EXPECT_EQ(results[1].request_id(), 42u);
+  EXPECT_EQ(results[1].data().size(), 4u);
+  // Then a master's read passes through as always (the gateway's transfers are done): its
+  // answer, queued behind anything the node's earlier responses could have left in the outbox,
+  // is the only SDO response besides the refusal that ever reached the surface.
+  const std::size_t before = surface_frames.size();
+  send_frame(Frame::standard(0x600 + kSurface, {0x40, 0x00, 0x10, 0, 0, 0, 0, 0}));
+  ASSERT_TRUE(test::run_until(io, [&] {
+    return surface_frames.size() > before && surface_frames.back().id == 0x580 + kSurface;
+  }));
+  EXPECT_EQ(std::count_if(surface_frames.begin(), surface_frames.end(),
+                          [](const Frame& f) { return f.id == 0x580 + kSurface; }),
+            2);
+  EXPECT_EQ(surface_frames.back().data[0], 0x43);  // the node's expedited answer to the master
+  EXPECT_EQ(results.size(), 2u);
+  const GatewayCounters c = gateway->counters();
+  EXPECT_EQ(c.remote_requests, 2u);
+  EXPECT_EQ(c.remote_duplicates, 1u);
+  EXPECT_EQ(c.remote_failed, 0u);
 }
 
 }  // namespace
