@@ -61,7 +61,20 @@ void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) 
                   "module " + std::to_string(request.module_id()) + " is not served here");
   }
   const NodeId max_node = max_node_id(map_->modules()[*m].profile);
-  const std::uint32_t node = request.local_node();
+  std::uint32_t node = request.local_node();
+  // Addressed by its surface id (the default network): the local id behind it in the live map
+  // now; the surface's claims name the module, not the local id.
+  if (request.surface_node() != 0) {
+    const auto owner = request.surface_node() <= canopen::kMaxNodeId
+                           ? map_->owner_of_surface(static_cast<NodeId>(request.surface_node()))
+                           : std::nullopt;
+    if (!owner || owner->module_index != *m) {
+      return answer(id, kBadCommand,
+                    "surface node " + std::to_string(request.surface_node()) +
+                        " is not a node of module " + std::to_string(request.module_id()));
+    }
+    node = owner->local;
+  }
   switch (request.op_case()) {
     case v1::RemoteRequest::kLss:
       if (!modules_[*m].lss) {
