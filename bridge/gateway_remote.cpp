@@ -78,8 +78,10 @@ void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) 
   switch (request.op_case()) {
     case v1::RemoteRequest::kLss:
       if (!modules_[*m].lss) {
-        return answer(id, kCannotTransfer,
-                      "LSS is not allowed on module " + std::to_string(request.module_id()));
+        answer(id, kCannotTransfer,
+               "LSS is not allowed on module " + std::to_string(request.module_id()));
+        results_.back().set_not_supported(true);
+        return;
       }
       {
         bool inquiry = false;

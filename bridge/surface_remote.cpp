@@ -430,6 +430,8 @@ void SurfaceRemote::on_result(const v1::RemoteResult& result) {
   }
   RemoteOutcome outcome;
   if (result.abort_code() != 0) outcome.error = canopen::abort_error(result.abort_code());
+  // Not a failed transfer: a service the gateway does not offer there (309-3 error 100).
+  if (result.not_supported()) outcome.error = std::make_error_code(std::errc::permission_denied);
   outcome.data.assign(result.data().begin(), result.data().end());
   outcome.detail = result.detail();
   finish(result.request_id(), std::move(outcome));
