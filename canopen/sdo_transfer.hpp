@@ -80,7 +80,47 @@ class SdoTransfer {
   TimePoint deadline_ = TimePoint::max();
   std::size_t done_ = 0;
   std::size_t total_ = 0;
-  // The implementation adds its protocol state here (phase, toggle, seqno, CRC, ...).
+
+  enum class Phase : std::uint8_t {
+    idle,       // not started
+    initiate,   // initiate request sent, awaiting its response
+    segment,    // segmented: a segment (download) or segment request (upload) awaits its answer
+    sub_block,  // block download: sub-block sent, awaiting its ack; upload: receiving segments
+    block_end,  // block download: end sent, awaiting the confirmation; upload: awaiting the end
+    done,
+  };
+  // What the server's answer in `phase_` is handled by.
+  void on_initiate(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void on_upload_initiate(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void on_segment(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void on_download_segment(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void on_upload_segment(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void send_download_segment(TimePoint now, std::vector<can::Frame>& out);
+  void send_upload_segment_request(TimePoint now, std::vector<can::Frame>& out);
+  void on_block_download_answer(const can::Frame& frame, TimePoint now,
+                                std::vector<can::Frame>& out);
+  void on_block_upload_frame(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
+  void on_block_upload_end(const can::Frame& frame, std::vector<can::Frame>& out);
+  void send_sub_block(TimePoint now, std::vector<can::Frame>& out);
+  // An abort from the server for this transfer ends it (true); any other frame: false.
+  bool take_server_abort(const can::Frame& frame);
+  // An 8-byte request frame on 0x600+N with `command` in byte 0 and the rest zero.
+  can::Frame request(std::uint8_t command) const;
+  void await_answer(TimePoint now, can::Frame frame, std::vector<can::Frame>& out);
+  void finish(std::error_code error);
+  // Ends the transfer for `abort` and tells the server.
+  void fail(SdoAbort abort, std::vector<can::Frame>& out);
+
+  Phase phase_ = Phase::idle;
+  bool block_ = false;            // the block protocol runs (a protocol switch falls back to plain)
+  bool toggle_ = false;           // segmented: the toggle bit of the segment in flight
+  std::size_t in_flight_ = 0;     // segmented download: data bytes of the segment awaiting its ack
+  bool size_indicated_ = false;   // upload: the server gave the size (total_)
+  bool server_crc_ = false;       // block: the server checks (download) or sends (upload) CRC
+  std::uint8_t block_size_ = 0;   // block: segments in the current sub-block
+  std::uint8_t seqno_ = 0;        // block download: segments sent; upload: last in-order seqno
+  bool last_segment_ = false;     // block: the segment with the last byte was sent / received
+  std::size_t acknowledged_ = 0;  // block download: bytes the server confirmed
 };
 
 }  // namespace canbridge::canopen

@@ -10,6 +10,7 @@
 #include "sim/connection_set.hpp"
 #include "sim/emcy_producer.hpp"
 #include "sim/firmware_image.hpp"
+#include "sim/lss_slave.hpp"
 #include "sim/pdo_engine.hpp"
 #include "sim/qd_event_flags.hpp"
 #include "sim/rpdop_receiver.hpp"
@@ -135,6 +136,11 @@ SimNode::SimNode(const NodeSpec& spec) : spec_(spec), id_(spec.node_id) {
   application_checksum_ = application_valid_ ? firmware::crc32(factory) : 0;
   build_application(false);
   if (spec_.kind == NodeKind::qd) build_loader();
+  if (spec_.kind == NodeKind::cia301) {
+    const auto& i = spec_.identity;
+    lss_ = std::make_unique<LssSlave>(LssSlaveOptions{
+        {i.vendor_id, i.product_code, i.revision, i.serial}, id_, true});
+  }
 }
 
 SimNode::~SimNode() = default;
@@ -309,6 +315,10 @@ void SimNode::set_state(NmtState state, TimePoint now, std::vector<can::Frame>& 
 std::vector<can::Frame> SimNode::on_frame(const can::Frame& frame, TimePoint now) {
   std::vector<can::Frame> out;
   if (!booted_ || frame.is_extended() || frame.is_error()) return out;
+  if (lss_ && frame.id == canopen::cob::lss_master) {
+    lss_->on_frame(frame, out);
+    return out;
+  }
   if (frame.id == canopen::cob::nmt && !frame.is_remote()) {
     if (in_loader_) {
       handle_loader_nmt(frame, now, out);
@@ -397,6 +407,7 @@ void SimNode::handle_nmt(const can::Frame& frame, TimePoint now, std::vector<can
       set_state(NmtState::pre_operational, now, out);
       break;
     case canopen::nmt::reset_node:
+      adopt_lss_node_id();
       // Application reset: every object back to its power-on value. A qd node restarts in its
       // loader, as after power-on.
       if (spec_.kind == NodeKind::qd) {
@@ -406,6 +417,7 @@ void SimNode::handle_nmt(const can::Frame& frame, TimePoint now, std::vector<can
       }
       break;
     case canopen::nmt::reset_communication:
+      adopt_lss_node_id();
       // Only the communication profile area is reset; process values stay.
       initialise(true, now, out);
       break;
@@ -457,6 +469,15 @@ void SimNode::rename(canopen::NodeId next, TimePoint now, std::vector<can::Frame
   id_ = next;
   ++counters_.renames;
   initialise(true, now, out);
+}
+
+void SimNode::adopt_lss_node_id() {
+  // CiA 305: a node-id configured over LSS takes effect at the next reset.
+  if (!lss_) return;
+  if (const auto next = lss_->pending_node_id()) {
+    id_ = *next;
+    lss_->set_active_node_id(id_);
+  }
 }
 
 void SimNode::apply_pending_writes(TimePoint now, std::vector<can::Frame>& out) {

@@ -22,6 +22,7 @@ class PdoEngine;
 class EmcyProducer;
 class QdEventFlags;
 class RpdopReceiver;
+class LssSlave;
 
 class SimNode {
  public:
@@ -101,6 +102,9 @@ class SimNode {
     std::uint64_t packets_sent = 0;
   };
   const Counters& counters() const { return counters_; }
+  // cia301 only (nullptr otherwise): the node's CiA 305 LSS slave. A node-id configured over
+  // LSS becomes the node's id at the next NMT reset (node or communication).
+  const LssSlave* lss() const { return lss_.get(); }
 
  private:
   struct Traffic {
@@ -136,6 +140,7 @@ class SimNode {
   void handle_loader_nmt(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   bool handle_node_id_command(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   void rename(canopen::NodeId next, TimePoint now, std::vector<can::Frame>& out);
+  void adopt_lss_node_id();
   // True when an RPDO wrote mapped objects.
   bool handle_pdo_traffic(const can::Frame& frame, TimePoint now, std::vector<can::Frame>& out);
   void apply_pending_writes(TimePoint now, std::vector<can::Frame>& out);
@@ -157,6 +162,7 @@ class SimNode {
   std::unique_ptr<RpdopReceiver> rpdop_;
   std::unique_ptr<ObjectDictionary> loader_od_;
   std::unique_ptr<SdoServer> loader_sdo_;
+  std::unique_ptr<LssSlave> lss_;
 
   bool booted_ = false;
   bool in_loader_ = false;
