@@ -90,9 +90,8 @@ FirmwareDownload::FirmwareDownload(NodeId node, std::vector<std::uint8_t> image,
 void FirmwareDownload::start(TimePoint now, std::vector<can::Frame>& out) {
   if (image_.size() <= kCrcSize) {
     step_ = FirmwareStep::download;
-    fail(SdoAbort::cannot_transfer,
-         "an image of " + std::to_string(image_.size()) +
-             " bytes holds no program before its 4-byte CRC-32");
+    fail(SdoAbort::cannot_transfer, "an image of " + std::to_string(image_.size()) +
+                                        " bytes holds no program before its 4-byte CRC-32");
     return;
   }
   switch (mode_) {
@@ -196,8 +195,8 @@ FirmwareProgress FirmwareDownload::progress() const {
   FirmwareProgress p;
   p.step = step_;
   p.bytes_total = image_.size();
-  p.bytes_done = step_ == FirmwareStep::download && transfer_ ? transfer_->bytes_done()
-                                                                : bytes_done_;
+  p.bytes_done =
+      step_ == FirmwareStep::download && transfer_ ? transfer_->bytes_done() : bytes_done_;
   return p;
 }
 

@@ -98,10 +98,10 @@ LssMaster LssMaster::store_configuration(std::chrono::milliseconds timeout) {
 }
 
 LssMaster LssMaster::inquire(LssInquiry what, std::chrono::milliseconds timeout) {
-  const std::uint8_t command = what == LssInquiry::node_id
-                                   ? lss::inquire_node_id
-                                   : static_cast<std::uint8_t>(lss::inquire_vendor +
-                                                               static_cast<std::uint8_t>(what));
+  const std::uint8_t command =
+      what == LssInquiry::node_id
+          ? lss::inquire_node_id
+          : static_cast<std::uint8_t>(lss::inquire_vendor + static_cast<std::uint8_t>(what));
   return LssMaster({request(command)}, command, timeout);
 }
 

@@ -32,10 +32,10 @@ std::error_code make_error_code(LssError error) noexcept;
 enum class LssInquiry : std::uint8_t { vendor = 0, product = 1, revision = 2, serial = 3, node_id };
 
 struct LssResult {
-  std::error_code error;          // empty on success
-  std::uint32_t value = 0;        // the inquired value
-  std::uint8_t answer_code = 0;   // configure / store: the answer's error code (byte 1)
-  std::uint8_t specific_code = 0; // ... and its implementation-specific code (byte 2)
+  std::error_code error;           // empty on success
+  std::uint32_t value = 0;         // the inquired value
+  std::uint8_t answer_code = 0;    // configure / store: the answer's error code (byte 1)
+  std::uint8_t specific_code = 0;  // ... and its implementation-specific code (byte 2)
   bool ok() const { return !error; }
 };
 

@@ -9,13 +9,13 @@ namespace canbridge::canopen::lss {
 // Every LSS frame has 8 data bytes: byte 0 the command specifier, the rest its arguments
 // (UNSIGNED32 little-endian in bytes 1..4 for identity values). Requests on cob::lss_master
 // (0x7E5), answers on cob::lss_slave (0x7E4).
-inline constexpr std::uint8_t switch_global = 0x04;         // byte 1: 0 waiting, 1 configuration
+inline constexpr std::uint8_t switch_global = 0x04;  // byte 1: 0 waiting, 1 configuration
 inline constexpr std::uint8_t switch_selective_vendor = 0x40;
 inline constexpr std::uint8_t switch_selective_product = 0x41;
 inline constexpr std::uint8_t switch_selective_revision = 0x42;
 inline constexpr std::uint8_t switch_selective_serial = 0x43;
 inline constexpr std::uint8_t switch_selective_answer = 0x44;
-inline constexpr std::uint8_t configure_node_id = 0x11;     // byte 1: 1..127 or 0xFF
+inline constexpr std::uint8_t configure_node_id = 0x11;  // byte 1: 1..127 or 0xFF
 inline constexpr std::uint8_t configure_bit_timing = 0x13;
 inline constexpr std::uint8_t store_configuration = 0x17;
 inline constexpr std::uint8_t inquire_vendor = 0x5A;

@@ -19,9 +19,10 @@ struct SdoTransferOptions {
   // Longest wait for any one answer of the server (CiA 301's SDO timeout). A loader erasing
   // flash may need seconds before it answers a block's end: the caller says so here.
   std::chrono::milliseconds timeout{1000};
-  // 0: expedited or segmented only. 1..127: block transfer, proposing this many segments per
-  // block (download) or accepting at most this many (upload); a server that answers a block
-  // initiate with an abort is not retried with segmented transfer (the caller decides).
+  // 0: expedited or segmented only. 1..127: block transfer, accepting at most this many segments
+  // per sub-block (upload; a download's sub-blocks are as long as the server asks: CiA 301 gives
+  // the client no say there); a server that answers a block initiate with an abort (0x05040001
+  // from one without block transfer) is not retried with segmented transfer (the caller decides).
   std::uint8_t block_size = 0;
   // Block upload: the size below which the server may answer with a plain (expedited or
   // segmented) upload instead (CiA 301 protocol switch threshold, "pst"); 0: no switch.

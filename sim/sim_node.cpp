@@ -138,8 +138,8 @@ SimNode::SimNode(const NodeSpec& spec) : spec_(spec), id_(spec.node_id) {
   if (spec_.kind == NodeKind::qd) build_loader();
   if (spec_.kind == NodeKind::cia301) {
     const auto& i = spec_.identity;
-    lss_ = std::make_unique<LssSlave>(LssSlaveOptions{
-        {i.vendor_id, i.product_code, i.revision, i.serial}, id_, true});
+    lss_ = std::make_unique<LssSlave>(
+        LssSlaveOptions{{i.vendor_id, i.product_code, i.revision, i.serial}, id_, true});
   }
 }
 

@@ -9,6 +9,7 @@
 #include <functional>
 #include <stdexcept>
 
+#include "canopen/crc16.hpp"
 #include "sim/object_dictionary.hpp"
 #include "sim/sdo_server.hpp"
 
@@ -209,6 +210,371 @@ TEST(SdoTransfer, ServerRefusalIsTheResult) {
   ASSERT_TRUE(t.finished());
   EXPECT_EQ(t.result().error, SdoAbort::write_read_only);
   EXPECT_EQ(wire.client_frames, 1u);  // an abort is never answered
+}
+
+// --- block transfers against the simulated server ----------------------------------------------
+
+SdoTransferOptions block(std::uint8_t block_size = 127, std::uint8_t threshold = 0) {
+  SdoTransferOptions options;
+  options.block_size = block_size;
+  options.protocol_switch_threshold = threshold;
+  return options;
+}
+
+std::size_t sub_blocks(std::size_t size, std::size_t block_size) {
+  return (segments(size) + block_size - 1) / block_size;
+}
+
+bool is_segment_of_sub_block(const Frame& f) {
+  return f.id == 0x605 && f.data[0] != 0x80 && (f.data[0] & 0x7F) != 0;
+}
+
+class BlockTransfer : public ::testing::TestWithParam<std::size_t> {};
+
+TEST_P(BlockTransfer, UploadIsByteExact) {
+  const std::size_t size = GetParam();
+  Wire wire;
+  wire.set_value(pattern(size));
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block());
+  wire.run(t);
+  ASSERT_TRUE(t.finished());
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(t.result().data, pattern(size));
+  EXPECT_EQ(t.bytes_done(), size);
+  EXPECT_EQ(t.bytes_total(), size);
+  // Initiate, start, one ack per sub-block, end.
+  EXPECT_EQ(wire.client_frames, 3 + sub_blocks(size, 127));
+  EXPECT_EQ(wire.server_frames, 2 + segments(size));
+  EXPECT_FALSE(wire.server.busy());
+  EXPECT_EQ(wire.server.counters().transfers_ok, 1u);
+}
+
+TEST_P(BlockTransfer, DownloadIsByteExact) {
+  const std::size_t size = GetParam();
+  Wire wire;
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(size), block());
+  wire.run(t);
+  ASSERT_TRUE(t.finished());
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(wire.written(), pattern(size));
+  EXPECT_EQ(t.bytes_done(), size);
+  if (size == 0) {
+    // Nothing to put in a sub-block: a segmented download of size 0, one empty segment.
+    EXPECT_EQ(wire.client_frames, 2u);
+    EXPECT_EQ(wire.client_log[0].data[0], 0x21);
+  } else {
+    EXPECT_EQ(wire.client_frames, 2 + segments(size));  // initiate, segments, end
+    EXPECT_EQ(wire.server_frames, 2 + sub_blocks(size, 127));
+  }
+  EXPECT_EQ(wire.server.counters().transfers_ok, 1u);
+}
+
+INSTANTIATE_TEST_SUITE_P(SizeClasses, BlockTransfer,
+                         ::testing::Values(0, 1, 4, 5, 7, 8, 889, 64 * 1024, 256 * 1024));
+
+class SmallBlocks : public ::testing::TestWithParam<std::uint8_t> {};
+
+// 889 bytes are 127 segments: one full sub-block at 127, 19 at 7 (the last one short), 127 at 1.
+TEST_P(SmallBlocks, UploadAcceptsAtMostTheClientsBlockSize) {
+  const std::uint8_t block_size = GetParam();
+  Wire wire;
+  wire.set_value(pattern(889));
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block(block_size));
+  EXPECT_EQ(t.bytes_total(), 0u);  // not known before the server says
+  wire.run(t);
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(t.result().data, pattern(889));
+  EXPECT_EQ(wire.client_log[0].data[4], block_size);
+  std::size_t acks = 0;
+  for (const Frame& f : wire.client_log) {
+    if (f.data[0] != 0xA2) continue;
+    ++acks;
+    EXPECT_EQ(f.data[2], block_size);  // the next sub-block's size
+    EXPECT_LE(f.data[1], block_size);
+  }
+  EXPECT_EQ(acks, sub_blocks(889, block_size));
+}
+
+TEST_P(SmallBlocks, DownloadSendsTheServersBlockSize) {
+  const std::uint8_t block_size = GetParam();
+  sim::SdoServerOptions options;
+  options.max_block_size = block_size;
+  Wire wire(options);
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(889), block());
+  wire.run(t);
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(wire.written(), pattern(889));
+  std::size_t segments_sent = 0;
+  for (const Frame& f : wire.client_log) {
+    if (f.data[0] == 0xC6 || (f.data[0] & 0xE3) == 0xC1) continue;  // initiate, end
+    ++segments_sent;
+    EXPECT_LE(f.data[0] & 0x7F, block_size);
+  }
+  EXPECT_EQ(segments_sent, 127u);
+  EXPECT_EQ(wire.server_frames, 2 + sub_blocks(889, block_size));
+}
+
+INSTANTIATE_TEST_SUITE_P(BlockSizes, SmallBlocks, ::testing::Values(1, 7, 127));
+
+TEST(SdoTransferBlock, InitiateFramesAreCiA301s) {
+  std::vector<Frame> out;
+  auto up = SdoTransfer::upload(kNode, {0x1F50, 1}, block(64, 16));
+  up.start(t0, out);
+  // ccs 5, client CRC, blksize 64, pst 16.
+  EXPECT_EQ(out.back(), Frame::standard(0x605, {0xA4, 0x50, 0x1F, 0x01, 64, 16, 0, 0}));
+  auto down = SdoTransfer::download(kNode, {0x1F50, 1}, pattern(300), block(64));
+  down.start(t0, out);
+  // ccs 6, client CRC, size indicated, 300 bytes.
+  EXPECT_EQ(out.back(), Frame::standard(0x605, {0xC6, 0x50, 0x1F, 0x01, 0x2C, 0x01, 0, 0}));
+}
+
+TEST(SdoTransferBlock, ServerWithoutBlockTransferRefusesWithInvalidCommand) {
+  sim::SdoServerOptions options;
+  options.level = sim::SdoLevel::segmented;
+  for (const bool upload : {true, false}) {
+    Wire wire(options);
+    wire.set_value(pattern(100));
+    auto t = upload ? SdoTransfer::upload(kNode, kUploadObject, block())
+                    : SdoTransfer::download(kNode, kDownloadObject, pattern(100), block());
+    wire.run(t);
+    ASSERT_TRUE(t.finished());
+    // The server's abort is the result; the client does not fall back to segmented by itself.
+    EXPECT_EQ(t.result().error, SdoAbort::invalid_command);
+    EXPECT_EQ(wire.client_frames, 1u);
+    EXPECT_EQ(wire.server_log.back().data[0], 0x80);
+  }
+}
+
+TEST(SdoTransferBlock, ProtocolSwitchThresholdLetsTheServerAnswerPlainly) {
+  struct Case {
+    std::size_t size;
+    std::uint8_t threshold;
+    std::uint8_t server_specifier;  // of the initiate answer: 2 plain upload, 6 block upload
+    std::size_t client_frames;
+  };
+  // Expedited: the initiate only; segmented: initiate and one request per segment; block:
+  // initiate, start, ack, end.
+  for (const Case c : {Case{4, 16, 2, 1}, Case{10, 16, 2, 3}, Case{16, 16, 2, 4},
+                       Case{17, 16, 6, 4}, Case{4, 0, 6, 4}}) {
+    Wire wire;
+    wire.set_value(pattern(c.size));
+    auto t = SdoTransfer::upload(kNode, kUploadObject, block(127, c.threshold));
+    wire.run(t);
+    ASSERT_TRUE(t.result().ok()) << c.size << ": " << t.result().error.message();
+    EXPECT_EQ(t.result().data, pattern(c.size)) << c.size;
+    EXPECT_EQ(t.bytes_total(), c.size);
+    EXPECT_EQ(wire.server_log[0].data[0] >> 5, c.server_specifier) << c.size;
+    EXPECT_EQ(wire.client_frames, c.client_frames) << c.size << " with pst " << int{c.threshold};
+  }
+  // Without a threshold a plain answer to a block initiate is a protocol error.
+  std::vector<Frame> out;
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block());
+  t.start(t0, out);
+  t.on_frame(Frame::standard(0x585, {0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}), t0, out);
+  EXPECT_EQ(t.result().error, SdoAbort::invalid_command);
+  EXPECT_EQ(abort_code_of(out.back()), 0x05040001u);
+}
+
+TEST(SdoTransferBlock, LostSegmentInADownloadIsRepeatedFromTheAcknowledgedOne) {
+  Wire wire;
+  int segment = 0;
+  wire.client_filter = [&](Frame& f) {
+    return !(is_segment_of_sub_block(f) && f.data[0] != 0xC6 && ++segment == 3);
+  };
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(889), block());
+  wire.run(t);
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(wire.written(), pattern(889));
+  // The server acknowledged seqno 2 of 127; the client repeated segments 3..127 as 1..125.
+  ASSERT_GE(wire.server_log.size(), 2u);
+  EXPECT_EQ(wire.server_log[1].data[0], 0xA2);
+  EXPECT_EQ(wire.server_log[1].data[1], 2);
+  EXPECT_EQ(wire.client_frames, 1 + 127 + 125 + 1);
+  EXPECT_EQ(t.bytes_done(), 889u);
+}
+
+TEST(SdoTransferBlock, LostLastSegmentOfASubBlockEndsInTheTimeout) {
+  Wire wire;
+  SdoTransferOptions options = block();
+  options.timeout = 500ms;
+  wire.client_filter = [&](Frame& f) { return f.data[0] != (0x80 | 127); };
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(889), options);
+  wire.run(t);
+  // Nobody knows the sub-block ended: the client's timeout runs out first and tells the server.
+  EXPECT_EQ(t.result().error, SdoAbort::timeout);
+  EXPECT_EQ(wire.now, t0 + 500ms);
+  EXPECT_EQ(abort_code_of(wire.client_log.back()), 0x05040000u);
+  EXPECT_FALSE(wire.server.busy());
+  EXPECT_EQ(t.bytes_done(), 0u);
+}
+
+TEST(SdoTransferBlock, LostSegmentInAnUploadIsAcknowledgedForRepetition) {
+  Wire wire;
+  wire.set_value(pattern(889));
+  int frame = 0;
+  wire.server_filter = [&](Frame&) { return ++frame != 4; };  // initiate answer, then segment 3
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block());
+  wire.run(t);
+  ASSERT_TRUE(t.result().ok()) << t.result().error.message();
+  EXPECT_EQ(t.result().data, pattern(889));
+  const Frame& first_ack = wire.client_log[2];
+  EXPECT_EQ(first_ack.data[0], 0xA2);
+  EXPECT_EQ(first_ack.data[1], 2);
+  EXPECT_EQ(wire.server_frames, 1 + 127 + 125 + 1);
+}
+
+TEST(SdoTransferBlock, CorruptCrcInADownloadIsRefusedByTheServer) {
+  Wire wire;
+  wire.client_filter = [&](Frame& f) {
+    if ((f.data[0] & 0xE3) == 0xC1) f.data[1] ^= 0x01;  // end block download
+    return true;
+  };
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(20), block());
+  wire.run(t);
+  EXPECT_EQ(t.result().error, SdoAbort::crc_error);
+  EXPECT_EQ(abort_code_of(wire.server_log.back()), 0x05040004u);
+  EXPECT_EQ((wire.client_log.back().data[0] & 0xE3), 0xC1);  // no answer to the server's abort
+  EXPECT_TRUE(wire.written().empty());
+}
+
+TEST(SdoTransferBlock, CorruptCrcInAnUploadAborts) {
+  Wire wire;
+  wire.set_value(pattern(20));
+  wire.server_filter = [&](Frame& f) {
+    if ((f.data[0] & 0xE1) == 0xC1) f.data[2] ^= 0x80;  // end block upload
+    return true;
+  };
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block());
+  wire.run(t);
+  EXPECT_EQ(t.result().error, SdoAbort::crc_error);
+  EXPECT_TRUE(t.result().data.empty());
+  const Frame& abort = wire.client_log.back();
+  EXPECT_EQ(abort.data[0], 0x80);
+  EXPECT_EQ(abort_code_of(abort), 0x05040004u);
+  EXPECT_FALSE(wire.server.busy());
+  EXPECT_EQ(wire.server.counters().transfers_ok, 0u);
+}
+
+TEST(SdoTransferBlock, ServerAbortInsideASubBlockIsTheResult) {
+  Wire wire;
+  wire.set_value(pattern(889));
+  int frame = 0;
+  wire.server_filter = [&](Frame& f) {
+    if (++frame == 5) f = sdo::abort_response(kNode, kUploadObject, SdoAbort::hardware_error);
+    return true;
+  };
+  auto t = SdoTransfer::upload(kNode, kUploadObject, block());
+  wire.run(t);
+  EXPECT_EQ(t.result().error, SdoAbort::hardware_error);
+  EXPECT_EQ(wire.client_frames, 2u);  // initiate, start; the abort is not answered
+  EXPECT_EQ(t.bytes_done(), 21u);
+}
+
+TEST(SdoTransferBlock, AbortDuringADownloadSubBlockFreesTheServer) {
+  Wire wire;
+  std::vector<Frame> out;
+  auto t = SdoTransfer::download(kNode, kDownloadObject, pattern(2000), block());
+  t.start(t0, out);
+  std::vector<Frame> answers;
+  wire.server.on_request(out[0], t0, answers);
+  t.on_frame(answers[0], t0, out);
+  ASSERT_EQ(out.size(), 1u + 127u);
+  for (std::size_t i = 1; i < 50; ++i) wire.server.on_request(out[i], t0, answers);
+  EXPECT_TRUE(wire.server.busy());
+  t.abort(make_error_code(SdoAbort::local_control), out);
+  EXPECT_EQ(t.result().error, SdoAbort::local_control);
+  EXPECT_EQ(out.back(), sdo::abort_request(kNode, kDownloadObject, SdoAbort::local_control));
+  wire.server.on_request(out.back(), t0, answers);
+  EXPECT_FALSE(wire.server.busy());
+  EXPECT_EQ(wire.server.counters().aborts_received, 1u);
+}
+
+// --- block protocol details the simulated server does not exercise ------------------------------
+
+TEST(SdoTransferBlock, DownloadFollowsTheServersChangingBlockSize) {
+  std::vector<Frame> out;
+  const auto data = pattern(50);  // 8 segments, the last one with 1 byte
+  auto t = SdoTransfer::download(kNode, {0x2001, 0}, data, block());
+  t.start(t0, out);
+  out.clear();
+  t.on_frame(Frame::standard(0x585, {0xA4, 0x01, 0x20, 0x00, 4, 0, 0, 0}), t0, out);
+  ASSERT_EQ(out.size(), 4u);
+  EXPECT_EQ(out[0], Frame::standard(0x605, {0x01, data[0], data[1], data[2], data[3], data[4],
+                                            data[5], data[6]}));
+  EXPECT_EQ(out[3].data[0], 0x04);
+  out.clear();
+  t.on_frame(Frame::standard(0x585, {0xA2, 4, 2, 0, 0, 0, 0, 0}), t0, out);
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].data[0], 0x01);
+  EXPECT_EQ(out[0].data[1], data[28]);
+  EXPECT_EQ(t.bytes_done(), 28u);
+  out.clear();
+  t.on_frame(Frame::standard(0x585, {0xA2, 2, 3, 0, 0, 0, 0, 0}), t0, out);
+  ASSERT_EQ(out.size(), 2u);  // two segments left, the second one last
+  EXPECT_EQ(out[1], Frame::standard(0x605, {0x82, data[49], 0, 0, 0, 0, 0, 0}));
+  out.clear();
+  t.on_frame(Frame::standard(0x585, {0xA2, 2, 3, 0, 0, 0, 0, 0}), t0, out);
+  ASSERT_EQ(out.size(), 1u);
+  const std::uint16_t crc = crc16_xmodem(data);
+  // End: 6 bytes of the last segment unused, the CRC little-endian.
+  EXPECT_EQ(out[0], Frame::standard(0x605, {0xD9, static_cast<std::uint8_t>(crc),
+                                            static_cast<std::uint8_t>(crc >> 8), 0, 0, 0, 0, 0}));
+  EXPECT_FALSE(t.finished());
+  t.on_frame(Frame::standard(0x585, {0xA1, 0, 0, 0, 0, 0, 0, 0}), t0, out);
+  ASSERT_TRUE(t.finished());
+  EXPECT_TRUE(t.result().ok());
+  EXPECT_EQ(t.bytes_done(), 50u);
+}
+
+TEST(SdoTransferBlock, BadAcknowledgementsAbort) {
+  struct Case {
+    Frame ack;
+    SdoAbort expected;
+  };
+  for (const Case& c :
+       {Case{Frame::standard(0x585, {0xA2, 5, 4, 0, 0, 0, 0, 0}),
+             SdoAbort::invalid_sequence},  // acks more than was sent
+        Case{Frame::standard(0x585, {0xA2, 4, 0, 0, 0, 0, 0, 0}), SdoAbort::invalid_block_size},
+        Case{Frame::standard(0x585, {0xA2, 4, 128, 0, 0, 0, 0, 0}), SdoAbort::invalid_block_size},
+        Case{Frame::standard(0x585, {0x60, 0x01, 0x20, 0x00, 0, 0, 0, 0}),
+             SdoAbort::invalid_command}}) {
+    std::vector<Frame> out;
+    auto t = SdoTransfer::download(kNode, {0x2001, 0}, pattern(50), block());
+    t.start(t0, out);
+    t.on_frame(Frame::standard(0x585, {0xA4, 0x01, 0x20, 0x00, 4, 0, 0, 0}), t0, out);
+    t.on_frame(c.ack, t0, out);
+    ASSERT_TRUE(t.finished());
+    EXPECT_EQ(t.result().error, c.expected);
+    EXPECT_EQ(abort_code_of(out.back()), static_cast<std::uint32_t>(c.expected));
+  }
+}
+
+TEST(SdoTransferBlock, UploadSegmentBeyondTheBlockSizeAborts) {
+  std::vector<Frame> out;
+  auto t = SdoTransfer::upload(kNode, {0x2000, 0}, block(4));
+  t.start(t0, out);
+  t.on_frame(Frame::standard(0x585, {0xC6, 0x00, 0x20, 0x00, 100, 0, 0, 0}), t0, out);
+  EXPECT_EQ(out.back().data[0], 0xA3);  // start
+  EXPECT_EQ(t.bytes_total(), 100u);
+  t.on_frame(Frame::standard(0x585, {0x05, 1, 2, 3, 4, 5, 6, 7}), t0, out);
+  EXPECT_EQ(t.result().error, SdoAbort::invalid_sequence);
+  EXPECT_EQ(abort_code_of(out.back()), 0x05040003u);
+}
+
+TEST(SdoTransferBlock, UploadSubBlockTimeoutRestartsWithEverySegment) {
+  SdoTransferOptions options = block(4);
+  options.timeout = 100ms;
+  std::vector<Frame> out;
+  auto t = SdoTransfer::upload(kNode, {0x2000, 0}, options);
+  t.start(t0, out);
+  t.on_frame(Frame::standard(0x585, {0xC6, 0x00, 0x20, 0x00, 100, 0, 0, 0}), t0 + 10ms, out);
+  t.on_frame(Frame::standard(0x585, {0x01, 1, 2, 3, 4, 5, 6, 7}), t0 + 90ms, out);
+  EXPECT_EQ(t.deadline(), t0 + 190ms);
+  t.on_timeout(t0 + 189ms, out);
+  EXPECT_FALSE(t.finished());
+  t.on_timeout(t0 + 190ms, out);
+  EXPECT_EQ(t.result().error, SdoAbort::timeout);
+  EXPECT_EQ(abort_code_of(out.back()), 0x05040000u);
 }
 
 // --- protocol errors ---------------------------------------------------------------------------

@@ -13,10 +13,10 @@ using can::Frame;
 using Frames = std::vector<Frame>;
 
 Frame request(std::uint8_t command, std::uint32_t value = 0) {
-  return Frame::standard(0x7E5, {command, static_cast<std::uint8_t>(value),
-                                 static_cast<std::uint8_t>(value >> 8),
-                                 static_cast<std::uint8_t>(value >> 16),
-                                 static_cast<std::uint8_t>(value >> 24), 0, 0, 0});
+  return Frame::standard(
+      0x7E5,
+      {command, static_cast<std::uint8_t>(value), static_cast<std::uint8_t>(value >> 8),
+       static_cast<std::uint8_t>(value >> 16), static_cast<std::uint8_t>(value >> 24), 0, 0, 0});
 }
 
 Frame answer(std::uint8_t command, std::uint32_t value = 0) {
@@ -48,9 +48,9 @@ TEST(LssSlave, WaitingStateAnswersOnlyTheSelection) {
 TEST(LssSlave, SelectiveNeedsAllFourPartsInOrder) {
   LssSlave slave(options());
   // Wrong product: the rest of this sequence is ignored.
-  EXPECT_TRUE(
-      feed(slave, {request(0x40, 0x11), request(0x41, 0x99), request(0x42, 0x33), request(0x43, 0x44)})
-          .empty());
+  EXPECT_TRUE(feed(slave, {request(0x40, 0x11), request(0x41, 0x99), request(0x42, 0x33),
+                           request(0x43, 0x44)})
+                  .empty());
   // Out of order.
   EXPECT_TRUE(feed(slave, {request(0x40, 0x11), request(0x42, 0x33), request(0x43, 0x44)}).empty());
   EXPECT_FALSE(slave.in_configuration());
@@ -65,10 +65,11 @@ TEST(LssSlave, ConfigurationStateServices) {
   LssSlave slave(options());
   feed(slave, {request(0x04, 1)});
   ASSERT_TRUE(slave.in_configuration());
-  EXPECT_EQ(feed(slave, {request(0x5A), request(0x5B), request(0x5C), request(0x5D), request(0x5E)}),
-            (Frames{answer(0x5A, 0x11), answer(0x5B, 0x22), answer(0x5C, 0x33), answer(0x5D, 0x44),
-                    answer(0x5E, 7)}));
-  EXPECT_EQ(feed(slave, {request(0x11, 0)}), Frames{answer(0x11, 1)});    // out of range
+  EXPECT_EQ(
+      feed(slave, {request(0x5A), request(0x5B), request(0x5C), request(0x5D), request(0x5E)}),
+      (Frames{answer(0x5A, 0x11), answer(0x5B, 0x22), answer(0x5C, 0x33), answer(0x5D, 0x44),
+              answer(0x5E, 7)}));
+  EXPECT_EQ(feed(slave, {request(0x11, 0)}), Frames{answer(0x11, 1)});  // out of range
   EXPECT_EQ(feed(slave, {request(0x11, 128)}), Frames{answer(0x11, 1)});
   EXPECT_FALSE(slave.pending_node_id());
   EXPECT_EQ(feed(slave, {request(0x11, 9)}), Frames{answer(0x11, 0)});
