@@ -14,6 +14,9 @@
 
 #include <array>
 #include <filesystem>
+#include <functional>
+#include <iostream>
+#include <map>
 #include <fstream>
 #include <memory>
 #include <random>
@@ -150,11 +153,18 @@ class RemoteAccess : public ::testing::Test {
 
     vcan1_ = std::make_unique<BusLog>("vcan1");
     vcan2_ = std::make_unique<BusLog>("vcan2");
-    // can-utils' view of the NMT and LSS frames the gateway writes on the module buses.
-    const int before = test::receivers_on("vcan1");
-    candump_ = std::make_unique<ChildProcess>(
-        std::vector<std::string>{"candump", "-L", "vcan1,000:7FF,7E5:7FF", "vcan2,000:7FF"});
-    ASSERT_TRUE(test::wait_for_receivers("vcan1", before)) << candump_->output();
+    // can-utils' view of the NMT and LSS frames the gateway writes on the module buses (and a
+    // marker id, 7FFh, that shows when candump listens: cansend until it shows the marker).
+    candump_ = std::make_unique<ChildProcess>(std::vector<std::string>{
+        "candump", "-L", "vcan1,000:7FF,7E5:7FF,7FF:7FF", "vcan2,000:7FF,7FF:7FF"});
+    for (const std::string bus : {"vcan1", "vcan2"}) {
+      bool listening = false;
+      for (int i = 0; i < 50 && !listening; ++i) {
+        ASSERT_EQ(test::run({"cansend", bus, "7FF#A5"}).status, 0);
+        listening = candump_->wait_for_line(bus + " 7FF#A5", 100ms);
+      }
+      ASSERT_TRUE(listening) << candump_->output();
+    }
 
     processes_ = std::make_unique<RigProcesses>(test::RigOptions{
         .canbridge = CANBRIDGE_BIN,
@@ -200,7 +210,9 @@ class RemoteAccess : public ::testing::Test {
     client_ = std::make_unique<EndpointClient>(socket_path_);
   }
   void TearDown() override {
-    if (client_) EXPECT_EQ(client_->bare_lf(), 0) << "response lines must end with CR LF";
+    if (client_) {
+      EXPECT_EQ(client_->bare_lf(), 0) << "response lines must end with CR LF";
+    }
   }
 
   // "[seq] <request>" and the response without its "[seq] ", failing when the echo is missing.
@@ -460,6 +472,14 @@ TEST_F(RemoteAccess, LssOnlyWhereTheModuleAllowsIt) {
   EXPECT_EQ(ask("2 lss_switch_glob 0"), "OK");
   EXPECT_TRUE(candump_->wait_for_line("vcan1 7E5#0400", kEvent)) << candump_->output();
   EXPECT_TRUE(ask("3 lss_switch_glob 1").starts_with("ERROR: 100")) << "module 2 has no LSS";
+  // Selective switch of node 10 by its identity (the sim's cia301 nodes are LSS slaves), then
+  // the inquiries answered by that node alone.
+  EXPECT_EQ(ask("2 lss_switch_sel 0x1A2 0x101 0x10001 0xA010"), "OK");
+  const std::string id = lower(ask("2 lss_get_node"));
+  EXPECT_TRUE(id == "10" || id == "0x0a" || id == "0a") << id;
+  const std::string serial = lower(ask("2 lss_inquire_addr 3"));
+  EXPECT_TRUE(serial == "40976" || serial == "0x0000a010" || serial == "0xa010") << serial;
+  EXPECT_EQ(ask("2 lss_switch_glob 0"), "OK");
 }
 
 // --- the canbridge command line ------------------------------------------------------------------
