@@ -1,5 +1,6 @@
 // canbridge: the command-line entry point of every role (gateway, surface, demo).
 #include <spdlog/spdlog.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <charconv>
@@ -9,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "app/cli_main.hpp"
 #include "app/demo.hpp"
 #include "app/run_roles.hpp"
 #include "config/loader.hpp"
@@ -23,6 +25,9 @@ constexpr const char* kUsage = R"(usage:
                                      module buses <-> backbone (see config/gateway.yaml);
                                      LSS goes to module ID only
   canbridge surface --config FILE    backbone <-> one surface CAN interface (config/surface.yaml)
+  canbridge nodes | sdo | nmt | set-node-id | flash | dump | capture  [--endpoint PATH|HOST:PORT]
+      [--token-file F] [-c surface.yaml] [--net N]   operator commands against a running
+      surface's command endpoint; canbridge SUBCOMMAND --help for each
   canbridge --help | --version
 )";
 
@@ -44,6 +49,9 @@ int main(int argc, char** argv) {
   if (command == "--version") {
     std::cout << "canbridge " << CANBRIDGE_VERSION << "\n";
     return 0;
+  }
+  if (canbridge::cli::is_client_command(command)) {
+    return canbridge::cli::run_client(args, std::cout, std::cerr, ::isatty(STDOUT_FILENO) == 1);
   }
   spdlog::set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ %v");
   try {

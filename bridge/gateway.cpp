@@ -8,6 +8,7 @@
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
+#include "canopen/sdo_abort.hpp"
 #include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
 
@@ -52,15 +53,24 @@ std::vector<GatewayPdopWork::Module> pdop_modules_of(const std::vector<GatewayMo
   }
   return pdop;
 }
+
+std::vector<GatewayRemote::Module> remote_modules_of(const std::vector<GatewayModule>& modules) {
+  std::vector<GatewayRemote::Module> remote;
+  for (const GatewayModule& m : modules) remote.push_back({m.id, m.lss});
+  return remote;
+}
 }  // namespace
 
 Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
-                 std::vector<GatewayModule> modules, BackboneTuning tuning)
+                 std::vector<GatewayModule> modules, BackboneTuning tuning,
+                 GatewayRemoteOptions remote)
     : executor_(std::move(executor)),
       name_(std::move(name)),
       map_(std::move(map)),
       modules_(std::move(modules)),
       loop_guards_(modules_.size()),
+      remote_(map_, node_table_, remote_modules_of(modules_), remote,
+              [this](std::size_t m, canopen::NodeId node) { return sdo_.transfer_open(m, node); }),
       deadlines_(executor_),
       pdop_(map_, pdop_modules_of(modules_), name_),
       tuning_(tuning),
@@ -78,6 +88,12 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       [this](DeadlineDriver::TimePoint now) {
         node_table_.tick(now, node_events_);
         queue_node_events();
+      });
+  deadlines_.add(
+      "remote services", [this] { return remote_.next_deadline(); },
+      [this](DeadlineDriver::TimePoint now) {
+        remote_.tick(now);
+        after_remote_input();
       });
   if (pdop_.active()) {
     deadlines_.add(
@@ -150,6 +166,64 @@ void Gateway::write_pdop_frames() {
   pdop_.bus_frames().clear();
 }
 
+void Gateway::after_remote_input() {
+  for (GatewayRemote::BusFrames& out : remote_.bus_frames()) {
+    for (const can::Frame& frame : out.frames) {
+      // Frame by frame: a block transfer's sub-block may hold more frames than the bus queue.
+      if (!writers_[out.module_index]->write(frame, BusWriteQueue::Lane::reliable)) {
+        warn_.warn(Warn::kBusRefused,
+                   "gateway: bus {} refused a frame of a remote service: dropped (counted; the "
+                   "transfer times out)",
+                   modules_[out.module_index].bus->name());
+      }
+    }
+  }
+  remote_.bus_frames().clear();
+  deadlines_.reschedule();
+  stream_.wake();
+}
+
+bool Gateway::refuse_colliding_sdo(std::size_t m, const can::Frame& local) {
+  if (local.is_extended() || local.id <= canopen::cob::sdo_rx ||
+      local.id > canopen::cob::sdo_rx + canopen::kMaxNodeId || local.len < 4) {
+    return false;
+  }
+  const auto node = static_cast<canopen::NodeId>(local.id - canopen::cob::sdo_rx);
+  if (!remote_.transferring(m, node)) return false;
+  ++counters_.sdo_collisions;
+  warn_.warn(Warn::kSdoCollision,
+             "gateway {}: an SDO request from the surface to module {} node {} met the gateway's "
+             "own transfer: answered with abort 0x08000021 (counted as sdo-collisions)",
+             name_, modules_[m].id, node);
+  if ((local.data[0] >> 5) == 4) return true;  // the master's own abort: nothing to answer
+  // As if from the node: the same path as its responses (translated, value tracking sees it).
+  can::Frame abort =
+      can::Frame::standard(static_cast<std::uint16_t>(canopen::cob::sdo_tx + node),
+                           {0x80, local.data[1], local.data[2], local.data[3], 0, 0, 0, 0});
+  const auto code = static_cast<std::uint32_t>(canopen::SdoAbort::local_control);
+  for (int b = 0; b < 4; ++b) abort.data[4 + b] = static_cast<std::uint8_t>(code >> (8 * b));
+  queue_for_surface(m, abort, LoopGuard::Clock::now());
+  return true;
+}
+
+void Gateway::produce_remote(backbone::PayloadSink& sink) {
+  v1::Payload payload;
+  while (remote_.has_results()) {
+    *payload.mutable_remote_result() = remote_.front_result();
+    const std::size_t size = payload.ByteSizeLong();
+    if (sink.room() < size + 16 || !sink.reliable_room(size)) return;
+    sink.send_reliable(payload.SerializeAsString());
+    remote_.pop_result();
+  }
+  // Unreliable, the latest of each request: one lost is replaced by the next.
+  for (const v1::RemoteProgress& progress : remote_.take_progress()) {
+    *payload.mutable_remote_progress() = progress;
+    const std::string bytes = payload.SerializeAsString();
+    if (sink.room() < bytes.size() + 16) break;
+    sink.send_unreliable({reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size()});
+  }
+}
+
 void Gateway::after_node_input() {
   queue_node_events();
   deadlines_.reschedule();
@@ -212,6 +286,7 @@ void Gateway::queue_node_events() {
     spdlog::info("gateway {}: {}", name_, to_string(e));
     const auto m = e.module_index;
     sdo_.on_node_event(e);
+    remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
     v1::NodeEvent& o = *out.add_events();
     o.set_kind(to_proto(e.kind));
     o.set_module_id(modules_[m].id);
@@ -256,6 +331,8 @@ void Gateway::produce(backbone::PayloadSink& sink) {
     sink.send_reliable(front->SerializeAsString());
     pdop_.pop_payload();
   }
+  // Results of services the surface asked for: few and small (a flash image goes the other way).
+  produce_remote(sink);
   // Events first: they are few, and a master's view of a node should not lag its frames.
   while (!events_out_.empty()) {
     std::string& payload = events_out_.front().payload;
@@ -308,6 +385,8 @@ void Gateway::on_bus_batch(std::size_t module_index, std::span<const can::Frame>
     if (frame.is_error() || drop_echo(module_index, frame, now)) continue;
     const std::size_t events_before = node_events_.size();
     note_bus_frame(module_index, frame, now);
+    // The node's answers to the gateway's own transfer: the runner's, never the master's.
+    if (remote_.on_bus_frame(module_index, frame, now)) continue;
     if (reassembles) {
       // In bus order: a boot-up ends the node's packets before its next fragment arrives.
       for (std::size_t e = events_before; e < node_events_.size(); ++e) {
@@ -320,7 +399,8 @@ void Gateway::on_bus_batch(std::size_t module_index, std::span<const can::Frame>
     queue_for_surface(module_index, frame, now);
   }
   after_node_input();  // reschedules the deadline driver for the PDOP work too
-  stream_.wake();
+  remote_.tick(now);   // a master's transfer may have ended: a waiting request starts
+  after_remote_input();
 }
 
 // A frame this gateway wrote, coming back (another bridge, a gateway daemon, a loop in the
@@ -376,10 +456,21 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
   // Parsed once; the body says what it is.
   decoded_.clear();
   if (!inbound_.ParseFromArray(payload.data(), static_cast<int>(payload.size())) ||
-      !(inbound_.has_frames() || inbound_.has_pdop_packets())) {
+      !(inbound_.has_frames() || inbound_.has_pdop_packets() || inbound_.has_remote_request() ||
+        inbound_.has_remote_cancel())) {
     ++counters_.malformed_payloads;
     warn_.warn(Warn::kMalformed,
                "gateway: dropped a backbone payload: not a frame batch (counted)");
+    return;
+  }
+  if (inbound_.has_remote_request() || inbound_.has_remote_cancel()) {
+    const auto now = DeadlineDriver::Clock::now();
+    if (inbound_.has_remote_request()) {
+      remote_.on_request(inbound_.remote_request(), now);
+    } else {
+      remote_.on_cancel(inbound_.remote_cancel(), now);
+    }
+    after_remote_input();
     return;
   }
   if (inbound_.has_pdop_packets()) {
@@ -419,6 +510,7 @@ void Gateway::write_to_buses(std::optional<std::size_t> only) {
     const std::uint64_t renames_refused = translator_.dropped(DropReason::rename_refused);
     translator_.to_modules(frame, [&](std::size_t m, can::Frame local) {
       if (only && *only != m) return;
+      if (refuse_colliding_sdo(m, local)) return;
       sdo_.to_bus(m, local);
       // In order behind what waits for the bus; only process data may be dropped (counted).
       if (!writers_[m]->write(local, bus_lane_of(local))) {
@@ -432,6 +524,9 @@ void Gateway::write_to_buses(std::optional<std::size_t> only) {
     }
   }
   after_node_input();
+  // A master's transfer may have ended (its abort): a request of the gateway's may start.
+  remote_.tick(DeadlineDriver::Clock::now());
+  after_remote_input();
 }
 
 void Gateway::on_written(std::size_t m, std::span<const can::Frame> frames) {
@@ -481,6 +576,12 @@ GatewayCounters Gateway::counters() const {
   c.rpdop_packets = pdop.rpdop_packets;
   c.rpdop_complete = pdop.rpdop_complete;
   c.rpdop_failed = pdop.rpdop_failed;
+  const GatewayRemote::Counters& remote = remote_.counters();
+  c.remote_requests = remote.requests;
+  c.remote_failed = remote.failed;
+  c.remote_cancelled = remote.cancelled;
+  c.remote_duplicates = remote.duplicates;
+  c.remote_waited_for_master = remote.waited_for_master;
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {
@@ -533,6 +634,13 @@ std::string Gateway::stats_line() const {
         "rpdop packets {} complete {} failed {}",
         c.pdop_packets, c.pdop_packet_bytes, c.pdop_fragments, c.pdop_discards, dropped_frames,
         c.pdop_refused, c.rpdop_packets, c.rpdop_complete, c.rpdop_failed);
+  }
+  if (c.remote_requests + c.sdo_collisions + c.remote_duplicates != 0) {
+    s += fmt::format(
+        "; remote requests {} failed {} cancelled {} duplicates {} waited-for-master {} "
+        "sdo-collisions {}",
+        c.remote_requests, c.remote_failed, c.remote_cancelled, c.remote_duplicates,
+        c.remote_waited_for_master, c.sdo_collisions);
   }
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
     s += "; " + framing_counters_text(c.framing);

@@ -20,6 +20,8 @@
 #include "bridge/deadline_driver.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/gateway_pdop_work.hpp"
+#include "bridge/gateway_remote.hpp"
+#include "bridge/gateway_remote_options.hpp"
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/module_sdo_tracking.hpp"
@@ -88,13 +90,24 @@ struct GatewayCounters {
   std::uint64_t rpdop_complete = 0;     // ... the node acknowledged them complete
   std::uint64_t rpdop_failed = 0;       // ... any other outcome
   std::uint64_t backbone_tx_bytes = 0;  // bytes written on backbone links, all links so far
+  // Services run for the surface (remote access, docs/remote-access.md): requests taken, those
+  // answered with an abort (cancelled ones too), cancelled, repeated ids answered with nothing,
+  // transfers that waited for a master's, and a master's SDO requests refused with 0x08000021
+  // because the gateway ran its own transfer with the node.
+  std::uint64_t remote_requests = 0;
+  std::uint64_t remote_failed = 0;
+  std::uint64_t remote_cancelled = 0;
+  std::uint64_t remote_duplicates = 0;
+  std::uint64_t remote_waited_for_master = 0;
+  std::uint64_t sdo_collisions = 0;
 };
 
 class Gateway {
  public:
   // `map` holds the node tables of `modules`, added in the same order.
   Gateway(boost::asio::any_io_executor executor, std::string name, NodeMap map,
-          std::vector<GatewayModule> modules, BackboneTuning tuning = {});
+          std::vector<GatewayModule> modules, BackboneTuning tuning = {},
+          GatewayRemoteOptions remote = {});
   ~Gateway();
 
   void start();
@@ -160,6 +173,12 @@ class Gateway {
 
   // Hands the PDOP work's fragments to their modules' BusWriters, each batch whole.
   void write_pdop_frames();
+  // Remote services: their frames to the buses, the driver re-armed, results to the stream.
+  void after_remote_input();
+  // A surface master's SDO request to a node the gateway runs its own transfer with: not
+  // written; answered toward the surface with abort 0x08000021 (counted). True when refused.
+  bool refuse_colliding_sdo(std::size_t module_index, const can::Frame& local);
+  void produce_remote(backbone::PayloadSink& sink);
 
   enum Warn : std::size_t {
     kUnknownModule,
@@ -168,6 +187,7 @@ class Gateway {
     kBusRefused,
     kEventsDropped,
     kRenameRefused,
+    kSdoCollision,
     kWarnKinds
   };
 
@@ -180,6 +200,7 @@ class Gateway {
   std::vector<std::unique_ptr<BusWriter>> writers_;  // one per module bus, same order
   ModuleSdoTracking sdo_{map_};                      // every node's default SDO channel, per module
   NodeTable node_table_;
+  GatewayRemote remote_;  // services the surface asks for (SDO, NMT, flash, nodes)
   // One timer for every core with deadlines: the node table and the PDOP work.
   DeadlineDriver deadlines_;
   std::vector<NodeEvent> node_events_;  // of the input being handled

@@ -69,6 +69,11 @@ class ModuleSdoTracking {
   void withdrew(std::size_t requests) { counters_.requests_withdrawn += requests; }
 
   const Counters& counters() const { return counters_; }
+  // A master's SDO transfer with node `local` of the module is open (a request seen, its end
+  // not yet): the gateway's own transfer with the node waits (docs/remote-access.md).
+  bool transfer_open(std::size_t module_index, canopen::NodeId local) const {
+    return local < 128 && !trackers_[module_index][local].idle();
+  }
 
  private:
   // Default SDO channel of a node of `module_index`: the node id if `frame` is its request

@@ -56,7 +56,8 @@ struct Surface::Gateway {
   SdoLinkGuard::GatewayId id;
   std::vector<std::uint32_t> modules;  // as announced in its latest accepted hello
   FrameOutbox outbox;
-  std::deque<std::string> rpdop_out;  // serialized PdopPackets payloads
+  // Serialized reliable payloads of the surface's own: PdopPackets, remote requests and cancels.
+  std::deque<std::string> rpdop_out;
   backbone::PeerStream stream;
   LineLossCounter line_loss;
   // Frames it sent that were not its to send, by NotItsOwn; which reasons were warned already.
@@ -236,6 +237,7 @@ asio::awaitable<std::error_code> Surface::read_bus() {
     batch.clear();
     if (std::error_code ec = co_await bus_->receive_batch(batch)) co_return ec;
     counters_.from_bus += batch.size();
+    if (monitor_) monitor_(batch, 0, false);
     if (gateways_.empty()) {
       counters_.dropped_no_gateway += batch.size();
       warn_.warn(Warn::kNoGateway,
@@ -325,6 +327,12 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
       return on_pdop_reports(from, inbound_.pdop_reports());
     case v1::Payload::kPdopNodes:
       return on_pdop_nodes(from, inbound_.pdop_nodes());
+    case v1::Payload::kRemoteResult:
+    case v1::Payload::kRemoteProgress:
+      if (remote_observer_) return remote_observer_(from.id, inbound_);
+      break;
+    case v1::Payload::kRemoteRequest:  // the surface's to send, never a gateway's
+    case v1::Payload::kRemoteCancel:
     case v1::Payload::BODY_NOT_SET:
       break;
   }
@@ -361,7 +369,7 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
       drop_not_its_own(from, *why, frame.id);
       continue;
     }
-    if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame);
+    if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame, batch.module_id());
   }
 }
 
@@ -492,6 +500,7 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  bus_->name(), fragments.size());
       continue;
     }
+    if (monitor_) monitor_(fragments, p.module_id(), true);
     ++counters_.pdop_packets;
     counters_.pdop_packet_bytes += data.size();
     if (p.probable_repeat()) {
@@ -555,13 +564,22 @@ void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
   flush_relay();
 }
 
-void Surface::send_to_bus(const can::Frame& frame) {
+void Surface::send_to_bus(const can::Frame& frame, std::uint32_t module_id) {
   // In order behind what waits for the bus; only process data may be dropped (counted).
   if (!writer_.write(frame, bus_lane_of(frame))) {
     warn_.warn(Warn::kBusRefused,
                "surface: bus {} is backed up: process data dropped (counted as bus-refused)",
                bus_->name());
+    return;
   }
+  if (monitor_) monitor_(std::span(&frame, 1), module_id, true);
+}
+
+bool Surface::send_to_gateway(GatewayTable::GatewayId gateway, std::string payload) {
+  if (stopped_ || gateway >= by_id_.size() || by_id_[gateway] == nullptr) return false;
+  by_id_[gateway]->rpdop_out.push_back(std::move(payload));
+  by_id_[gateway]->stream.wake();
+  return true;
 }
 
 void Surface::on_bus_backlog(bool backlogged) {

@@ -9,6 +9,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <span>
 #include <string>
 #include <utility>
 #include <vector>
@@ -143,6 +144,25 @@ class Surface {
   }
   const RpdopRelay& rpdop_relay() const { return relay_; }
 
+  // Remote access (bridge/surface_remote.hpp) rides on these.
+  // Who owns which surface node and module, and which gateways are connected.
+  const GatewayTable& gateway_table() const { return table_; }
+  // Sends `payload` (a serialized v1::Payload) reliably to a bound gateway, after what is queued
+  // for it (also while its link is down: it goes when the link returns). False: never bound.
+  bool send_to_gateway(GatewayTable::GatewayId gateway, std::string payload);
+  // Remote results and progress (Payload remote_result, remote_progress) from a bound gateway;
+  // valid during the call. One observer.
+  void on_remote_payload(
+      std::function<void(GatewayTable::GatewayId, const v1::Payload&)> observer) {
+    remote_observer_ = std::move(observer);
+  }
+  // Every frame the surface writes to its bus (`module_id`: the module it came from, 0 for frames
+  // the surface makes itself; `to_bus` true) and every batch it reads from it (module 0, `to_bus`
+  // false). One observer; called on the surface's executor; without one: one branch per batch.
+  using MonitorObserver =
+      std::function<void(std::span<const can::Frame> frames, std::uint32_t module_id, bool to_bus)>;
+  void on_monitor_frames(MonitorObserver observer) { monitor_ = std::move(observer); }
+
  private:
   struct Gateway;
 
@@ -163,7 +183,7 @@ class Surface {
   // Every frame for the surface bus goes here, in order (BusWriter).
   // Queues a surface frame for one gateway; an SDO request it cannot take is aborted.
   void forward_to(Gateway& gateway, const can::Frame& frame, LoopGuard::Clock::time_point now);
-  void send_to_bus(const can::Frame& frame);
+  void send_to_bus(const can::Frame& frame, std::uint32_t module_id = 0);
   // Input from every gateway waits while the bus is backed up (BusWriteQueue::backlogged).
   void on_bus_backlog(bool backlogged);
   void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
@@ -227,6 +247,8 @@ class Surface {
   bool stopped_ = false;
   std::function<void(const std::string&)> on_failure_;
   std::function<void(backbone::MessageLink&)> on_link_bound_;
+  std::function<void(GatewayTable::GatewayId, const v1::Payload&)> remote_observer_;
+  MonitorObserver monitor_;
   std::string failure_;
 };
 

@@ -52,6 +52,27 @@ inline constexpr std::uint8_t abort = 4;
 inline constexpr std::uint8_t block_download = 5;
 inline constexpr std::uint8_t block_upload = 6;
 }  // namespace scs
+// Sub-commands in the low bits of byte 0 of the block services: bits 1..0 for ccs 5 and scs 5,
+// bit 0 for ccs 6 and scs 6.
+namespace block_upload_cs {  // client, ccs 5
+inline constexpr std::uint8_t initiate = 0;
+inline constexpr std::uint8_t end = 1;
+inline constexpr std::uint8_t ack = 2;
+inline constexpr std::uint8_t start = 3;
+}  // namespace block_upload_cs
+namespace block_download_cs {  // client, ccs 6
+inline constexpr std::uint8_t initiate = 0;
+inline constexpr std::uint8_t end = 1;
+}  // namespace block_download_cs
+namespace block_download_ss {  // server, scs 5
+inline constexpr std::uint8_t initiate = 0;
+inline constexpr std::uint8_t end = 1;
+inline constexpr std::uint8_t ack = 2;
+}  // namespace block_download_ss
+namespace block_upload_ss {  // server, scs 6
+inline constexpr std::uint8_t initiate = 0;
+inline constexpr std::uint8_t end = 1;
+}  // namespace block_upload_ss
 
 constexpr std::uint32_t request_cob(NodeId node) {
   return cob::sdo_rx + node;

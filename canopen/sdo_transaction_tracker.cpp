@@ -9,30 +9,9 @@ namespace canbridge::canopen::sdo {
 
 namespace {
 
-// Byte 0 bits: sdo_codec.hpp. Block sub-commands: bits 1..0 (ccs 5, scs 5) or bit 0 (ccs 6,
-// scs 6).
+// Byte 0 bits and block sub-commands: sdo_codec.hpp.
 // Inside a sub-block only exactly this byte 0 is a command (abort): seqno 0 does not exist.
 constexpr std::uint8_t kAbortInSubBlock = 0x80;
-
-namespace block_upload_cs {  // ccs 5
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-constexpr std::uint8_t start = 3;
-}  // namespace block_upload_cs
-namespace block_download_cs {  // ccs 6
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace block_download_cs
-namespace block_download_ss {  // scs 5
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-}  // namespace block_download_ss
-namespace block_upload_ss {  // scs 6
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace block_upload_ss
 
 std::uint8_t specifier_of(const can::Frame& f) {
   return static_cast<std::uint8_t>(f.data[0] >> 5);

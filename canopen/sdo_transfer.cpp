@@ -25,27 +25,6 @@ constexpr std::uint8_t kMaxBlockSize = 127;
 // Byte 0 of an abort; inside a block upload sub-block the only byte 0 with seqno 0.
 constexpr std::uint8_t kAbortCommand = 0x80;
 
-// Sub-commands in the low bits of byte 0 of the block services (CiA 301 7.2.4.3.9..16).
-namespace block_upload_cs {  // client, ccs 5: bits 1..0
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-constexpr std::uint8_t start = 3;
-}  // namespace block_upload_cs
-namespace block_download_cs {  // client, ccs 6: bit 0
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace block_download_cs
-namespace block_download_ss {  // server, scs 5: bits 1..0
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-}  // namespace block_download_ss
-namespace block_upload_ss {  // server, scs 6: bit 0
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace block_upload_ss
-
 constexpr std::uint8_t command_byte(std::uint8_t specifier, std::uint8_t low_bits = 0) {
   return static_cast<std::uint8_t>(specifier << 5 | low_bits);
 }
@@ -74,8 +53,8 @@ bool answers_another_object(const can::Frame& f, Multiplexer mux) {
   const bool names_object =
       specifier == sdo::scs::initiate_upload || specifier == sdo::scs::initiate_download ||
       (specifier == sdo::scs::block_download &&
-       (f.data[0] & 0x03) == block_download_ss::initiate) ||
-      (specifier == sdo::scs::block_upload && (f.data[0] & 0x01) == block_upload_ss::initiate);
+       (f.data[0] & 0x03) == sdo::block_download_ss::initiate) ||
+      (specifier == sdo::scs::block_upload && (f.data[0] & 0x01) == sdo::block_upload_ss::initiate);
   return names_object && sdo::read_multiplexer(f) != mux;
 }
 
@@ -130,8 +109,8 @@ void SdoTransfer::start(TimePoint now, std::vector<can::Frame>& out) {
   phase_ = Phase::initiate;
   const auto size = static_cast<std::uint32_t>(data_.size());
   if (upload_ && block_) {
-    can::Frame f =
-        request(command_byte(sdo::ccs::block_upload, kCrcSupported | block_upload_cs::initiate));
+    can::Frame f = request(
+        command_byte(sdo::ccs::block_upload, kCrcSupported | sdo::block_upload_cs::initiate));
     sdo::write_multiplexer(f, mux_);
     f.data[4] = options_.block_size;
     f.data[5] = options_.protocol_switch_threshold;
@@ -140,8 +119,8 @@ void SdoTransfer::start(TimePoint now, std::vector<can::Frame>& out) {
   if (upload_) return await_answer(now, sdo::upload_request(node_, mux_), out);
   if (block_) {
     can::Frame f =
-        request(command_byte(sdo::ccs::block_download,
-                             kCrcSupported | kBlockSizeIndicated | block_download_cs::initiate));
+        request(command_byte(sdo::ccs::block_download, kCrcSupported | kBlockSizeIndicated |
+                                                           sdo::block_download_cs::initiate));
     sdo::write_multiplexer(f, mux_);
     sdo::write_u32(f, 4, size);
     return await_answer(now, f, out);
@@ -177,7 +156,7 @@ void SdoTransfer::on_frame(const can::Frame& frame, TimePoint now, std::vector<c
 }
 
 bool SdoTransfer::take_server_abort(const can::Frame& frame) {
-  if (specifier_of(frame) != sdo::ccs::abort) return false;
+  if (specifier_of(frame) != sdo::scs::abort) return false;
   const Multiplexer mux = sdo::read_multiplexer(frame);
   // Once past the initiate, a server that lost the transfer (reset, its own timeout) cannot
   // relate our segment to an object and names none; that abort is for us too.
@@ -194,7 +173,7 @@ void SdoTransfer::on_initiate(const can::Frame& frame, TimePoint now,
   const std::uint8_t specifier = specifier_of(frame);
   const std::uint8_t command = frame.data[0];
   if (block_ && upload_) {
-    if (specifier == sdo::scs::block_upload && (command & 0x01) == block_upload_ss::initiate) {
+    if (specifier == sdo::scs::block_upload && (command & 0x01) == sdo::block_upload_ss::initiate) {
       server_crc_ = (command & kCrcSupported) != 0;
       size_indicated_ = (command & kBlockSizeIndicated) != 0;
       total_ = size_indicated_ ? sdo::read_u32(frame, 4) : 0;
@@ -202,7 +181,7 @@ void SdoTransfer::on_initiate(const can::Frame& frame, TimePoint now,
       seqno_ = 0;
       phase_ = Phase::sub_block;
       const can::Frame start =
-          request(command_byte(sdo::ccs::block_upload, block_upload_cs::start));
+          request(command_byte(sdo::ccs::block_upload, sdo::block_upload_cs::start));
       return await_answer(now, start, out);
     }
     // Below the protocol switch threshold the server may answer as to a plain upload.
@@ -213,7 +192,8 @@ void SdoTransfer::on_initiate(const can::Frame& frame, TimePoint now,
     return fail(SdoAbort::invalid_command, out);
   }
   if (block_) {
-    if (specifier != sdo::scs::block_download || (command & 0x03) != block_download_ss::initiate) {
+    if (specifier != sdo::scs::block_download ||
+        (command & 0x03) != sdo::block_download_ss::initiate) {
       return fail(SdoAbort::invalid_command, out);
     }
     server_crc_ = (command & kCrcSupported) != 0;
@@ -342,10 +322,11 @@ void SdoTransfer::on_block_download_answer(const can::Frame& frame, TimePoint no
     return fail(SdoAbort::invalid_command, out);
   }
   if (phase_ == Phase::block_end) {
-    if ((command & 0x03) != block_download_ss::end) return fail(SdoAbort::invalid_command, out);
+    if ((command & 0x03) != sdo::block_download_ss::end)
+      return fail(SdoAbort::invalid_command, out);
     return finish({});
   }
-  if ((command & 0x03) != block_download_ss::ack) return fail(SdoAbort::invalid_command, out);
+  if ((command & 0x03) != sdo::block_download_ss::ack) return fail(SdoAbort::invalid_command, out);
   const std::uint8_t ackseq = frame.data[1];
   const std::uint8_t next_block_size = frame.data[2];
   if (ackseq > seqno_) return fail(SdoAbort::invalid_sequence, out);
@@ -360,8 +341,9 @@ void SdoTransfer::on_block_download_answer(const can::Frame& frame, TimePoint no
   // even to a server that does not check it; it then ignores the field).
   const auto unused =
       static_cast<std::uint8_t>(segments_for(data_.size()) * kSegmentBytes - data_.size());
-  can::Frame end = request(command_byte(
-      sdo::ccs::block_download, static_cast<std::uint8_t>(unused << 2 | block_download_cs::end)));
+  can::Frame end =
+      request(command_byte(sdo::ccs::block_download,
+                           static_cast<std::uint8_t>(unused << 2 | sdo::block_download_cs::end)));
   const std::uint16_t crc = crc16_xmodem(data_);
   end.data[1] = static_cast<std::uint8_t>(crc);
   end.data[2] = static_cast<std::uint8_t>(crc >> 8);
@@ -396,7 +378,7 @@ void SdoTransfer::on_block_upload_frame(const can::Frame& frame, TimePoint now,
   // A segment out of order is dropped, but the end of the sub-block still ends it: the ack names
   // the last in-order seqno and the server repeats the rest in the next sub-block.
   if ((command & kBlockLastSegment) == 0 && seqno != block_size_) return;
-  can::Frame ack = request(command_byte(sdo::ccs::block_upload, block_upload_cs::ack));
+  can::Frame ack = request(command_byte(sdo::ccs::block_upload, sdo::block_upload_cs::ack));
   ack.data[1] = seqno_;
   ack.data[2] = options_.block_size;
   if (last_segment_) {
@@ -411,7 +393,8 @@ void SdoTransfer::on_block_upload_frame(const can::Frame& frame, TimePoint now,
 void SdoTransfer::on_block_upload_end(const can::Frame& frame, std::vector<can::Frame>& out) {
   if (take_server_abort(frame)) return;
   const std::uint8_t command = frame.data[0];
-  if (specifier_of(frame) != sdo::scs::block_upload || (command & 0x01) != block_upload_ss::end) {
+  if (specifier_of(frame) != sdo::scs::block_upload ||
+      (command & 0x01) != sdo::block_upload_ss::end) {
     return fail(SdoAbort::invalid_command, out);
   }
   const std::size_t unused = (command >> 2) & 0x07;
@@ -421,7 +404,7 @@ void SdoTransfer::on_block_upload_end(const can::Frame& frame, std::vector<can::
     const auto crc = static_cast<std::uint16_t>(frame.data[1] | frame.data[2] << 8);
     if (crc != crc16_xmodem(data_)) return fail(SdoAbort::crc_error, out);
   }
-  out.push_back(request(command_byte(sdo::ccs::block_upload, block_upload_cs::end)));
+  out.push_back(request(command_byte(sdo::ccs::block_upload, sdo::block_upload_cs::end)));
   done_ = data_.size();
   finish({});
 }

@@ -14,6 +14,7 @@
 
 #include "canopen/pdop.hpp"
 #include "config/backbone_auth_reader.hpp"
+#include "config/remote_access_reader.hpp"
 #include "routing/node_map.hpp"
 #include "yaml/yaml_reader.hpp"
 
@@ -661,7 +662,8 @@ void read_surface_backbone(Reader& in, const YAML::Node& root, SurfaceOptions& o
 GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
-  in.only_keys(root, "", {"role", "name", "backbone", "modules", "lss_module", "can", "log"});
+  in.only_keys(root, "",
+               {"role", "name", "backbone", "modules", "lss_module", "remote", "can", "log"});
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   read_gateway_backbone(in, root, out);
@@ -669,6 +671,7 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   read_modules(in, root, out);
   check_packets_fit(in, root, out);
   read_lss_module(in, root, out);
+  read_gateway_remote(in, root, out.remote);
   in.can_options(root, out.can);
   in.log_options(root, out.log);
   in.finish();
@@ -678,13 +681,16 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
 SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "surface");
   Reader in(file);
-  in.only_keys(root, "", {"role", "name", "backbone", "gateways", "bus", "pdop", "can", "log"});
+  in.only_keys(root, "",
+               {"role", "name", "backbone", "gateways", "bus", "pdop", "command_endpoint",
+                "networks", "can", "log"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
   read_surface_backbone(in, root, out);
   read_surface_auth(in, root, out);
   read_surface_pdop(in, root, out.rpdop_relay);
+  read_surface_remote(in, root, out);
   // A packet crosses as one reliable message, which the resend buffer must be able to hold.
   if (out.rpdop_relay.max_packet_bytes + kPdopMessageOverhead > out.session.resend_buffer_bytes) {
     const YAML::Node pdop = root["pdop"];

@@ -8,6 +8,9 @@
 #include <utility>
 #include <vector>
 
+#include "bridge/command_endpoint_options.hpp"
+#include "bridge/gateway_remote_options.hpp"
+#include "bridge/surface_remote_options.hpp"
 #include "routing/id_profile.hpp"
 #include "routing/pdop_reassembler.hpp"
 #include "routing/pdop_segmenter.hpp"
@@ -144,6 +147,8 @@ struct GatewayOptions {
   // The one module LSS (0x7E5/0x7E4) is routed to; unset: LSS reaches no module. The command
   // line's --lss-module overrides it.
   std::optional<std::uint32_t> lss_module;
+  // The services it runs for the surface's remote access (`remote:` block).
+  bridge::GatewayRemoteOptions remote;
   CanOptions can;
   LogOptions log;
 };
@@ -163,6 +168,11 @@ struct SurfaceOptions {
   // RPDOP from the surface master to pdop nodes, taken by the surface (`pdop:` block).
   bridge::RpdopRelayOptions rpdop_relay;
   std::string bus;  // the one SocketCAN interface the surface master sees
+  // The operators' CiA 309-3 command endpoint (`command_endpoint:`; tokens read from their
+  // files); unset when the file has no such block: no endpoint. Then the 309-3 network numbers
+  // of the modules (`networks:`) and the answer deadlines of remote access.
+  std::optional<bridge::CommandEndpointOptions> command_endpoint;
+  bridge::SurfaceRemoteOptions remote;
   CanOptions can;
   LogOptions log;
 };

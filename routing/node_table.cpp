@@ -116,8 +116,11 @@ std::size_t NodeTable::add_module(IdProfile profile,
 
 void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now,
                              std::vector<NodeEvent>& out) {
-  // The one branch every frame other than NMT error control (0x700..0x77F) takes.
-  if ((frame.id & ~kNodeBits) != canopen::cob::heartbeat) return;
+  // The one branch every frame other than NMT error control (0x700..0x77F) takes, plus one.
+  if ((frame.id & ~kNodeBits) != canopen::cob::heartbeat) {
+    if ((frame.id & ~kNodeBits) == canopen::cob::emcy) on_emcy(module_index, frame, now);
+    return;
+  }
   // Extended, remote (a master's node-guarding request) and error frames have flags.
   if (!frame.is_standard_data() || frame.len != 1 || module_index >= modules_.size()) return;
   const Module& m = modules_[module_index];
@@ -147,6 +150,19 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
     default:
       return;
   }
+}
+
+void NodeTable::on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now) {
+  if (!frame.is_standard_data() || frame.len < 3 || module_index >= modules_.size()) return;
+  Module& m = modules_[module_index];
+  const auto local = static_cast<NodeId>(frame.id & kNodeBits);
+  // pdop / qd: EMCY is slot 0 of nodes 1..31 (bits 6-5 name other objects).
+  if (local == 0 || local > m.max_node) return;
+  NodeRecord& r = m.slots[local].record;
+  if (!r.known) return;  // a record starts at the node's first heartbeat or boot-up
+  r.last_emcy_code = static_cast<std::uint16_t>(frame.data[0] | (frame.data[1] << 8));
+  r.last_emcy_register = frame.data[2];
+  r.last_emcy_at = now;
 }
 
 void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState state, TimePoint now,

@@ -51,6 +51,11 @@ struct NodeRecord {
   // the node booted (a boot-up restores the node's own default).
   std::chrono::milliseconds heartbeat_time{0};
   std::optional<std::uint32_t> serial;  // 1018h:04, when told by note_serial or a rename
+  // The last EMCY (0x080 + n) of a known node: error code and register, and when (nullopt: none
+  // since the table knows the node). Kept for the operator's node list (remote access); no event.
+  std::uint16_t last_emcy_code = 0;
+  std::uint8_t last_emcy_register = 0;
+  std::optional<std::chrono::steady_clock::time_point> last_emcy_at;
 };
 
 struct NodeEvent {
@@ -129,7 +134,8 @@ class NodeTable {
   std::size_t module_count() const { return modules_.size(); }
 
   // Every frame read on module `module_index`'s bus. Only NMT error control (0x700..0x77F,
-  // standard data frame of exactly 1 byte) is looked at; every other frame costs one compare.
+  // standard data frame of exactly 1 byte) and EMCY of known nodes (0x081..0x0FF, at least 3
+  // bytes: kept in the record) are looked at; every other frame costs two compares.
   // A steady heartbeat of a known node in the same state appends nothing and allocates nothing.
   // Events are appended to `out` (never cleared here).
   void on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now,
@@ -203,6 +209,7 @@ class NodeTable {
 
   void on_heartbeat(std::size_t module_index, NodeId local, NmtState state, TimePoint now,
                     std::vector<NodeEvent>& out);
+  void on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now);
   void on_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                   std::vector<NodeEvent>& out);
   void on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,

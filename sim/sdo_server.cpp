@@ -25,25 +25,10 @@ using sdo::kToggle;
 constexpr std::uint8_t kMaxBlockSize = 127;
 constexpr std::uint8_t kClientAbort = 0x80;
 
-namespace upload_cs {  // client sub-commands of ccs 5
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-constexpr std::uint8_t start = 3;
-}  // namespace upload_cs
-namespace download_cs {  // client sub-commands of ccs 6
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace download_cs
-namespace download_ss {  // server sub-commands of scs 5
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-constexpr std::uint8_t ack = 2;
-}  // namespace download_ss
-namespace upload_ss {  // server sub-commands of scs 6
-constexpr std::uint8_t initiate = 0;
-constexpr std::uint8_t end = 1;
-}  // namespace upload_ss
+namespace upload_cs = sdo::block_upload_cs;
+namespace download_cs = sdo::block_download_cs;
+namespace download_ss = sdo::block_download_ss;
+namespace upload_ss = sdo::block_upload_ss;
 
 constexpr std::uint8_t command_byte(std::uint8_t specifier, std::uint8_t low_bits = 0) {
   return static_cast<std::uint8_t>(specifier << 5 | low_bits);

@@ -18,6 +18,7 @@ links=$2
 # schemas (session.pb.h, canbridge.pb.h: libraries canbridge_session_proto, canbridge_proto).
 # backbone/auth is backbone/'s key files and peer proofs (pre_shared_keys.hpp,
 # peer_authenticator.hpp: library canbridge_backbone_auth), which config/ checks key files with.
+# bridge/options is bridge/'s header-only option structs of remote access, which config/ fills.
 allowed_edges=(
   "coro:"
   "can: coro"
@@ -26,7 +27,7 @@ allowed_edges=(
   "canopen: can"
   "yaml:"
   "routing: can canopen"
-  "config: yaml canopen routing backbone/auth"
+  "config: yaml canopen routing backbone/auth bridge/options"
   "sim: can canopen yaml coro"
   "bridge: can backbone canopen routing proto/canbridge coro"
   "app: can backbone canopen bridge config sim coro"
@@ -108,6 +109,8 @@ while IFS= read -r hit; do
     session.pb.h) to=proto/session ;;
     canbridge.pb.h) to=proto/canbridge ;;
     backbone/pre_shared_keys.hpp | backbone/peer_authenticator.hpp) to=backbone/auth ;;
+    bridge/command_endpoint_options.hpp | bridge/surface_remote_options.hpp | \
+      bridge/gateway_remote_options.hpp) to=bridge/options ;;
     */*)
       to=${header%%/*}
       if [[ ! -v allowed[$to] ]]; then continue; fi

@@ -118,6 +118,13 @@ TEST_F(ConfigSamples, SampleGatewayLoads) {
   EXPECT_TRUE(g.modules[0].conflate_pdos);
   expect_default_session(g.session);
   for (const ModuleOptions& m : g.modules) expect_default_pdop(m);
+  // remote: every key shown at its default.
+  const bridge::GatewayRemoteOptions r;
+  EXPECT_EQ(g.remote.sdo_timeout, r.sdo_timeout);
+  EXPECT_EQ(g.remote.flash_block_size, r.flash_block_size);
+  EXPECT_EQ(g.remote.flash_answer_timeout, r.flash_answer_timeout);
+  EXPECT_EQ(g.remote.boot_timeout, r.boot_timeout);
+  EXPECT_EQ(g.remote.max_queued_per_node, r.max_queued_per_node);
 }
 
 TEST_F(ConfigSamples, SampleSurfaceLoads) {
@@ -141,6 +148,31 @@ TEST_F(ConfigSamples, SampleSurfaceLoads) {
   expect_default_relay(s.rpdop_relay);
   // The block is given (with every key at its default), not merely absent.
   EXPECT_NE(file_text(kConfigDir + "surface.yaml").find("\npdop:\n  # "), std::string::npos);
+  // command_endpoint: every key shown at its default, the TCP clients commented out.
+  ASSERT_TRUE(s.command_endpoint);
+  const bridge::CommandEndpointOptions e;
+  EXPECT_EQ(s.command_endpoint->unix_socket, "/run/canbridge/surface.sock");
+  EXPECT_EQ(s.command_endpoint->tcp_port, e.tcp_port);
+  EXPECT_EQ(s.command_endpoint->tcp_address, e.tcp_address);
+  EXPECT_EQ(s.command_endpoint->sdo_timeout, e.sdo_timeout);
+  EXPECT_EQ(s.command_endpoint->sdo_block, e.sdo_block);
+  EXPECT_EQ(s.command_endpoint->max_clients, e.max_clients);
+  EXPECT_EQ(s.command_endpoint->monitor_queue_frames, e.monitor_queue_frames);
+  EXPECT_TRUE(s.remote.networks.empty());
+}
+
+// The commented networks: example, switched on, loads as it says.
+TEST_F(ConfigSamples, SampleNetworksExampleLoadsWhenUncommented) {
+  std::string text = sample("surface.yaml");
+  const std::string from =
+      "# networks:\n#   - module: 1\n#     net: 2\n#   - module: 2\n#     net: 3\n";
+  const auto at = text.find(from);
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, from.size(),
+               "networks:\n  - module: 1\n    net: 2\n  - module: 2\n    net: 3\n");
+  const SurfaceOptions s = parse_surface(text, "surface.yaml (networks example)");
+  using Net = std::pair<std::uint32_t, std::uint32_t>;
+  EXPECT_EQ(s.remote.networks, (std::vector<Net>{{1, 2}, {2, 3}}));
 }
 
 // The sample's commented-out pdop module, uncommented under a minimal header (it does not fit

@@ -1,0 +1,20 @@
+// The operator subcommands of the canbridge executable (nodes, sdo, nmt, set-node-id, flash, dump,
+// capture): clients of a running surface's command endpoint, parsed with CLI11.
+#pragma once
+
+#include <iosfwd>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace canbridge::cli {
+
+// True for the names run_client handles (main.cpp dispatches on it).
+bool is_client_command(std::string_view name);
+
+// Runs one subcommand; `args` start with its name (argv without the program). Returns the exit
+// code (cli_reply.hpp's exit_code). `terminal`: `out` is a terminal (progress bar, not lines).
+int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
+               bool terminal);
+
+}  // namespace canbridge::cli

@@ -1,0 +1,478 @@
+#include "bridge/gateway_remote.hpp"
+
+#include <algorithm>
+#include <stdexcept>
+
+#include "canopen/nmt_node_id.hpp"
+#include "canopen/sdo_abort.hpp"
+
+namespace canbridge::bridge {
+
+namespace {
+
+using canopen::NodeId;
+using canopen::SdoAbort;
+
+constexpr auto kLocalControl = static_cast<std::uint32_t>(SdoAbort::local_control);
+constexpr auto kCannotTransfer = static_cast<std::uint32_t>(SdoAbort::cannot_transfer);
+constexpr auto kBadCommand = static_cast<std::uint32_t>(SdoAbort::invalid_command);
+constexpr auto kTimeout = static_cast<std::uint32_t>(SdoAbort::timeout);
+
+// CiA 301 NMT command specifiers a remote request may send (set-node-id has its own path).
+bool standard_nmt(std::uint32_t command) {
+  return command == 0x01 || command == 0x02 || command == 0x80 || command == 0x81 ||
+         command == 0x82;
+}
+
+std::int64_t age_ms(NodeTable::TimePoint now, NodeTable::TimePoint then) {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(now - then).count();
+}
+
+}  // namespace
+
+GatewayRemote::GatewayRemote(const NodeMap& map, const NodeTable& table,
+                             std::vector<Module> modules, GatewayRemoteOptions options,
+                             MasterBusy master_busy)
+    : map_(&map),
+      table_(&table),
+      modules_(std::move(modules)),
+      options_(options),
+      master_busy_(std::move(master_busy)) {}
+
+std::chrono::milliseconds GatewayRemote::timeout_of(const v1::RemoteRequest& request) const {
+  return request.timeout_ms() != 0 ? std::chrono::milliseconds(request.timeout_ms())
+                                   : options_.sdo_timeout;
+}
+
+void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) {
+  const std::uint64_t id = request.request_id();
+  if (known_id(id)) {
+    ++counters_.duplicates;
+    return;
+  }
+  ++counters_.requests;
+  if (request.op_case() == v1::RemoteRequest::kNodes) {
+    answer_nodes(request, now);
+    return;
+  }
+  const std::optional<std::size_t> m = map_->index_of(request.module_id());
+  if (!m || *m >= modules_.size()) {
+    return answer(id, kBadCommand,
+                  "module " + std::to_string(request.module_id()) + " is not served here");
+  }
+  const NodeId max_node = max_node_id(map_->modules()[*m].profile);
+  const std::uint32_t node = request.local_node();
+  switch (request.op_case()) {
+    case v1::RemoteRequest::kLss:
+      if (!modules_[*m].lss) {
+        return answer(id, kCannotTransfer,
+                      "LSS is not allowed on module " + std::to_string(request.module_id()));
+      }
+      return answer(id, kCannotTransfer, "LSS master not available in this build");
+    case v1::RemoteRequest::kFlash:
+      if (node == 0 || node > max_node || request.flash().block_size() > 127) {
+        return answer(id, kBadCommand, "invalid flash request");
+      }
+      break;
+    case v1::RemoteRequest::kNmt: {
+      const std::uint32_t command = request.nmt().command();
+      if (command == canopen::nmt_node_id::kChange) {
+        if (!canopen::nmt_node_id::valid_node_id(static_cast<NodeId>(std::min(node, 255u))) ||
+            !canopen::nmt_node_id::valid_node_id(
+                static_cast<NodeId>(std::min(request.nmt().new_node(), 255u)))) {
+          return answer(id, kBadCommand, "set-node-id takes node ids 1..31");
+        }
+        break;  // queued behind the node's other requests
+      }
+      if (!standard_nmt(command) || node > max_node) {
+        return answer(id, kBadCommand, "not an NMT command this gateway sends");
+      }
+      if (node == 0) {  // every node of the module: no one node's queue to wait in
+        write_nmt(*m, static_cast<std::uint8_t>(command), 0);
+        return answer(id, 0, {});
+      }
+      break;
+    }
+    case v1::RemoteRequest::kSdo: {
+      const v1::SdoOp& sdo = request.sdo();
+      if (node == 0 || node > max_node || sdo.index() > 0xFFFF || sdo.subindex() > 0xFF ||
+          sdo.block_size() > 127) {
+        return answer(id, kBadCommand, "invalid SDO request");
+      }
+      break;
+    }
+    case v1::RemoteRequest::kNodes:
+    case v1::RemoteRequest::OP_NOT_SET:
+      return answer(id, kBadCommand, "no operation in the request");
+  }
+  Lane& lane = lanes_[{*m, static_cast<NodeId>(node)}];
+  if (lane.queue.size() >= options_.max_queued_per_node) {
+    return answer(id, kLocalControl, "too many requests queued for the node");
+  }
+  lane.queue.push_back({request, std::nullopt});
+  pump(now);
+}
+
+void GatewayRemote::on_cancel(const v1::RemoteCancel& cancel, TimePoint now) {
+  const std::uint64_t id = cancel.request_id();
+  for (auto& [key, lane] : lanes_) {
+    auto queued = std::find_if(lane.queue.begin(), lane.queue.end(),
+                               [id](const Job& job) { return job.request.request_id() == id; });
+    if (queued != lane.queue.end()) {
+      lane.queue.erase(queued);  // never executed
+    } else if (lane.running && lane.running->id == id) {
+      const auto cancelled = canopen::make_error_code(SdoAbort::local_control);
+      if (lane.running->sdo) lane.running->sdo->abort(cancelled, frames_for(key.first));
+      if (lane.running->flash) {
+        lane.running->flash->abort(cancelled, frames_for(key.first));
+        --flashes_running_;
+      }
+      lane.running.reset();
+    } else {
+      continue;
+    }
+    ++counters_.cancelled;
+    answer(id, kLocalControl, "cancelled");
+    pump(now);
+    return;
+  }
+  // Already answered (the result crossed the cancel) or never seen: nothing to do.
+}
+
+bool GatewayRemote::on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now) {
+  if (lanes_.empty() || !frame.is_standard_data()) return false;
+  const bool sdo_response =
+      frame.id > canopen::cob::sdo_tx && frame.id <= canopen::cob::sdo_tx + canopen::kMaxNodeId;
+  if (flashes_running_ != 0 && !sdo_response) {
+    // Boot-ups (application 0x700+N, loader 0x720+N) end a flash's waits; the surface sees them
+    // too. Each flash picks its node's frames.
+    bool ended = false;
+    for (auto& [key, lane] : lanes_) {
+      if (key.first != module_index || !lane.running || !lane.running->flash) continue;
+      lane.running->flash->on_frame(frame, now, frames_for(module_index));
+      after_flash(lane, now);
+      ended = ended || !lane.running;
+    }
+    if (ended) pump(now);
+    return false;
+  }
+  if (!sdo_response) return false;
+  const auto node = static_cast<NodeId>(frame.id - canopen::cob::sdo_tx);
+  auto it = lanes_.find({module_index, node});
+  if (it == lanes_.end() || !it->second.running || !it->second.running->uses_channel()) {
+    return false;
+  }
+  Lane& lane = it->second;
+  ++counters_.sdo_frames_taken;
+  if (lane.running->flash) {
+    lane.running->flash->on_frame(frame, now, frames_for(module_index));
+    after_flash(lane, now);
+  } else {
+    lane.running->sdo->on_frame(frame, now, frames_for(module_index));
+    if (lane.running->sdo->finished()) finish_sdo(lane);
+  }
+  if (!lane.running) pump(now);
+  return true;
+}
+
+void GatewayRemote::on_node_event(const NodeEvent& event, TimePoint now) {
+  const bool boot = event.kind == NodeEvent::Kind::booted || event.kind == NodeEvent::Kind::renamed;
+  const bool unconfirmed = event.kind == NodeEvent::Kind::rename_unconfirmed;
+  if (!boot && !unconfirmed) return;
+  bool ended = false;
+  for (auto& [key, lane] : lanes_) {
+    if (key.first != event.module_index || !lane.running || lane.running->new_node == 0 ||
+        lane.running->new_node != event.local) {
+      continue;
+    }
+    if (boot) {
+      answer(lane.running->id, 0, {});
+    } else {
+      answer(lane.running->id, kTimeout, "no boot-up on new id");
+    }
+    lane.running.reset();
+    ended = true;
+  }
+  if (ended) pump(now);
+}
+
+void GatewayRemote::tick(TimePoint now) {
+  for (auto& [key, lane] : lanes_) {
+    if (!lane.running) continue;
+    Running& r = *lane.running;
+    if (r.sdo && now >= r.sdo->deadline()) {
+      r.sdo->on_timeout(now, frames_for(key.first));
+      if (r.sdo->finished()) finish_sdo(lane);
+    } else if (r.flash && now >= r.flash->deadline()) {
+      r.flash->on_timeout(now, frames_for(key.first));
+      after_flash(lane, now);
+    } else if (r.new_node != 0 && now >= r.deadline) {
+      answer(r.id, kTimeout, "no boot-up on new id");
+      lane.running.reset();
+    }
+  }
+  pump(now);
+}
+
+std::optional<GatewayRemote::TimePoint> GatewayRemote::next_deadline() const {
+  TimePoint earliest = TimePoint::max();
+  for (const auto& [key, lane] : lanes_) {
+    if (lane.running) {
+      earliest = std::min(earliest, lane.running->next_deadline());
+    } else if (!lane.queue.empty() && lane.queue.front().blocked_since) {
+      earliest = std::min(
+          earliest, *lane.queue.front().blocked_since + timeout_of(lane.queue.front().request));
+    }
+  }
+  if (earliest == TimePoint::max()) return std::nullopt;
+  return earliest;
+}
+
+bool GatewayRemote::transferring(std::size_t module_index, NodeId local) const {
+  if (lanes_.empty()) return false;
+  auto it = lanes_.find({module_index, local});
+  return it != lanes_.end() && it->second.running && it->second.running->uses_channel();
+}
+
+std::vector<v1::RemoteProgress> GatewayRemote::take_progress() {
+  std::vector<v1::RemoteProgress> out;
+  for (auto& [id, progress] : progress_) out.push_back(std::move(progress));
+  progress_.clear();
+  return out;
+}
+
+std::size_t GatewayRemote::pending() const {
+  std::size_t n = 0;
+  for (const auto& [key, lane] : lanes_) n += lane.queue.size() + (lane.running ? 1 : 0);
+  return n;
+}
+
+void GatewayRemote::answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
+                           std::string data) {
+  v1::RemoteResult& r = results_.emplace_back();
+  r.set_request_id(id);
+  r.set_abort_code(abort_code);
+  r.set_detail(std::move(detail));
+  r.set_data(std::move(data));
+  if (abort_code != 0) ++counters_.failed;
+  progress_.erase(id);
+  remember(id);
+}
+
+void GatewayRemote::answer_nodes(const v1::RemoteRequest& request, TimePoint now) {
+  std::vector<std::size_t> modules;
+  if (request.module_id() == 0) {
+    for (std::size_t m = 0; m < modules_.size(); ++m) modules.push_back(m);
+  } else if (const auto m = map_->index_of(request.module_id()); m && *m < modules_.size()) {
+    modules.push_back(*m);
+  } else {
+    return answer(request.request_id(), kBadCommand,
+                  "module " + std::to_string(request.module_id()) + " is not served here");
+  }
+  v1::RemoteResult& r = results_.emplace_back();
+  r.set_request_id(request.request_id());
+  for (const std::size_t m : modules) {
+    const char* profile = to_string(map_->modules()[m].profile);
+    table_->for_each_known(m, [&](NodeId local, const NodeRecord& record) {
+      v1::NodeRow& row = *r.add_nodes();
+      row.set_module_id(modules_[m].id);
+      row.set_local_node(local);
+      row.set_surface_node(map_->surface_of(m, local));
+      row.set_profile(profile);
+      row.set_nmt_state(static_cast<std::uint32_t>(record.state));
+      row.set_in_loader(record.loader == LoaderState::in_loader);
+      row.set_lost(record.lost);
+      row.set_heartbeat_age_ms(
+          record.last_seen == NodeTable::TimePoint{} ? -1 : age_ms(now, record.last_seen));
+      row.set_last_emcy_code(record.last_emcy_code);
+      row.set_last_emcy_register(record.last_emcy_register);
+      row.set_last_emcy_age_ms(record.last_emcy_at ? age_ms(now, *record.last_emcy_at) : -1);
+      row.set_boot_count(record.boot_count);
+    });
+  }
+  remember(request.request_id());
+}
+
+void GatewayRemote::write_nmt(std::size_t module_index, std::uint8_t command, NodeId node) {
+  frames_for(module_index).push_back(can::Frame::standard(canopen::cob::nmt, {command, node}));
+}
+
+std::vector<can::Frame>& GatewayRemote::frames_for(std::size_t module_index) {
+  for (BusFrames& b : bus_frames_) {
+    if (b.module_index == module_index) return b.frames;
+  }
+  return bus_frames_.emplace_back(BusFrames{module_index, {}}).frames;
+}
+
+void GatewayRemote::pump(TimePoint now) {
+  for (auto it = lanes_.begin(); it != lanes_.end();) {
+    Lane& lane = it->second;
+    while (!lane.running && !lane.queue.empty()) {
+      if (!start(it->first, lane, lane.queue.front(), now)) break;  // waits for the master
+      lane.queue.pop_front();
+    }
+    if (!lane.running && lane.queue.empty()) {
+      it = lanes_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+}
+
+bool GatewayRemote::start(const LaneKey& key, Lane& lane, Job& job, TimePoint now) {
+  const auto [m, node] = key;
+  const v1::RemoteRequest& request = job.request;
+  const std::uint64_t id = request.request_id();
+  if (request.has_nmt()) {
+    const v1::NmtOp& nmt = request.nmt();
+    if (nmt.command() != canopen::nmt_node_id::kChange) {
+      write_nmt(m, static_cast<std::uint8_t>(nmt.command()), node);
+      answer(id, 0, {});  // NMT has no confirmation: done once written
+      return true;
+    }
+    // The fpga's command on the module bus, as a master there would send it: the node table
+    // opens the pending rename when it is written, the rename follower moves the node in the
+    // live map on the boot-up, and that boot-up answers the request (on_node_event).
+    const auto next = static_cast<NodeId>(nmt.new_node());
+    frames_for(m).push_back(
+        canopen::nmt_node_id::encode(canopen::nmt_node_id::ChangeNodeId{node, next}));
+    lane.running = Running{};
+    lane.running->id = id;
+    lane.running->new_node = next;
+    lane.running->deadline = now + options_.boot_timeout;
+    return true;
+  }
+  // SDO and flash: first come owns the node's channel. A master's transfer through the tunnel is
+  // open: wait for its end, at most this request's own timeout.
+  if (master_busy_ && master_busy_(m, node)) {
+    if (!job.blocked_since) {
+      job.blocked_since = now;
+      ++counters_.waited_for_master;
+    }
+    if (now < *job.blocked_since + timeout_of(request)) return false;
+    answer(id, kLocalControl, "local control: a master's SDO transfer with the node stayed open");
+    return true;
+  }
+  if (request.has_flash()) {
+    canopen::FirmwareDownloadOptions options;
+    options.answer_timeout = options_.flash_answer_timeout;
+    options.boot_timeout = options_.boot_timeout;
+    options.block_size = request.flash().block_size() != 0
+                             ? static_cast<std::uint8_t>(request.flash().block_size())
+                             : options_.flash_block_size;
+    // The node table knows where a qd node runs; elsewhere the sequencer probes.
+    canopen::FirmwareStartMode mode = canopen::FirmwareStartMode::unknown;
+    if (const NodeRecord* record = table_->node(m, node)) {
+      if (record->loader == LoaderState::in_loader) mode = canopen::FirmwareStartMode::loader;
+      if (record->loader == LoaderState::in_application) {
+        mode = canopen::FirmwareStartMode::application;
+      }
+    }
+    const std::string& image = request.flash().image();
+    try {
+      lane.running = Running{};
+      lane.running->id = id;
+      lane.running->flash.emplace(node, std::vector<std::uint8_t>(image.begin(), image.end()),
+                                  options, mode);
+    } catch (const std::invalid_argument& e) {
+      lane.running.reset();
+      answer(id, kBadCommand, e.what());
+      return true;
+    }
+    ++flashes_running_;
+    lane.running->reported_at = now;
+    lane.running->flash->start(now, frames_for(m));
+    lane.running->reported = lane.running->flash->progress();
+    v1::RemoteProgress& p = progress_[id];
+    p.set_request_id(id);
+    p.set_step(canopen::to_string(lane.running->reported.step));
+    p.set_bytes_total(lane.running->reported.bytes_total);
+    after_flash(lane, now);
+    return true;
+  }
+  const v1::SdoOp& op = request.sdo();
+  canopen::SdoTransferOptions options;
+  options.timeout = timeout_of(request);
+  options.block_size = static_cast<std::uint8_t>(op.block_size());
+  const canopen::sdo::Multiplexer mux{static_cast<std::uint16_t>(op.index()),
+                                      static_cast<std::uint8_t>(op.subindex())};
+  try {
+    lane.running = Running{};
+    lane.running->id = id;
+    lane.running->sdo.emplace(
+        op.upload() ? canopen::SdoTransfer::upload(node, mux, options)
+                    : canopen::SdoTransfer::download(
+                          node, mux, std::vector<std::uint8_t>(op.data().begin(), op.data().end()),
+                          options));
+  } catch (const std::invalid_argument& e) {  // checked on arrival; the transfer's own rules
+    lane.running.reset();
+    answer(id, kBadCommand, e.what());
+    return true;
+  }
+  lane.running->sdo->start(now, frames_for(m));
+  if (lane.running->sdo->finished()) finish_sdo(lane);
+  return true;
+}
+
+void GatewayRemote::finish_sdo(Lane& lane) {
+  const canopen::SdoResult& result = lane.running->sdo->result();
+  if (result.ok()) {
+    answer(lane.running->id, 0, {}, std::string(result.data.begin(), result.data.end()));
+  } else {
+    answer(lane.running->id, canopen::to_abort_code(result.error), result.error.message());
+  }
+  lane.running.reset();
+}
+
+void GatewayRemote::after_flash(Lane& lane, TimePoint now) {
+  Running& r = *lane.running;
+  const canopen::FirmwareDownload& flash = *r.flash;
+  if (flash.finished()) {
+    const canopen::FirmwareResult& result = flash.result();
+    --flashes_running_;
+    if (result.ok()) {
+      answer(r.id, 0, {});
+    } else {
+      answer(r.id, canopen::to_abort_code(result.error),
+             std::string(canopen::to_string(result.step)) + ": " +
+                 (result.detail.empty() ? result.error.message() : result.detail));
+    }
+    lane.running.reset();
+    return;
+  }
+  const canopen::FirmwareProgress now_at = flash.progress();
+  const bool step_changed = now_at.step != r.reported.step;
+  if (!step_changed &&
+      (now_at.bytes_done == r.reported.bytes_done || now - r.reported_at < kProgressEvery)) {
+    return;
+  }
+  r.reported = now_at;
+  r.reported_at = now;
+  v1::RemoteProgress& p = progress_[r.id];
+  p.set_request_id(r.id);
+  p.set_step(canopen::to_string(now_at.step));
+  p.set_bytes_done(now_at.bytes_done);
+  p.set_bytes_total(now_at.bytes_total);
+}
+
+void GatewayRemote::remember(std::uint64_t id) {
+  if (!finished_.insert(id).second) return;
+  finished_order_.push_back(id);
+  if (finished_order_.size() > kRememberedIds) {
+    finished_.erase(finished_order_.front());
+    finished_order_.pop_front();
+  }
+}
+
+bool GatewayRemote::known_id(std::uint64_t id) const {
+  if (finished_.contains(id)) return true;
+  for (const auto& [key, lane] : lanes_) {
+    if (lane.running && lane.running->id == id) return true;
+    for (const Job& job : lane.queue) {
+      if (job.request.request_id() == id) return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace canbridge::bridge

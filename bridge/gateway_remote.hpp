@@ -1,0 +1,147 @@
+// The services a gateway runs on its module buses for the surface (remote access, issue 16): SDO
+// transfers, NMT, set-node-id, the node list, firmware download and LSS, each request answered
+// by exactly one RemoteResult. Pure: requests, bus frames, node events and the time in; frames
+// for the buses, results and progress out. The gateway writes the frames and sends the payloads.
+#pragma once
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <map>
+#include <optional>
+#include <string>
+#include <unordered_set>
+#include <utility>
+#include <vector>
+
+#include "bridge/gateway_remote_options.hpp"
+#include "can/frame.hpp"
+#include "canbridge.pb.h"
+#include "canopen/firmware_download.hpp"
+#include "canopen/sdo_transfer.hpp"
+#include "routing/node_map.hpp"
+#include "routing/node_table.hpp"
+
+namespace canbridge::bridge {
+
+class GatewayRemote {
+ public:
+  using Clock = std::chrono::steady_clock;
+  using TimePoint = Clock::time_point;
+
+  struct Module {
+    ModuleId id = 0;
+    bool lss = false;  // LSS reaches this module's bus
+  };
+  // True while a master on the surface (through the tunnel) has an SDO transfer open with the
+  // node (ModuleSdoTracking): the gateway's own transfer waits (first come owns the channel).
+  using MasterBusy = std::function<bool(std::size_t module_index, canopen::NodeId local)>;
+
+  struct BusFrames {
+    std::size_t module_index = 0;
+    std::vector<can::Frame> frames;
+  };
+
+  struct Counters {
+    std::uint64_t requests = 0;           // requests taken (duplicates not counted)
+    std::uint64_t failed = 0;             // results with an abort code (cancelled ones included)
+    std::uint64_t cancelled = 0;          // answered "cancelled"
+    std::uint64_t duplicates = 0;         // repeated request ids: answered with nothing
+    std::uint64_t waited_for_master = 0;  // transfers that waited for a master's transfer
+    std::uint64_t sdo_frames_taken = 0;   // node responses that went to the runner
+  };
+
+  // Flash progress goes at most this often (and at every step change): it is unreliable anyway.
+  static constexpr std::chrono::milliseconds kProgressEvery{250};
+  // Ids the gateway remembers having answered (a repeated one is never run twice).
+  static constexpr std::size_t kRememberedIds = 1024;
+
+  // `map` and `table` are the gateway's (they must outlive this); `modules` in the map's order.
+  GatewayRemote(const NodeMap& map, const NodeTable& table, std::vector<Module> modules,
+                GatewayRemoteOptions options, MasterBusy master_busy);
+
+  void on_request(const v1::RemoteRequest& request, TimePoint now);
+  void on_cancel(const v1::RemoteCancel& cancel, TimePoint now);
+  // Every frame read on module `module_index`'s bus. True when it is the node's SDO response to
+  // a transfer the gateway runs: it belongs to the runner and must not reach the surface.
+  bool on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now);
+  // Node table events (after the gateway followed renames): a boot-up confirms set-node-id.
+  void on_node_event(const NodeEvent& event, TimePoint now);
+  // Starts what waits and can run now (a master's transfer ended), ends what timed out.
+  void tick(TimePoint now);
+  std::optional<TimePoint> next_deadline() const;
+
+  // True while the gateway runs a transfer on node `local`'s default SDO channel: an SDO request
+  // from the surface master to it must not reach the bus (the gateway answers it with an abort).
+  bool transferring(std::size_t module_index, canopen::NodeId local) const;
+
+  // Output, taken by the gateway.
+  std::vector<BusFrames>& bus_frames() { return bus_frames_; }
+  bool has_results() const { return !results_.empty(); }
+  const v1::RemoteResult& front_result() const { return results_.front(); }
+  void pop_result() { results_.pop_front(); }
+  // The latest progress of each request that made some since the last call (unreliable).
+  std::vector<v1::RemoteProgress> take_progress();
+
+  const Counters& counters() const { return counters_; }
+  std::size_t pending() const;  // requests queued or running
+
+ private:
+  struct Job {
+    v1::RemoteRequest request;
+    std::optional<TimePoint> blocked_since;  // waiting for a master's transfer to end
+  };
+  struct Running {
+    std::uint64_t id = 0;
+    std::optional<canopen::SdoTransfer> sdo;         // SDO (the default channel is the runner's)
+    canopen::NodeId new_node = 0;                    // set-node-id: the id whose boot-up confirms
+    TimePoint deadline = TimePoint::max();           // set-node-id: the boot-up's
+    std::optional<canopen::FirmwareDownload> flash;  // flash (also owns the SDO channel)
+    canopen::FirmwareProgress reported{};            // flash: the progress last reported
+    TimePoint reported_at{};
+    bool uses_channel() const { return sdo.has_value() || flash.has_value(); }
+    TimePoint next_deadline() const {
+      return sdo ? sdo->deadline() : flash ? flash->deadline() : deadline;
+    }
+  };
+  struct Lane {
+    std::deque<Job> queue;
+    std::optional<Running> running;
+  };
+  using LaneKey = std::pair<std::size_t, canopen::NodeId>;
+
+  void answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
+              std::string data = {});
+  void answer_nodes(const v1::RemoteRequest& request, TimePoint now);
+  void write_nmt(std::size_t module_index, std::uint8_t command, canopen::NodeId node);
+  std::vector<can::Frame>& frames_for(std::size_t module_index);
+  // Starts the head of every idle lane that can run (repeatedly: NMT ends at once).
+  void pump(TimePoint now);
+  // Starts `job` on an idle lane; false when it must wait (a master's transfer is open).
+  bool start(const LaneKey& key, Lane& lane, Job& job, TimePoint now);
+  void finish_sdo(Lane& lane);
+  // After any input to a running flash: progress (at most every kProgressEvery, and at each
+  // step change) or its one result.
+  void after_flash(Lane& lane, TimePoint now);
+  void remember(std::uint64_t id);
+  bool known_id(std::uint64_t id) const;
+  std::chrono::milliseconds timeout_of(const v1::RemoteRequest& request) const;
+
+  const NodeMap* map_;
+  const NodeTable* table_;
+  std::vector<Module> modules_;
+  GatewayRemoteOptions options_;
+  MasterBusy master_busy_;
+  std::map<LaneKey, Lane> lanes_;
+  std::vector<BusFrames> bus_frames_;
+  std::deque<v1::RemoteResult> results_;
+  std::map<std::uint64_t, v1::RemoteProgress> progress_;
+  std::unordered_set<std::uint64_t> finished_;
+  std::deque<std::uint64_t> finished_order_;  // oldest first, at most kRememberedIds
+  std::size_t flashes_running_ = 0;           // bus frames are shown to every running flash
+  Counters counters_;
+};
+
+}  // namespace canbridge::bridge
