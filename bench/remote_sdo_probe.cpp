@@ -58,7 +58,7 @@ struct Options {
   std::uint32_t net = 0, node = 0;
   std::size_t size = 65536, count = 100;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> targets;  // endpoint reads
-  std::vector<std::uint32_t> nodes;                             // master reads
+  std::vector<std::uint32_t> nodes;                              // master reads
   bool parallel = false;
   int timeout_ms = 5000;
   std::uint32_t seed = 1;
@@ -93,16 +93,26 @@ Options parse(int argc, char** argv) {
     }
     if (i + 1 >= argc) usage("missing value of " + flag);
     const std::string v = argv[++i];
-    if (flag == "--socket") o.socket = v;
-    else if (flag == "--interface") o.interface = v;
-    else if (flag == "--op") o.op = v;
-    else if (flag == "--image") o.image = v;
-    else if (flag == "--net") o.net = std::stoul(v, nullptr, 0);
-    else if (flag == "--node") o.node = std::stoul(v, nullptr, 0);
-    else if (flag == "--size") o.size = std::stoul(v, nullptr, 0);
-    else if (flag == "--count") o.count = std::stoul(v, nullptr, 0);
-    else if (flag == "--timeout-ms") o.timeout_ms = std::stoi(v);
-    else if (flag == "--seed") o.seed = std::stoul(v, nullptr, 0);
+    if (flag == "--socket")
+      o.socket = v;
+    else if (flag == "--interface")
+      o.interface = v;
+    else if (flag == "--op")
+      o.op = v;
+    else if (flag == "--image")
+      o.image = v;
+    else if (flag == "--net")
+      o.net = std::stoul(v, nullptr, 0);
+    else if (flag == "--node")
+      o.node = std::stoul(v, nullptr, 0);
+    else if (flag == "--size")
+      o.size = std::stoul(v, nullptr, 0);
+    else if (flag == "--count")
+      o.count = std::stoul(v, nullptr, 0);
+    else if (flag == "--timeout-ms")
+      o.timeout_ms = std::stoi(v);
+    else if (flag == "--seed")
+      o.seed = std::stoul(v, nullptr, 0);
     else if (flag == "--nodes") {
       for (const auto& n : split(v, ',')) o.nodes.push_back(std::stoul(n, nullptr, 0));
     } else if (flag == "--targets") {
@@ -162,7 +172,8 @@ int report(bool ok, double ms, const std::string& error, const std::string& extr
   return ok ? 0 : 1;
 }
 
-// --- the endpoint ---------------------------------------------------------------------------------
+// --- the endpoint
+// ---------------------------------------------------------------------------------
 
 class Endpoint {
  public:
@@ -211,7 +222,8 @@ class Endpoint {
     const auto deadline = Clock::now() + timeout;
     for (;;) {
       if (auto l = buffered_line()) return l;
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+      const auto left =
+          std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
       if (left.count() <= 0) return std::nullopt;
       pollfd p{fd_, POLLIN, 0};
       if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) continue;
@@ -311,7 +323,8 @@ int endpoint_flash(const Options& o) {
   }
 }
 
-// --- the master on the surface bus ----------------------------------------------------------------
+// --- the master on the surface bus
+// ----------------------------------------------------------------
 
 class CanSocket {
  public:
@@ -377,7 +390,8 @@ void run_transfers(CanSocket& socket, std::vector<SdoTransfer>& transfers) {
       deadline = std::min(deadline, t.deadline());
     }
     if (!open) return;
-    const auto wait = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const auto wait =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     pollfd p{socket.fd(), POLLIN, 0};
     const int ready = ::poll(&p, 1, static_cast<int>(std::max<long long>(0, wait.count()) + 1));
     const auto now = Clock::now();
@@ -457,7 +471,8 @@ int master_reads(const Options& o) {
 bool await_frame(CanSocket& socket, const Frame& frame, std::chrono::milliseconds timeout) {
   const auto deadline = Clock::now() + timeout;
   for (;;) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     if (left.count() <= 0) return false;
     pollfd p{socket.fd(), POLLIN, 0};
     if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) continue;
