@@ -7,14 +7,16 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <optional>
 #include <ostream>
+#include <span>
 
-#include "app/cli_base64.hpp"
 #include "app/cli_monitor.hpp"
 #include "app/cli_node_table.hpp"
 #include "app/cli_progress.hpp"
 #include "app/cli_reply.hpp"
 #include "app/cli_session.hpp"
+#include "canopen/ascii_value.hpp"
 
 namespace canbridge::cli {
 
@@ -137,10 +139,12 @@ int run_sdo_read(const Connect& connect, const CommonOptions& common, const SdoA
     // Domains and strings come back as base64 (d, os, us): the file gets the bytes.
     std::string bytes = value;
     if (a.type == "d" || a.type == "os" || a.type == "us") {
-      if (!base64_decode(value, bytes)) {
+      const auto decoded = canopen::base64_decode(value);
+      if (!decoded) {
         s.io().err << "canbridge: the endpoint's value is not base64: " << value << "\n";
         return exit_code::abort;
       }
+      bytes.assign(decoded->begin(), decoded->end());
     }
     std::ofstream f(a.file, std::ios::binary);
     f << bytes;
@@ -164,7 +168,9 @@ int run_sdo_write(const Connect& connect, const CommonOptions& common, SdoArgs a
     if (a.type != "d" && a.type != "os" && a.type != "us") {
       throw UsageError{"--file needs datatype d, os or us (sent as base64)"};
     }
-    value = base64_encode(read_file(a.file));
+    const std::string content = read_file(a.file);
+    value = canopen::base64_encode(std::span<const std::uint8_t>(
+        reinterpret_cast<const std::uint8_t*>(content.data()), content.size()));
   } else if (a.type == "vs") {
     value = quote_visible_string(value);
   }
@@ -221,6 +227,10 @@ int run_flash(const Connect& connect, const CommonOptions& common, const std::st
   // The surface process reads the image: it needs a path that does not depend on our cwd.
   const auto path = std::filesystem::absolute(image, ec);
   if (ec || !std::ifstream(path, std::ios::binary)) throw UsageError{"cannot read " + image};
+  if (path.string().find_first_of("#\r\n") != std::string::npos) {
+    // The endpoint reads '#' as the start of a comment and a line end as the end of the path.
+    throw UsageError{"the image path " + path.string() + " contains '#' or a line break"};
+  }
   int rc = exit_code::ok;
   const auto session = connect(rc);
   if (!session) return rc;

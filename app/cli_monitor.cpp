@@ -16,13 +16,19 @@ namespace canbridge::cli {
 
 namespace {
 
-void ignore_signal(int) {}
+volatile std::sig_atomic_t stop_requested = 0;
 
-// SIGINT/SIGTERM interrupt the wait for the next line (no SA_RESTART), so the capture file is
-// flushed and closed instead of the process dying with a partial buffer.
+void request_stop(int) {
+  stop_requested = 1;
+}
+
+// SIGINT/SIGTERM interrupt the wait for the next line (no SA_RESTART) and are remembered for a
+// signal that arrives between two waits, so the capture file is flushed and closed instead of
+// the process dying with a partial buffer.
 void stop_on_signals() {
+  stop_requested = 0;
   struct sigaction action {};
-  action.sa_handler = ignore_signal;
+  action.sa_handler = request_stop;
   sigemptyset(&action.sa_mask);
   action.sa_flags = 0;
   sigaction(SIGINT, &action, nullptr);
@@ -110,7 +116,7 @@ int run_monitor(const Connect& connect, const MonitorOptions& options) {
   if (options.capture && !options.candump_log) pcap.emplace(file);
   std::uint64_t shown = 0;
   std::string line;
-  while (options.count == 0 || shown < options.count) {
+  while ((options.count == 0 || shown < options.count) && stop_requested == 0) {
     // A quiet bus is no error: wait as long as it takes.
     const auto ec = session->connection().read_line(line, std::chrono::hours(24));
     if (ec == std::errc::timed_out) continue;

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <boost/asio/io_context.hpp>
+#include <filesystem>
 
 #include "app/admission_from_options.hpp"
 #include "app/open_file_limit.hpp"
@@ -15,8 +16,10 @@
 #include "backbone/serial_client.hpp"
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
+#include "bridge/command_endpoint.hpp"
 #include "bridge/gateway.hpp"
 #include "bridge/surface.hpp"
+#include "bridge/surface_remote.hpp"
 #include "can/socketcan_bus.hpp"
 
 namespace canbridge::bridge {
@@ -122,6 +125,20 @@ std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
   return server;
 }
 
+// The Unix socket's directory must be there before the endpoint binds: a clear start error
+// beats a bind error naming a path (systemd: RuntimeDirectory=canbridge makes /run/canbridge).
+void check_socket_directory(const std::string& socket) {
+  if (socket.empty()) return;
+  const std::filesystem::path dir = std::filesystem::path(socket).parent_path();
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) {
+    throw std::runtime_error("command_endpoint.unix_socket " + socket + ": directory " +
+                             dir.string() +
+                             " does not exist (create it, owned by the surface's user, or set "
+                             "RuntimeDirectory=canbridge in the systemd unit)");
+  }
+}
+
 }  // namespace
 
 int run_gateway(const config::GatewayOptions& options) {
@@ -132,7 +149,8 @@ int run_gateway(const config::GatewayOptions& options) {
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
   BackboneTuning tuning = make_tuning(options.session);
   tuning.session.authenticator = serial_authenticator(options);
-  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules), tuning);
+  Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules), tuning,
+                  options.remote);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     gateway.attach(std::move(link));
   };
@@ -177,12 +195,20 @@ int run_surface(const config::SurfaceOptions& options) {
   asio::io_context io(1);
   BackboneTuning tuning = make_tuning(options.session);
   tuning.session.authenticator = serial_authenticators(options);
+  const SurfacePolicy policy = surface_policy(options);
   Surface surface(io.get_executor(), options.name,
-                  open_bus(io.get_executor(), options.bus, options.can), surface_policy(options),
-                  tuning, options.conflate_pdos, options.rpdop_relay);
+                  open_bus(io.get_executor(), options.bus, options.can), policy, tuning,
+                  options.conflate_pdos, options.rpdop_relay);
   auto attach = [&](std::shared_ptr<backbone::MessageLink> link) {
     surface.attach(std::move(link));
   };
+  SurfaceRemote remote(io.get_executor(), surface, policy.gateways, options.remote);
+  std::unique_ptr<CommandEndpoint> endpoint;
+  if (options.command_endpoint) {
+    check_socket_directory(options.command_endpoint->unix_socket);
+    endpoint =
+        std::make_unique<CommandEndpoint>(io.get_executor(), *options.command_endpoint, remote);
+  }
   std::shared_ptr<backbone::TcpServer> server;
   if (!options.listen.host.empty()) {
     backbone::ServerOptions server_options;
@@ -201,8 +227,12 @@ int run_surface(const config::SurfaceOptions& options) {
                       [&] { return surface.stats_line(); });
   OrderedShutdown shutdown(io, [&] {
     stats.stop();
+    // Operators first: no new request once the backbone goes.
+    if (endpoint) endpoint->stop();
     if (server) server->stop();
     for (auto& line : lines) line->stop();
+    // Open requests end (operation_canceled) before the surface they ride on stops.
+    remote.stop();
     surface.stop();
   });
   // A surface that stopped itself (a loop ended or threw) takes the process down in order.
@@ -220,6 +250,15 @@ int run_surface(const config::SurfaceOptions& options) {
     lines[i]->start(attach);
     spdlog::info("surface {}: serial line {} at {} bit/s", options.name, options.serial[i].device,
                  options.serial[i].baud);
+  }
+  if (endpoint) {
+    endpoint->start();  // throws a start error (socket in use, not loopback, ...)
+    const CommandEndpointOptions& e = *options.command_endpoint;
+    spdlog::info("surface {}: command endpoint on {}{}", options.name,
+                 e.unix_socket.empty() ? std::string("no Unix socket") : e.unix_socket,
+                 e.tcp_port != 0
+                     ? " and tcp " + e.tcp_address + ":" + std::to_string(endpoint->tcp_port())
+                     : std::string());
   }
   shutdown.run();
   spdlog::info("{}", surface.stats_line());

@@ -391,8 +391,8 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   // Says `line` as the last answer and closes once everything before it is written.
-  void linger(std::string line) {
-    ReplyPtr reply = new_reply(std::nullopt);
+  void linger(std::string line, std::optional<std::uint32_t> sequence = std::nullopt) {
+    ReplyPtr reply = new_reply(sequence);
     finish(reply, std::move(line));
     lingering_ = true;
     if (subscription_) {
@@ -412,7 +412,9 @@ class Session : public std::enable_shared_from_this<Session> {
   void finish(const ReplyPtr& reply, std::string line) {
     const std::size_t prefix =
         reply->sequence ? std::to_string(*reply->sequence).size() + 3 : 0;  // "[<seq>] "
-    if (line.compare(prefix, 6, "ERROR:") == 0) ++core_->counters.errors;
+    if (line.size() > prefix && line.compare(prefix, 6, "ERROR:") == 0) {
+      ++core_->counters.errors;
+    }
     reply->lines.push_back(std::move(line));
     reply->done = true;
     reply->request.reset();
@@ -450,7 +452,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (!authenticated_) {
       if (!parse.ok() || cmd.verb != AsciiVerb::auth) {
         ++core_->counters.auth_failures;
-        linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required));
+        linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required),
+               cmd.sequence);
         return;
       }
       return authenticate(cmd);
@@ -476,8 +479,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (client == nullptr) {
       ++core_->counters.auth_failures;
       spdlog::warn("command endpoint: TCP client {} sent a wrong token; closed", peer_);
-      linger(
-          canopen::ascii_error(cmd.sequence, AsciiError::authentication_required, "wrong token"));
+      linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required, "wrong token"),
+             cmd.sequence);
       return;
     }
     ReplyPtr reply = new_reply(cmd.sequence);

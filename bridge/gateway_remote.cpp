@@ -61,14 +61,34 @@ void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) 
                   "module " + std::to_string(request.module_id()) + " is not served here");
   }
   const NodeId max_node = max_node_id(map_->modules()[*m].profile);
-  const std::uint32_t node = request.local_node();
+  std::uint32_t node = request.local_node();
+  // Addressed by its surface id (the default network): the local id behind it in the live map
+  // now; the surface's claims name the module, not the local id.
+  if (request.surface_node() != 0) {
+    const auto owner = request.surface_node() <= canopen::kMaxNodeId
+                           ? map_->owner_of_surface(static_cast<NodeId>(request.surface_node()))
+                           : std::nullopt;
+    if (!owner || owner->module_index != *m) {
+      return answer(id, kBadCommand,
+                    "surface node " + std::to_string(request.surface_node()) +
+                        " is not a node of module " + std::to_string(request.module_id()));
+    }
+    node = owner->local;
+  }
   switch (request.op_case()) {
     case v1::RemoteRequest::kLss:
       if (!modules_[*m].lss) {
         return answer(id, kCannotTransfer,
                       "LSS is not allowed on module " + std::to_string(request.module_id()));
       }
-      return answer(id, kCannotTransfer, "LSS master not available in this build");
+      {
+        bool inquiry = false;
+        std::string why;
+        if (!lss_service(request.lss(), timeout_of(request), inquiry, why)) {
+          return answer(id, kBadCommand, why);
+        }
+      }
+      break;  // one LSS service at a time on the module: its lane is node 0
     case v1::RemoteRequest::kFlash:
       if (node == 0 || node > max_node || request.flash().block_size() > 127) {
         return answer(id, kBadCommand, "invalid flash request");
@@ -105,7 +125,8 @@ void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) 
     case v1::RemoteRequest::OP_NOT_SET:
       return answer(id, kBadCommand, "no operation in the request");
   }
-  Lane& lane = lanes_[{*m, static_cast<NodeId>(node)}];
+  const auto lane_node = static_cast<NodeId>(request.has_lss() ? 0 : node);
+  Lane& lane = lanes_[{*m, lane_node}];
   if (lane.queue.size() >= options_.max_queued_per_node) {
     return answer(id, kLocalControl, "too many requests queued for the node");
   }
@@ -141,6 +162,18 @@ void GatewayRemote::on_cancel(const v1::RemoteCancel& cancel, TimePoint now) {
 
 bool GatewayRemote::on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now) {
   if (lanes_.empty() || !frame.is_standard_data()) return false;
+  if (frame.id == canopen::cob::lss_slave) {
+    // An answer to the gateway's LSS service: the runner's (a surface master did not ask).
+    auto it = lanes_.find({module_index, 0});
+    if (it == lanes_.end() || !it->second.running || !it->second.running->lss) return false;
+    Lane& lane = it->second;
+    lane.running->lss->on_frame(frame, now);
+    if (lane.running->lss->finished()) {
+      finish_lss(lane);
+      pump(now);
+    }
+    return true;
+  }
   const bool sdo_response =
       frame.id > canopen::cob::sdo_tx && frame.id <= canopen::cob::sdo_tx + canopen::kMaxNodeId;
   if (flashes_running_ != 0 && !sdo_response) {
@@ -203,6 +236,9 @@ void GatewayRemote::tick(TimePoint now) {
     if (r.sdo && now >= r.sdo->deadline()) {
       r.sdo->on_timeout(now, frames_for(key.first));
       if (r.sdo->finished()) finish_sdo(lane);
+    } else if (r.lss && now >= r.lss->deadline()) {
+      r.lss->on_timeout(now);
+      if (r.lss->finished()) finish_lss(lane);
     } else if (r.flash && now >= r.flash->deadline()) {
       r.flash->on_timeout(now, frames_for(key.first));
       after_flash(lane, now);
@@ -323,6 +359,17 @@ bool GatewayRemote::start(const LaneKey& key, Lane& lane, Job& job, TimePoint no
   const auto [m, node] = key;
   const v1::RemoteRequest& request = job.request;
   const std::uint64_t id = request.request_id();
+  if (request.has_lss()) {
+    bool inquiry = false;
+    std::string why;
+    lane.running = Running{};
+    lane.running->id = id;
+    lane.running->lss = lss_service(request.lss(), timeout_of(request), inquiry, why);
+    lane.running->lss_inquiry = inquiry;
+    lane.running->lss->start(now, frames_for(m));
+    if (lane.running->lss->finished()) finish_lss(lane);
+    return true;
+  }
   if (request.has_nmt()) {
     const v1::NmtOp& nmt = request.nmt();
     if (nmt.command() != canopen::nmt_node_id::kChange) {
@@ -453,6 +500,56 @@ void GatewayRemote::after_flash(Lane& lane, TimePoint now) {
   p.set_step(canopen::to_string(now_at.step));
   p.set_bytes_done(now_at.bytes_done);
   p.set_bytes_total(now_at.bytes_total);
+}
+
+void GatewayRemote::finish_lss(Lane& lane) {
+  const canopen::LssResult& result = lane.running->lss->result();
+  if (result.ok()) {
+    std::string value;
+    if (lane.running->lss_inquiry) {
+      for (int b = 0; b < 4; ++b) value.push_back(static_cast<char>(result.value >> (8 * b)));
+    }
+    answer(lane.running->id, 0, {}, std::move(value));
+  } else if (result.error == canopen::make_error_code(canopen::LssError::timeout)) {
+    answer(lane.running->id, kTimeout, "LSS: no answer");
+  } else {
+    answer(lane.running->id, kCannotTransfer,
+           "LSS: " + result.error.message() + " (code " + std::to_string(result.answer_code) +
+               ", specific " + std::to_string(result.specific_code) + ")");
+  }
+  lane.running.reset();
+}
+
+std::optional<canopen::LssMaster> GatewayRemote::lss_service(const v1::LssOp& op,
+                                                             std::chrono::milliseconds timeout,
+                                                             bool& inquiry,
+                                                             std::string& why) const {
+  using canopen::LssMaster;
+  const std::string& c = op.command();
+  const auto& args = op.args();
+  inquiry = false;
+  if (c == "lss_switch_glob" && args.size() == 1 && args[0] <= 1) {
+    return LssMaster::switch_global(args[0] == 1, timeout);
+  }
+  if (c == "lss_switch_sel" && args.size() == 4) {
+    return LssMaster::switch_selective({args[0], args[1], args[2], args[3]}, timeout);
+  }
+  if (c == "lss_set_node" && args.size() == 1 &&
+      ((args[0] >= 1 && args[0] <= canopen::kMaxNodeId) || args[0] == 0xFF)) {
+    return LssMaster::configure_node_id(static_cast<std::uint8_t>(args[0]), timeout);
+  }
+  if (c == "lss_store" && args.empty()) return LssMaster::store_configuration(timeout);
+  if (c == "lss_inquire_addr" && args.size() <= 1 && (args.empty() || args[0] <= 3)) {
+    inquiry = true;
+    return LssMaster::inquire(static_cast<canopen::LssInquiry>(args.empty() ? 3 : args[0]),
+                              timeout);
+  }
+  if (c == "lss_get_node" && args.empty()) {
+    inquiry = true;
+    return LssMaster::inquire(canopen::LssInquiry::node_id, timeout);
+  }
+  why = "not an LSS command with valid arguments: " + c;
+  return std::nullopt;
 }
 
 void GatewayRemote::remember(std::uint64_t id) {

@@ -20,6 +20,7 @@
 #include "can/frame.hpp"
 #include "canbridge.pb.h"
 #include "canopen/firmware_download.hpp"
+#include "canopen/lss_master.hpp"
 #include "canopen/sdo_transfer.hpp"
 #include "routing/node_map.hpp"
 #include "routing/node_table.hpp"
@@ -99,11 +100,13 @@ class GatewayRemote {
     canopen::NodeId new_node = 0;                    // set-node-id: the id whose boot-up confirms
     TimePoint deadline = TimePoint::max();           // set-node-id: the boot-up's
     std::optional<canopen::FirmwareDownload> flash;  // flash (also owns the SDO channel)
-    canopen::FirmwareProgress reported{};            // flash: the progress last reported
+    std::optional<canopen::LssMaster> lss;  // LSS: the module's lane (node 0), answers on 0x7E4
+    bool lss_inquiry = false;               // LSS: the answer carries a value
+    canopen::FirmwareProgress reported{};   // flash: the progress last reported
     TimePoint reported_at{};
     bool uses_channel() const { return sdo.has_value() || flash.has_value(); }
     TimePoint next_deadline() const {
-      return sdo ? sdo->deadline() : flash ? flash->deadline() : deadline;
+      return sdo ? sdo->deadline() : flash ? flash->deadline() : lss ? lss->deadline() : deadline;
     }
   };
   struct Lane {
@@ -122,6 +125,11 @@ class GatewayRemote {
   // Starts `job` on an idle lane; false when it must wait (a master's transfer is open).
   bool start(const LaneKey& key, Lane& lane, Job& job, TimePoint now);
   void finish_sdo(Lane& lane);
+  void finish_lss(Lane& lane);
+  // The LSS service a 309-3 command names; nullopt (with `why`) for an unknown or bad one.
+  std::optional<canopen::LssMaster> lss_service(const v1::LssOp& op,
+                                                std::chrono::milliseconds timeout, bool& inquiry,
+                                                std::string& why) const;
   // After any input to a running flash: progress (at most every kProgressEvery, and at each
   // step change) or its one result.
   void after_flash(Lane& lane, TimePoint now);

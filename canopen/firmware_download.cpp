@@ -246,6 +246,8 @@ void FirmwareDownload::after_transfer(TimePoint now, std::vector<can::Frame>& ou
 }
 
 void FirmwareDownload::fail(std::error_code error, std::string detail) {
+  // Progress keeps what the node confirmed, also after a cancel in the middle of the image.
+  if (step_ == FirmwareStep::download && transfer_) bytes_done_ = transfer_->bytes_done();
   transfer_.reset();
   boot_deadline_ = TimePoint::max();
   result_ = FirmwareResult{error, step_, std::move(detail)};

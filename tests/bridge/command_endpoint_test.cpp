@@ -586,6 +586,7 @@ TEST_F(CommandEndpointTest, TcpAuthGoodBadMissingAndRoles) {
   const auto counters = endpoint->counters();
   EXPECT_EQ(counters.refused, 5u);
   EXPECT_EQ(counters.auth_failures, 2u);
+  EXPECT_EQ(counters.errors, 7u);  // two 401, five 403
 }
 
 TEST_F(CommandEndpointTest, TcpOnlyOnLoopback) {

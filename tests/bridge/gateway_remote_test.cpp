@@ -92,16 +92,15 @@ bool is_sdo_response_of(const Frame& f, NodeId node) {
 class Rig {
  public:
   explicit Rig(std::vector<sim::NodeSpec> specs, GatewayRemoteOptions options = {},
-               IdProfile profile = IdProfile::cia301) {
+               IdProfile profile = IdProfile::cia301, bool lss = false) {
     std::vector<std::pair<NodeId, NodeId>> pairs;
     for (const auto& s : specs) pairs.emplace_back(s.node_id, s.node_id + 10);
     EXPECT_TRUE(map.add_module(1, pairs, profile).empty());
     table.add_module(profile);
-    core =
-        std::make_unique<GatewayRemote>(map, table, std::vector<GatewayRemote::Module>{{1, false}},
-                                        options, [this](std::size_t m, NodeId n) {
-                                          return master_open.contains({m, n});
-                                        });
+    core = std::make_unique<GatewayRemote>(map, table, std::vector<GatewayRemote::Module>{{1, lss}},
+                                           options, [this](std::size_t m, NodeId n) {
+                                             return master_open.contains({m, n});
+                                           });
     for (const auto& s : specs) {
       nodes.push_back(std::make_unique<sim::SimNode>(s));
       for (const Frame& f : nodes.back()->boot(now)) from_node(f);
@@ -403,6 +402,36 @@ TEST(GatewayRemote, LssOnAModuleWithoutItIsRefused) {
   ASSERT_NE(rig.result(1), nullptr);
   EXPECT_EQ(rig.result(1)->abort_code(), 0x08000020u);
   EXPECT_TRUE(rig.written.empty());
+}
+
+v1::RemoteRequest lss_request(std::uint64_t id, std::string command,
+                              std::vector<std::uint32_t> args) {
+  v1::RemoteRequest r;
+  r.set_request_id(id);
+  r.set_module_id(1);
+  r.mutable_lss()->set_command(std::move(command));
+  for (auto a : args) r.mutable_lss()->add_args(a);
+  return r;
+}
+
+TEST(GatewayRemote, LssOnTheLssModuleRunsTheServiceAndKeepsItsAnswersOffTheSurface) {
+  sim::NodeSpec spec = node_spec(5);
+  spec.identity = {0x1A2, 0x1234, 0x10002, 0xCAFEF00D};
+  Rig rig({spec}, {}, IdProfile::cia301, true);
+  rig.request(lss_request(1, "lss_switch_glob", {1}));
+  ASSERT_NE(rig.result(1), nullptr);
+  EXPECT_EQ(rig.result(1)->abort_code(), 0u) << rig.result(1)->detail();
+  rig.request(lss_request(2, "lss_get_node", {}));
+  ASSERT_NE(rig.result(2), nullptr);
+  EXPECT_EQ(rig.result(2)->abort_code(), 0u) << rig.result(2)->detail();
+  EXPECT_EQ(rig.result(2)->data(), std::string("\x05\0\0\0", 4));
+  rig.request(lss_request(3, "lss_inquire_addr", {3}));
+  ASSERT_NE(rig.result(3), nullptr);
+  EXPECT_EQ(rig.result(3)->data(), std::string("\x0D\xF0\xFE\xCA", 4));
+  for (const Frame& f : rig.surface) EXPECT_NE(f.id, 0x7E4u);
+  rig.request(lss_request(4, "lss_set_node", {300}));  // out of range: refused before the bus
+  ASSERT_NE(rig.result(4), nullptr);
+  EXPECT_EQ(rig.result(4)->abort_code(), 0x05040001u);
 }
 
 TEST(GatewayRemote, FlashRunsTheLoaderSequenceWithProgressAndOneResult) {

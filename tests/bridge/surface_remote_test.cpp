@@ -2,7 +2,8 @@
 // gateway over an in-memory link that answers RemoteRequests as each test says: routing by
 // surface id on network 0 and by local id on a module's network, refusals at once (unknown node
 // or network, gateway down), results, progress and node tables, the deadline that ends with
-// timed_out and a RemoteCancel, cancel(), and the monitor feed in both directions.
+// timed_out and a RemoteCancel, cancel(), and the monitor feed in both directions; then end to
+// end with a real Gateway running the transfer on its module bus.
 #include "bridge/surface_remote.hpp"
 
 #include <gtest/gtest.h>
@@ -19,11 +20,13 @@
 #include "backbone/memory_link.hpp"
 #include "backbone/session.hpp"
 #include "bridge/frame_batch_codec.hpp"
+#include "bridge/gateway.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/surface.hpp"
 #include "can/virtual_bus.hpp"
 #include "canopen/sdo_abort.hpp"
 #include "routing/node_map.hpp"
+#include "tests/bridge/loopback_roles.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
 
@@ -409,6 +412,59 @@ TEST_F(SurfaceRemoteTest, TheMonitorSeesFramesBothWaysOnlyWhileSubscribed) {
   ASSERT_TRUE(run_until(io, [&] { return surface.counters().from_bus == 2; }));
   EXPECT_EQ(seen.size(), 2u);
   EXPECT_EQ(remote->counters().monitor_frames, 2u);
+}
+
+// The real gateway behind the surface: it runs the SDO transfer on its module bus (the node's
+// answer never reaches the surface bus), found by surface id on network 0 and by local id on the
+// module's network.
+TEST(SurfaceRemoteEndToEnd, TheGatewayRunsTheSdoReadOnBothNetworks) {
+  boost::asio::io_context io{1};
+  can::VirtualBus module_bus{io.get_executor(), "module"};
+  can::VirtualBus surface_bus{io.get_executor(), "surface-bus"};
+  BusRecorder master{io, surface_bus.connect("master")};
+  BusRecorder node{io, module_bus.connect("node")};
+  // The node answers every expedited upload of 1017h with 1000 (ms).
+  std::size_t answered = 0;
+  node.on_frames = [&] {
+    for (; answered < node.frames.size(); ++answered) {
+      const Frame& f = node.frames[answered];
+      if (f.id == 0x600u + kLocal && f.data[0] == 0x40 && f.data[1] == 0x17 && f.data[2] == 0x10) {
+        node.send(Frame::standard(0x580u + kLocal, {0x4B, 0x17, 0x10, 0x00, 0xE8, 0x03, 0, 0}));
+      }
+    }
+  };
+  NodeMap map;
+  ASSERT_TRUE(map.add_module(kModule, {{kLocal, kSurface}}).empty());
+  std::vector<GatewayModule> modules(1);
+  modules[0].id = kModule;
+  modules[0].bus = module_bus.connect("gateway");
+  Gateway gateway(io.get_executor(), "gw", std::move(map), std::move(modules), quick_tuning());
+  const SurfacePolicy policy{{{"gw", {kModule}, {kSurface}}}, false};
+  Surface surface(io.get_executor(), "surface", surface_bus.connect("surface"), policy,
+                  quick_tuning());
+  ASSERT_TRUE(start_linked_in_memory(io, surface, gateway));
+  SurfaceRemote remote(io.get_executor(), surface, policy.gateways);
+  std::vector<Seen> seen(2);
+  RemoteSdo sdo;
+  sdo.index = 0x1017;
+  sdo.target = {0, kSurface};
+  remote.sdo(sdo, seen[0].done());
+  sdo.target = {kModule + 1, kLocal};
+  remote.sdo(sdo, seen[1].done());
+  ASSERT_TRUE(run_until(io, [&] { return seen[0].outcome && seen[1].outcome; }))
+      << gateway.stats_line();
+  for (const Seen& s : seen) {
+    EXPECT_TRUE(s.outcome->ok()) << s.outcome->error.message() << " " << s.outcome->detail;
+    EXPECT_EQ(s.outcome->data, (std::vector<std::uint8_t>{0xE8, 0x03}));
+  }
+  EXPECT_EQ(node.count(0x600u + kLocal), 2u);
+  EXPECT_EQ(master.count(0x580u + kSurface), 0u);  // the gateway's own transfer stays local
+  remote.stop();
+  gateway.stop();
+  surface.stop();
+  master.close();
+  node.close();
+  EXPECT_TRUE(run_until(io, [&] { return master.done() && node.done(); }));
 }
 
 }  // namespace

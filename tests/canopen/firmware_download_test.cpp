@@ -321,6 +321,7 @@ TEST(FirmwareDownload, CancelDuringTheDownloadAbortsTheTransferAndNamesTheStep) 
   }
   d.abort(SdoAbort::local_control, out);
   ASSERT_TRUE(d.finished());
+  EXPECT_EQ(d.progress().bytes_done, 127u * 7);  // what the node confirmed before the cancel
   EXPECT_EQ(d.result().error, SdoAbort::local_control);
   EXPECT_EQ(d.result().step, FirmwareStep::download);
   ASSERT_EQ(out.size(), 1u);

@@ -1,11 +1,10 @@
-// The pure pieces of the client: response lines, exit codes, base64, progress text.
+// The pure pieces of the client: response lines, exit codes, progress text, endpoint addresses.
 #include "app/cli_reply.hpp"
 
 #include <gtest/gtest.h>
 
 #include <sstream>
 
-#include "app/cli_base64.hpp"
 #include "app/cli_endpoint_client.hpp"
 #include "app/cli_progress.hpp"
 
@@ -69,21 +68,6 @@ TEST(CliReply, ProgressNodeRowsFramesAndDrops) {
   EXPECT_FALSE(parse_monitor_frame("FRAME x 0 < 705#00"));
   EXPECT_EQ(parse_dropped("DROPPED 17"), 17u);
   EXPECT_FALSE(parse_dropped("DROPPED"));
-}
-
-TEST(CliBase64, RoundTripsAndRejectsGarbage) {
-  EXPECT_EQ(base64_encode(""), "");
-  EXPECT_EQ(base64_encode("M"), "TQ==");
-  EXPECT_EQ(base64_encode("Ma"), "TWE=");
-  EXPECT_EQ(base64_encode("Man"), "TWFu");
-  std::string all;
-  for (int i = 0; i < 256; ++i) all += static_cast<char>(i);
-  std::string back;
-  ASSERT_TRUE(base64_decode(base64_encode(all), back));
-  EXPECT_EQ(back, all);
-  EXPECT_FALSE(base64_decode("TQ=", back));
-  EXPECT_FALSE(base64_decode("T!==", back));
-  EXPECT_FALSE(base64_decode("TQ==TQ==", back));  // padding only at the end
 }
 
 TEST(CliProgress, BarAndLineText) {

@@ -320,6 +320,15 @@ TEST_F(CliFlash, BarOnATerminal) {
   EXPECT_THAT(run.out, HasSubstr("\r[####################] 100%"));
 }
 
+TEST_F(CliFlash, PathWithACommentSignIsRefusedBeforeConnecting) {
+  const auto hashed = std::filesystem::temp_directory_path() / "canbridge#image.bin";
+  std::ofstream(hashed) << "x";
+  const auto run = run_cli({"flash", "5", hashed.string(), "--endpoint", "/nonexistent/e.sock"});
+  std::filesystem::remove(hashed);
+  EXPECT_EQ(run.rc, exit_code::usage);
+  EXPECT_THAT(run.err, HasSubstr("contains '#'"));
+}
+
 TEST_F(CliFlash, FailedStepExitsOneAndNamesIt) {
   FakeEndpoint endpoint(Script{{request(),
                                 {"[1] PROGRESS download 1000 1000",
