@@ -159,12 +159,16 @@ stop_bridge() {
   wait $gpid $spid $epid 2>/dev/null || true
 }
 
-val() { grep "^$2=" "$1" | cut -d= -f2-; }
-# probe OUT ARGS...: runs the probe; its key=value lines go to OUT.
+val() { grep "^$2=" "$1" | cut -d= -f2- || true; }
+# probe OUT MODE ARGS...: runs the probe; its key=value lines go to OUT. Endpoint modes set the
+# session's sdo_timeout to 60 s: the surface waits for a gateway's answer only that timeout plus
+# answer_slack (5 s), whatever the transfer's size, and a 64 KiB segmented download takes longer
+# than 10 s on the UML guest's module bus.
 probe() {
-  local out=$1
+  local out=$1 t=$timeout_ms
   shift
-  "$probe" "$@" --timeout-ms $timeout_ms >"$out" 2>&1 || true
+  [[ $1 == endpoint* ]] && t=60000
+  "$probe" "$@" --timeout-ms $t >"$out" 2>&1 || true
 }
 
 # measure LINK RUN CASE WAY: one measurement, one row in $work/table
