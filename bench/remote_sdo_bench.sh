@@ -237,17 +237,17 @@ done
 if [[ ${CANBRIDGE_BENCH_ROBUSTNESS:-1} == 1 ]]; then
   echo
   echo "robustness: 256 KiB firmware to qd local 1 (surface 1) on tcp20, three link cuts"
-  python3 - "$work/app.bin" <<'PY'
-import random, sys
-random.seed(16)
-open(sys.argv[1], 'wb').write(bytes(random.getrandbits(8) for _ in range(256 * 1024 - 4)))
+  # Two images: the uncut runs flash one, the cut runs the other, so that 1F56h after a cut run
+  # can only show the cut run's image. Prints the second one's CRC-32.
+  crc=$(python3 - "$work/image.bin" "$work/image_cut.bin" <<'PY'
+import random, sys, zlib
+for seed, path in ((16, sys.argv[1]), (17, sys.argv[2])):
+    random.seed(seed)
+    app = bytes(random.getrandbits(8) for _ in range(256 * 1024 - 4))
+    open(path, 'wb').write(app + zlib.crc32(app).to_bytes(4, 'little'))
+print(zlib.crc32(app))
 PY
-  python3 - "$work/app.bin" "$work/image.bin" <<'PY'
-import sys, zlib
-app = open(sys.argv[1], 'rb').read()
-open(sys.argv[2], 'wb').write(app + zlib.crc32(app).to_bytes(4, 'little'))
-PY
-  crc=$(python3 -c "import sys, zlib; print(zlib.crc32(open('$work/app.bin','rb').read()))")
+)
   # Uncut, to place the cuts inside the gateway's flash time.
   start_bridge tcp20
   probe "$work/flash.uncut.ep" endpoint-flash --socket "$sock" --net 3 --node 1 --image "$work/image.bin"
@@ -270,9 +270,9 @@ PY
     sleep "$(awk -v r="$ready_at" -v n="$(now)" -v s=$lead 'BEGIN{w = r + s - n; print (w > 0 ? w : 0)}')"
     t0=$(now)
     if [[ $way == endpoint ]]; then
-      probe "$work/flash.cut.$way" endpoint-flash --socket "$sock" --net 3 --node 1 --image "$work/image.bin"
+      probe "$work/flash.cut.$way" endpoint-flash --socket "$sock" --net 3 --node 1 --image "$work/image_cut.bin"
     else
-      probe "$work/flash.cut.$way" master-flash --interface vcan0 --node 1 --image "$work/image.bin"
+      probe "$work/flash.cut.$way" master-flash --interface vcan0 --node 1 --image "$work/image_cut.bin"
     fi
     t1=$(now)
     verify=-
