@@ -104,7 +104,10 @@ void SessionLink::arm_timer() {
 
 void SessionLink::on_timer() {
   if (core_.closed() || !link_->is_open()) return;  // closing already (its handler may come later)
-  core_.on_tick(now(), link_->reading_paused());
+  const std::uint64_t rx_bytes = link_->counters().rx_bytes;
+  const bool bytes_arrived = rx_bytes != rx_bytes_at_tick_;
+  rx_bytes_at_tick_ = rx_bytes;
+  core_.on_tick(now(), link_->reading_paused(), bytes_arrived);
   if (link_->is_open()) arm_timer();
 }
 

@@ -70,7 +70,8 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
   Binder binder_;
   SessionLogMemory own_log_;
   SessionCore core_;
-  boost::asio::steady_timer timer_;  // at the core's next deadline
+  std::uint64_t rx_bytes_at_tick_ = 0;  // the link's rx_bytes at the last tick
+  boost::asio::steady_timer timer_;     // at the core's next deadline
 };
 
 // A random 64-bit id (never 0) for SessionLink::Identity::session_id.

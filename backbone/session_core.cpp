@@ -795,7 +795,7 @@ EnvelopeHeader SessionCore::next_header(std::uint64_t seq, std::uint64_t unrelia
 // ---------------------------------------------------------------------------------------------
 // Time.
 
-void SessionCore::on_tick(TimePoint now, bool reading_paused) {
+void SessionCore::on_tick(TimePoint now, bool reading_paused, bool bytes_arrived) {
   if (closing_) return;  // closing already (its handler may come later)
   last_tick_ = now;
   if (now - last_rx_ <= options_.dead_after && now - last_run_ > peer_patience()) {
@@ -804,6 +804,7 @@ void SessionCore::on_tick(TimePoint now, bool reading_paused) {
   last_run_ = now;
   // Not reading (PeerStream::pause_input): the silence is ours, and so are the missing acks.
   if (reading_paused) last_rx_ = now;
+  if (bytes_arrived) last_rx_ = now;  // part of a message: the peer is sending
   if (now - last_rx_ > options_.dead_after) {
     ++counters_.dead_links;
     spdlog::warn("backbone: nothing from {} for {} ms: link dead, closing it", link_.peer_name,

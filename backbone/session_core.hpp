@@ -66,7 +66,9 @@ class SessionCore {
   void fill(std::string& out, TimePoint now);
   // Time passed: dead and stale links, keepalives, retransmission, repeated resend requests.
   // `reading_paused`: the link is not read (the silence is ours, not the peer's).
-  void on_tick(TimePoint now, bool reading_paused);
+  // `bytes_arrived`: the link read bytes since the last tick, though perhaps no whole message (a
+  // large message on a slow serial line takes seconds): the peer is alive.
+  void on_tick(TimePoint now, bool reading_paused, bool bytes_arrived = false);
   // When on_tick is due. The core must be ticked about this often: the gap between ticks is
   // how it notices that it was not run (frozen, not scheduled) for longer than the peer waits.
   TimePoint next_deadline() const { return last_tick_ + tick_period(); }

@@ -447,8 +447,14 @@ void Gateway::queue_for_surface(std::size_t module_index, const can::Frame& fram
 // waiting here for its bus must never reach the node.
 void Gateway::on_link_dead() {
   sdo_.on_link_dead();
-  for (auto& writer : writers_) {
-    sdo_.withdrew(writer->withdraw(ModuleSdoTracking::withdrawn_at_link_loss));
+  for (std::size_t m = 0; m < writers_.size(); ++m) {
+    // The master's requests go (it saw them aborted); the frames of a transfer the gateway runs
+    // itself stay: the link is not part of it, and a lost block segment would stall it.
+    sdo_.withdrew(writers_[m]->withdraw([this, m](const can::Frame& waiting) {
+      if (!ModuleSdoTracking::withdrawn_at_link_loss(waiting)) return false;
+      const auto node = static_cast<canopen::NodeId>(waiting.id - canopen::cob::sdo_rx);
+      return !remote_.transferring(m, node);
+    }));
   }
 }
 

@@ -204,7 +204,11 @@ bool GatewayRemote::on_bus_frame(std::size_t module_index, const can::Frame& fra
     after_flash(lane, now);
   } else {
     lane.running->sdo->on_frame(frame, now, frames_for(module_index));
-    if (lane.running->sdo->finished()) finish_sdo(lane);
+    if (lane.running->sdo->finished()) {
+      finish_sdo(lane);
+    } else {
+      report_sdo_progress(*lane.running, now);
+    }
   }
   if (!lane.running) pump(now);
   return true;
@@ -458,9 +462,24 @@ bool GatewayRemote::start(const LaneKey& key, Lane& lane, Job& job, TimePoint no
     answer(id, kBadCommand, e.what());
     return true;
   }
+  lane.running->reported_at = now;
   lane.running->sdo->start(now, frames_for(m));
   if (lane.running->sdo->finished()) finish_sdo(lane);
   return true;
+}
+
+void GatewayRemote::report_sdo_progress(Running& r, TimePoint now) {
+  // A long transfer (64 KiB segmented is thousands of round trips) tells the surface it is alive,
+  // so the surface's answer deadline follows the transfer instead of its size being guessed.
+  const std::size_t done = r.sdo->bytes_done();
+  if (done == r.reported.bytes_done || now - r.reported_at < kProgressEvery) return;
+  r.reported.bytes_done = done;
+  r.reported_at = now;
+  v1::RemoteProgress& p = progress_[r.id];
+  p.set_request_id(r.id);
+  p.set_step(r.sdo->is_upload() ? "upload" : "download");
+  p.set_bytes_done(done);
+  p.set_bytes_total(r.sdo->bytes_total());
 }
 
 void GatewayRemote::finish_sdo(Lane& lane) {
@@ -468,7 +487,9 @@ void GatewayRemote::finish_sdo(Lane& lane) {
   if (result.ok()) {
     answer(lane.running->id, 0, {}, std::string(result.data.begin(), result.data.end()));
   } else {
-    answer(lane.running->id, canopen::to_abort_code(result.error), result.error.message());
+    // The code says it all: the endpoint prints its text (a detail repeating it was printed
+    // twice).
+    answer(lane.running->id, canopen::to_abort_code(result.error), {});
   }
   lane.running.reset();
 }
@@ -483,8 +504,8 @@ void GatewayRemote::after_flash(Lane& lane, TimePoint now) {
       answer(r.id, 0, {});
     } else {
       answer(r.id, canopen::to_abort_code(result.error),
-             std::string(canopen::to_string(result.step)) + ": " +
-                 (result.detail.empty() ? result.error.message() : result.detail));
+             std::string(canopen::to_string(result.step)) +
+                 (result.detail.empty() ? std::string() : ": " + result.detail));
     }
     lane.running.reset();
     return;

@@ -102,7 +102,7 @@ class GatewayRemote {
     std::optional<canopen::FirmwareDownload> flash;  // flash (also owns the SDO channel)
     std::optional<canopen::LssMaster> lss;  // LSS: the module's lane (node 0), answers on 0x7E4
     bool lss_inquiry = false;               // LSS: the answer carries a value
-    canopen::FirmwareProgress reported{};   // flash: the progress last reported
+    canopen::FirmwareProgress reported{};   // flash (SDO: bytes_done only): last reported
     TimePoint reported_at{};
     bool uses_channel() const { return sdo.has_value() || flash.has_value(); }
     TimePoint next_deadline() const {
@@ -117,6 +117,8 @@ class GatewayRemote {
 
   void answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
               std::string data = {});
+  // A running SDO transfer's progress, at most every kProgressEvery (unreliable, latest wins).
+  void report_sdo_progress(Running& r, TimePoint now);
   void answer_nodes(const v1::RemoteRequest& request, TimePoint now);
   void write_nmt(std::size_t module_index, std::uint8_t command, canopen::NodeId node);
   std::vector<can::Frame>& frames_for(std::size_t module_index);

@@ -39,7 +39,7 @@ struct RemoteSdo {
   std::uint16_t index = 0;
   std::uint8_t sub = 0;
   bool upload = true;
-  std::vector<std::uint8_t> data;  // download
+  std::vector<std::uint8_t> data;           // download
   std::chrono::milliseconds timeout{1000};  // per SDO response, as CiA 301's SDO timeout
   std::uint8_t block_size = 0;              // 0: expedited/segmented; 1..127: block transfer
 };
@@ -90,9 +90,9 @@ struct NodeRow {
 // One frame the surface saw on its one network: put on its bus for a gateway's module, or read
 // from its bus (from the master).
 struct MonitorFrame {
-  std::int64_t time_us = 0;      // Unix time
-  std::uint32_t module_id = 0;   // 0: from the surface bus (a master)
-  bool to_surface_bus = false;   // true: from a gateway's module, toward the master
+  std::int64_t time_us = 0;     // Unix time
+  std::uint32_t module_id = 0;  // 0: from the surface bus (a master)
+  bool to_surface_bus = false;  // true: from a gateway's module, toward the master
   can::Frame frame;
 };
 

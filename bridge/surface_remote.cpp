@@ -258,7 +258,8 @@ RemoteAccess::RequestId SurfaceRemote::send(GatewayId gateway, v1::RemoteRequest
   }
   ++counters_.requests;
   const TimePoint deadline = Clock::now() + within;
-  pending_[id] = Pending{gateway, deadline, std::move(done), std::move(progress), std::move(group)};
+  pending_[id] =
+      Pending{gateway, deadline, std::move(done), std::move(progress), std::move(group), within};
   deadlines_.emplace(deadline, id);
   arm_timer();
   return id;
@@ -285,8 +286,12 @@ RemoteAccess::RequestId SurfaceRemote::sdo(RemoteSdo sdo, Done done) {
   op.set_subindex(sdo.sub);
   op.set_data(sdo.data.data(), sdo.data.size());
   op.set_block_size(sdo.block_size);
-  return route_and_send(sdo.target, false, std::move(request), sdo.timeout + options_.answer_slack,
-                        std::move(done));
+  // A download's data crosses the backbone before the gateway starts: a second per KiB lets it
+  // cross a 9600 bit/s serial line. Once the transfer runs, the gateway's progress reports keep
+  // restarting the wait.
+  const auto crossing = std::chrono::milliseconds(sdo.data.size());
+  return route_and_send(sdo.target, false, std::move(request),
+                        sdo.timeout + options_.answer_slack + crossing, std::move(done));
 }
 
 RemoteAccess::RequestId SurfaceRemote::nmt(RemoteTarget target, NmtCommand command, Done done) {
@@ -415,7 +420,15 @@ void SurfaceRemote::on_remote_payload(GatewayId from, const v1::Payload& payload
       ++counters_.unknown_results;
       return;
     }
-    if (it->second.progress) it->second.progress({p.step(), p.bytes_done(), p.bytes_total()});
+    Pending& pending = it->second;
+    const TimePoint later = Clock::now() + pending.within;
+    if (later > pending.deadline) {
+      deadlines_.erase({pending.deadline, p.request_id()});
+      pending.deadline = later;
+      deadlines_.emplace(later, p.request_id());
+      arm_timer();
+    }
+    if (pending.progress) pending.progress({p.step(), p.bytes_done(), p.bytes_total()});
   }
 }
 

@@ -98,6 +98,9 @@ class SurfaceRemote final : public RemoteAccess {
     Done done;
     std::function<void(const FlashProgress&)> progress;
     std::shared_ptr<Group> group;
+    // The wait for an answer, restarted by each progress report: a long transfer that moves
+    // never times out at the surface, a stalled one does.
+    std::chrono::milliseconds within{0};
   };
 
   Resolved resolve(RemoteTarget target, bool node_zero_allowed) const;

@@ -67,6 +67,7 @@ class FakeShell final : public SessionShell {
   int wakes = 0;
   std::optional<std::error_code> closed;
   bool reading_paused = false;
+  bool bytes_arriving = false;  // the link reads parts of a message, never a whole one
   PeerStream* bind_to = nullptr;
   PeerStream* carried = nullptr;
 };
@@ -199,7 +200,7 @@ class SessionCoreTest : public ::testing::Test {
       }
       if (!due || due->core->next_deadline() > end) break;
       now = std::max(now, due->core->next_deadline());
-      due->core->on_tick(now, due->shell.reading_paused);
+      due->core->on_tick(now, due->shell.reading_paused, due->shell.bytes_arriving);
       exchange();
     }
     now = end;
@@ -409,6 +410,20 @@ TEST_F(SessionCoreTest, PausedReadingIsNotThePeersSilence) {
   lose_to_gateway = [](const v1::Envelope&) { return true; };
   advance(3 * test_options().dead_after);
   EXPECT_FALSE(gateway.shell.closed);
+}
+
+// A large message on a slow serial line takes longer than dead_after to arrive whole: its bytes
+// keep the link alive; once they stop, silence counts again.
+TEST_F(SessionCoreTest, BytesOfAMessageStillArrivingAreNotSilence) {
+  connect();
+  ASSERT_TRUE(ready());
+  gateway.shell.bytes_arriving = true;
+  lose_to_gateway = [](const v1::Envelope&) { return true; };
+  advance(3 * test_options().dead_after);
+  EXPECT_FALSE(gateway.shell.closed);
+  gateway.shell.bytes_arriving = false;
+  advance(test_options().dead_after + 2 * gateway.core->tick_period());
+  EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
 }
 
 TEST_F(SessionCoreTest, InputAfterAFreezeLongerThanThePeersPatienceIsStale) {

@@ -301,6 +301,33 @@ TEST_F(SurfaceRemoteTest, NoAnswerInTimeEndsWithTimedOutAndACancelFollows) {
   EXPECT_EQ(remote->counters().timed_out, 1u);
 }
 
+// A long transfer the gateway reports progress on never times out at the surface, however long
+// it runs beyond timeout + answer_slack (150 ms here); once the reports stop, it does.
+TEST_F(SurfaceRemoteTest, ProgressReportsKeepALongTransferWaiting) {
+  Seen seen;
+  const auto id = remote->sdo(read_1017(0, kSurface), seen.done());
+  ASSERT_TRUE(run_until(io, [&] { return gateway.requests.size() == 1; }));
+  const auto started = std::chrono::steady_clock::now();
+  auto reported = started;
+  std::uint64_t done_bytes = 0;
+  // Reports every 50 ms for 600 ms, as a gateway running a 64 KiB segmented upload would.
+  ASSERT_TRUE(run_until(io, [&] {
+    const auto now = std::chrono::steady_clock::now();
+    if (now - reported >= 50ms) {
+      reported = now;
+      v1::Payload p;
+      p.mutable_remote_progress()->set_request_id(id);
+      p.mutable_remote_progress()->set_step("upload");
+      p.mutable_remote_progress()->set_bytes_done(done_bytes += 700);
+      gateway.send(p);
+    }
+    return seen.outcome.has_value() || now - started >= 600ms;
+  }));
+  EXPECT_FALSE(seen.outcome.has_value()) << seen.outcome->detail;
+  ASSERT_TRUE(run_until(io, [&] { return seen.outcome.has_value(); }));
+  EXPECT_EQ(seen.outcome->error, std::make_error_code(std::errc::timed_out));
+}
+
 TEST_F(SurfaceRemoteTest, CancelEndsTheRequestAndTellsTheGateway) {
   Seen seen;
   const auto id = remote->sdo(read_1017(0, kSurface), seen.done());
