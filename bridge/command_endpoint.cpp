@@ -29,6 +29,7 @@
 #include "canopen/ascii_command.hpp"
 #include "canopen/ascii_response.hpp"
 #include "canopen/ascii_value.hpp"
+#include "canopen/cob_id.hpp"
 #include "canopen/little_endian.hpp"
 #include "canopen/sdo_abort.hpp"
 #include "coro/spawn_owned.hpp"
@@ -111,18 +112,8 @@ NmtCommand to_nmt(canopen::AsciiNmt nmt) {
 std::string state_text(const NodeRow& row) {
   if (row.lost) return "lost";
   if (row.in_loader) return "loader";
-  switch (row.nmt_state) {
-    case 0x00:
-      return "boot-up";
-    case 0x04:
-      return "stopped";
-    case 0x05:
-      return "operational";
-    case 0x7F:
-      return "pre-operational";
-    default:
-      return std::to_string(row.nmt_state);
-  }
+  const std::string name = canopen::nmt_state_name(row.nmt_state);
+  return name == "unknown" ? std::to_string(row.nmt_state) : name;
 }
 
 std::string or_dash(const std::string& text) {

@@ -4,6 +4,8 @@
 #include <array>
 #include <cstdio>
 
+#include "canopen/ascii_value.hpp"
+
 namespace canbridge::canopen {
 
 namespace {
@@ -26,23 +28,6 @@ std::string lower(std::string_view text) {
     if (c >= 'A' && c <= 'Z') c = static_cast<char>(c - 'A' + 'a');
   }
   return out;
-}
-
-// Printable for an error message: at most 32 characters, other bytes as \xNN.
-std::string shown(std::string_view text) {
-  std::string out = "\"";
-  for (std::size_t i = 0; i < text.size() && i < 32; ++i) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    if (c >= 0x20 && c < 0x7F && c != '"') {
-      out += static_cast<char>(c);
-    } else {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\x%02X", c);
-      out += buf;
-    }
-  }
-  if (text.size() > 32) out += "...";
-  return out + "\"";
 }
 
 // The line without its comment: `#` outside double quotes starts one (a quoted visible string
@@ -131,10 +116,10 @@ class Parser {
     std::string_view token = tokens_.next();
     if (token.front() == '[') {
       if (token.size() < 3 || token.back() != ']') {
-        return syntax("sequence " + shown(token) + ": expected [<number>]");
+        return syntax("sequence " + ascii_excerpt(token) + ": expected [<number>]");
       }
       const auto seq = parse_ascii_unsigned(token.substr(1, token.size() - 2), 0xFFFFFFFFu);
-      if (!seq) return syntax("sequence " + shown(token) + ": not a 32-bit number");
+      if (!seq) return syntax("sequence " + ascii_excerpt(token) + ": not a 32-bit number");
       cmd.sequence = static_cast<std::uint32_t>(*seq);
       if (tokens_.at_end()) return syntax("missing command after the sequence");
       token = tokens_.next();
@@ -143,14 +128,16 @@ class Parser {
     std::vector<std::uint32_t> numbers;
     while (!token.empty() && is_digit(token.front())) {
       if (numbers.size() == 2) return syntax("more than two numbers before the command");
-      if (token.size() > kMaxAsciiToken) return syntax("number " + shown(token) + " too long");
+      if (token.size() > kMaxAsciiToken)
+        return syntax("number " + ascii_excerpt(token) + " too long");
       const auto n = parse_ascii_unsigned(token, 0xFFFFFFFFu);
-      if (!n) return syntax("net or node " + shown(token) + ": not a number");
+      if (!n) return syntax("net or node " + ascii_excerpt(token) + ": not a number");
       numbers.push_back(static_cast<std::uint32_t>(*n));
-      if (tokens_.at_end()) return syntax("missing command after " + shown(token));
+      if (tokens_.at_end()) return syntax("missing command after " + ascii_excerpt(token));
       token = tokens_.next();
     }
-    if (token.size() > kMaxAsciiToken) return syntax("command " + shown(token) + " too long");
+    if (token.size() > kMaxAsciiToken)
+      return syntax("command " + ascii_excerpt(token) + " too long");
     const std::string word = lower(token);
     if (word == "r" || word == "read") return read(numbers);
     if (word == "w" || word == "write") return write(numbers);
@@ -163,7 +150,7 @@ class Parser {
       if (what == "comm" || what == "communication") {
         return nmt(numbers, AsciiNmt::reset_communication);
       }
-      return syntax("reset " + shown(what) + ": expected node or comm[unication]");
+      return syntax("reset " + ascii_excerpt(what) + ": expected node or comm[unication]");
     }
     if (word == "set") return set(numbers);
     if (word == "help") return help(numbers);
@@ -176,7 +163,7 @@ class Parser {
     if (word == "flash") return flash(numbers);
     if (word == "monitor") return monitor(numbers);
     if (word.rfind("lss_", 0) == 0 || word.rfind("_lss_", 0) == 0) return lss(numbers, word);
-    return Failure{AsciiError::request_not_supported, "unknown command " + shown(token)};
+    return Failure{AsciiError::request_not_supported, "unknown command " + ascii_excerpt(token)};
   }
 
   // The numbers before a node command: <node> or <net> <node>.
@@ -216,7 +203,7 @@ class Parser {
   }
 
   Outcome end() {
-    if (!tokens_.at_end()) return syntax("unexpected " + shown(tokens_.peek()));
+    if (!tokens_.at_end()) return syntax("unexpected " + ascii_excerpt(tokens_.peek()));
     return std::nullopt;
   }
 
@@ -226,9 +213,9 @@ class Parser {
     if (token.empty()) return syntax("missing " + std::string(what));
     if (token.size() > kMaxAsciiToken) return syntax(std::string(what) + " too long");
     const auto n = parse_ascii_unsigned(token, 0xFFFFFFFFu);
-    if (!n) return syntax(std::string(what) + " " + shown(token) + ": not a number");
+    if (!n) return syntax(std::string(what) + " " + ascii_excerpt(token) + ": not a number");
     if (*n < min || *n > max) {
-      return syntax(std::string(what) + " " + shown(token) + " out of range " +
+      return syntax(std::string(what) + " " + ascii_excerpt(token) + " out of range " +
                     std::to_string(min) + ".." + std::to_string(max));
     }
     out = static_cast<std::uint32_t>(*n);
@@ -252,7 +239,7 @@ class Parser {
       return std::nullopt;
     }
     const auto type = parse_ascii_type(lower(token.substr(0, kMaxAsciiToken + 1)));
-    if (!type) return syntax("unknown datatype " + shown(token));
+    if (!type) return syntax("unknown datatype " + ascii_excerpt(token));
     result_.command.type = type;
     return std::nullopt;
   }
@@ -309,7 +296,7 @@ class Parser {
     } else if (what.empty()) {
       return syntax("set: missing what to set");
     } else {
-      return Failure{AsciiError::request_not_supported, "set " + shown(what)};
+      return Failure{AsciiError::request_not_supported, "set " + ascii_excerpt(what)};
     }
     return end();
   }
@@ -319,7 +306,7 @@ class Parser {
     if (auto f = no_numbers(numbers, "help")) return f;
     const std::string topic = lower(tokens_.next().substr(0, kMaxAsciiToken + 1));
     if (!topic.empty() && topic != "datatype" && topic != "lss") {
-      return syntax("help " + shown(topic) + ": expected datatype or lss");
+      return syntax("help " + ascii_excerpt(topic) + ": expected datatype or lss");
     }
     result_.command.text = topic;
     return end();
@@ -351,10 +338,10 @@ class Parser {
     const std::string_view option = tokens_.next();
     constexpr std::string_view kModule = "module=";
     if (option.size() > kMaxAsciiToken || option.substr(0, kModule.size()) != kModule) {
-      return syntax("monitor: expected module=<m>, not " + shown(option));
+      return syntax("monitor: expected module=<m>, not " + ascii_excerpt(option));
     }
     const auto module = parse_ascii_unsigned(option.substr(kModule.size()), 0xFFFFFFFFu);
-    if (!module) return syntax("monitor: module " + shown(option) + ": not a number");
+    if (!module) return syntax("monitor: module " + ascii_excerpt(option) + ": not a number");
     result_.command.module = static_cast<std::uint32_t>(*module);
     return end();
   }
@@ -385,7 +372,7 @@ class Parser {
         cmd.args.push_back(value);
       }
     } else if (word != "lss_store" && word != "lss_get_node") {
-      return Failure{AsciiError::request_not_supported, "LSS command " + shown(word)};
+      return Failure{AsciiError::request_not_supported, "LSS command " + ascii_excerpt(word)};
     }
     return end();
   }

@@ -44,23 +44,6 @@ std::string_view trim(std::string_view text) {
   return text;
 }
 
-// Printable for an error message: at most 32 characters, other bytes as \xNN.
-std::string quoted(std::string_view text) {
-  std::string out = "\"";
-  for (std::size_t i = 0; i < text.size() && i < 32; ++i) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    if (c >= 0x20 && c < 0x7F && c != '"') {
-      out += static_cast<char>(c);
-    } else {
-      char buf[8];
-      std::snprintf(buf, sizeof buf, "\\x%02X", c);
-      out += buf;
-    }
-  }
-  if (text.size() > 32) out += "...";
-  return out + "\"";
-}
-
 AsciiValue fail(std::string error) {
   return AsciiValue{{}, std::move(error)};
 }
@@ -85,12 +68,14 @@ AsciiValue parse_unsigned_value(AsciiType type, std::string_view text) {
   const std::uint64_t max =
       size == 8 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t{1} << (8 * size)) - 1;
   if (!text.empty() && (text.front() == '-' || text.front() == '+')) {
-    return fail("value " + quoted(text) + ": no sign allowed for " + std::string(info(type).name));
+    return fail("value " + ascii_excerpt(text) + ": no sign allowed for " +
+                std::string(info(type).name));
   }
   const auto value = parse_ascii_unsigned(text, std::numeric_limits<std::uint64_t>::max());
-  if (!value) return fail("value " + quoted(text) + ": not a number");
+  if (!value) return fail("value " + ascii_excerpt(text) + ": not a number");
   if (*value > max) {
-    return fail("value " + quoted(text) + " out of range for " + std::string(info(type).name));
+    return fail("value " + ascii_excerpt(text) + " out of range for " +
+                std::string(info(type).name));
   }
   return little_endian(*value, size);
 }
@@ -104,14 +89,15 @@ AsciiValue parse_signed_value(AsciiType type, std::string_view text) {
     digits.remove_prefix(1);
   }
   if (!digits.empty() && (digits.front() == '-' || digits.front() == '+')) {
-    return fail("value " + quoted(text) + ": not a number");
+    return fail("value " + ascii_excerpt(text) + ": not a number");
   }
   const auto magnitude = parse_ascii_unsigned(digits, std::numeric_limits<std::uint64_t>::max());
-  if (!magnitude) return fail("value " + quoted(text) + ": not a number");
+  if (!magnitude) return fail("value " + ascii_excerpt(text) + ": not a number");
   const std::uint64_t max_positive = (std::uint64_t{1} << (8 * size - 1)) - 1;
   const std::uint64_t limit = negative ? max_positive + 1 : max_positive;
   if (*magnitude > limit) {
-    return fail("value " + quoted(text) + " out of range for " + std::string(info(type).name));
+    return fail("value " + ascii_excerpt(text) + " out of range for " +
+                std::string(info(type).name));
   }
   // Two's complement of the magnitude; the store keeps the type's low bytes.
   const std::uint64_t bits = negative ? ~*magnitude + 1 : *magnitude;
@@ -125,15 +111,16 @@ AsciiValue parse_real_value(AsciiType type, std::string_view text) {
   if (first != last && *first == '+') ++first;  // strtod takes a plus sign; from_chars does not
   const auto [end, ec] = std::from_chars(first, last, value);
   if (ec == std::errc::result_out_of_range) {
-    return fail("value " + quoted(text) + " out of range for " + std::string(info(type).name));
+    return fail("value " + ascii_excerpt(text) + " out of range for " +
+                std::string(info(type).name));
   }
   if (ec != std::errc() || end != last || first == last) {
-    return fail("value " + quoted(text) + ": not a number");
+    return fail("value " + ascii_excerpt(text) + ": not a number");
   }
   if (type == AsciiType::r32) {
     const auto narrow = static_cast<float>(value);
     if (std::isinf(narrow) && !std::isinf(value)) {
-      return fail("value " + quoted(text) + " out of range for r32");
+      return fail("value " + ascii_excerpt(text) + " out of range for r32");
     }
     std::uint32_t bits = 0;
     std::memcpy(&bits, &narrow, sizeof bits);
@@ -149,15 +136,17 @@ AsciiValue parse_visible_string(std::string_view text) {
   AsciiValue out;
   if (text.front() != '"') {
     for (char c : text) {
-      if (is_space(c)) return fail("string " + quoted(text) + ": more than one word unquoted");
-      if (c == '"') return fail("string " + quoted(text) + ": quote inside an unquoted word");
+      if (is_space(c))
+        return fail("string " + ascii_excerpt(text) + ": more than one word unquoted");
+      if (c == '"')
+        return fail("string " + ascii_excerpt(text) + ": quote inside an unquoted word");
       out.bytes.push_back(static_cast<std::uint8_t>(c));
     }
     return out;
   }
   std::size_t i = 1;
   for (;; ++i) {
-    if (i >= text.size()) return fail("string " + quoted(text) + ": no closing quote");
+    if (i >= text.size()) return fail("string " + ascii_excerpt(text) + ": no closing quote");
     if (text[i] == '"') {
       if (i + 1 < text.size() && text[i + 1] == '"') {
         out.bytes.push_back('"');
@@ -169,7 +158,7 @@ AsciiValue parse_visible_string(std::string_view text) {
     out.bytes.push_back(static_cast<std::uint8_t>(text[i]));
   }
   if (i + 1 != text.size())
-    return fail("string " + quoted(text) + ": text after the closing quote");
+    return fail("string " + ascii_excerpt(text) + ": text after the closing quote");
   return out;
 }
 
@@ -197,7 +186,7 @@ AsciiValue parse_hex(std::string_view text) {
       if (pending >= 0) out.bytes.push_back(static_cast<std::uint8_t>(pending));
       pending = -1;
     } else {
-      return fail("hex " + quoted(text) + ": " + quoted(std::string_view(&c, 1)) +
+      return fail("hex " + ascii_excerpt(text) + ": " + ascii_excerpt(std::string_view(&c, 1)) +
                   " is not a hex digit");
     }
   }
@@ -260,7 +249,7 @@ AsciiValue parse_ascii_value(AsciiType type, std::string_view text) {
     default:
       break;
   }
-  if (!single_token(text)) return fail("value " + quoted(text) + ": more than one token");
+  if (!single_token(text)) return fail("value " + ascii_excerpt(text) + ": more than one token");
   switch (type) {
     case AsciiType::b:
     case AsciiType::u8:
@@ -284,7 +273,7 @@ AsciiValue parse_ascii_value(AsciiType type, std::string_view text) {
     case AsciiType::us:
     case AsciiType::d: {
       auto bytes = base64_decode(text);
-      if (!bytes) return fail("value " + quoted(text) + ": not base64 (RFC 2045)");
+      if (!bytes) return fail("value " + ascii_excerpt(text) + ": not base64 (RFC 2045)");
       return AsciiValue{std::move(*bytes), {}};
     }
     case AsciiType::vs:
@@ -423,6 +412,22 @@ std::optional<std::vector<std::uint8_t>> base64_decode(std::string_view text) {
     out.push_back(static_cast<std::uint8_t>(word >> 2));
   }
   return out;
+}
+
+std::string ascii_excerpt(std::string_view text) {
+  std::string out = "\"";
+  for (std::size_t i = 0; i < text.size() && i < 32; ++i) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7F && c != '"') {
+      out += static_cast<char>(c);
+    } else {
+      char buf[8];
+      std::snprintf(buf, sizeof buf, "\\x%02X", c);
+      out += buf;
+    }
+  }
+  if (text.size() > 32) out += "...";
+  return out + "\"";
 }
 
 }  // namespace canbridge::canopen

@@ -67,4 +67,7 @@ std::optional<std::vector<std::uint8_t>> base64_decode(std::string_view text);
 // whole token must be the number and no sign is allowed; nullopt when it is not or exceeds `max`.
 std::optional<std::uint64_t> parse_ascii_unsigned(std::string_view token, std::uint64_t max);
 
+// A token quoted for an error message: at most 32 characters, other bytes as \xNN.
+std::string ascii_excerpt(std::string_view text);
+
 }  // namespace canbridge::canopen
