@@ -10,6 +10,15 @@ namespace canbridge::bridge {
 
 namespace {
 
+// What a node is, from its device type (1000h:00) as CiA 301 splits it: the device profile
+// number in the low word ("CiA401"), or profile 0 (a manufacturer's profile, seed 003's qd
+// nodes) with its version in the high word ("mfr-v3"). No spaces: one field of `nodes`.
+std::string device_kind(std::uint32_t device_type) {
+  const std::uint32_t profile = device_type & 0xFFFFu;
+  if (profile != 0) return "CiA" + std::to_string(profile);
+  return "mfr-v" + std::to_string(device_type >> 16);
+}
+
 using canopen::NodeId;
 using canopen::SdoAbort;
 
@@ -321,6 +330,7 @@ void GatewayRemote::answer_nodes(const v1::RemoteRequest& request, TimePoint now
       row.set_local_node(local);
       row.set_surface_node(map_->surface_of(m, local));
       row.set_profile(profile);
+      if (record.device_type) row.set_kind(device_kind(*record.device_type));
       row.set_nmt_state(static_cast<std::uint32_t>(record.state));
       row.set_in_loader(record.loader == LoaderState::in_loader);
       row.set_lost(record.lost);

@@ -119,6 +119,7 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
   // The one branch every frame other than NMT error control (0x700..0x77F) takes, plus one.
   if ((frame.id & ~kNodeBits) != canopen::cob::heartbeat) {
     if ((frame.id & ~kNodeBits) == canopen::cob::emcy) on_emcy(module_index, frame, now);
+    if ((frame.id & ~kNodeBits) == canopen::cob::sdo_tx) on_sdo_answer(module_index, frame);
     return;
   }
   // Extended, remote (a master's node-guarding request) and error frames have flags.
@@ -150,6 +151,23 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
     default:
       return;
   }
+}
+
+void NodeTable::on_sdo_answer(std::size_t module_index, const can::Frame& frame) {
+  // Only an expedited upload answer of 4 bytes (43h) for 1000h:00: the device type.
+  if (!frame.is_standard_data() || frame.len != 8 || frame.data[0] != 0x43 ||
+      frame.data[1] != 0x00 || frame.data[2] != 0x10 || frame.data[3] != 0x00 ||
+      module_index >= modules_.size()) {
+    return;
+  }
+  Module& m = modules_[module_index];
+  const auto local = static_cast<NodeId>(frame.id & kNodeBits);
+  if (local == 0 || local > m.max_node) return;
+  NodeRecord& r = m.slots[local].record;
+  if (!r.known) return;
+  r.device_type =
+      static_cast<std::uint32_t>(frame.data[4] | (frame.data[5] << 8) | (frame.data[6] << 16) |
+                                 (static_cast<std::uint32_t>(frame.data[7]) << 24));
 }
 
 void NodeTable::on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now) {

@@ -56,6 +56,9 @@ struct NodeRecord {
   std::uint16_t last_emcy_code = 0;
   std::uint8_t last_emcy_register = 0;
   std::optional<std::chrono::steady_clock::time_point> last_emcy_at;
+  // The device type (1000h:00) the node gave in an SDO answer someone read it with (a master at
+  // boot, an operator): learnt passively, the gateway never asks the node itself.
+  std::optional<std::uint32_t> device_type;
 };
 
 struct NodeEvent {
@@ -210,6 +213,8 @@ class NodeTable {
   void on_heartbeat(std::size_t module_index, NodeId local, NmtState state, TimePoint now,
                     std::vector<NodeEvent>& out);
   void on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now);
+  // An SDO answer (0x580 + n) carrying 1000h:00: the node's device type (NodeRecord).
+  void on_sdo_answer(std::size_t module_index, const can::Frame& frame);
   void on_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                   std::vector<NodeEvent>& out);
   void on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,

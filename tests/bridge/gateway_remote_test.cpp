@@ -356,6 +356,10 @@ TEST(GatewayRemote, NodesQueryListsTheTableWithHeartbeatAgeAndLastEmcy) {
   Rig rig({node_spec(5), node_spec(6)});
   rig.advance(1500ms);
   rig.from_node(Frame::standard(0x085, {0x10, 0x82, 0x11, 0, 0, 0, 0, 0}));
+  // Device types learnt from answers someone else read (a master at boot): 1000h:00 only.
+  rig.from_node(Frame::standard(0x585, {0x43, 0x00, 0x10, 0x00, 0x91, 0x01, 0x00, 0x00}));
+  rig.from_node(Frame::standard(0x586, {0x43, 0x01, 0x10, 0x00, 0x91, 0x01, 0x00, 0x00}));
+  rig.from_node(Frame::standard(0x586, {0x41, 0x00, 0x10, 0x00, 0x04, 0x00, 0x00, 0x00}));
   rig.advance(200ms);
   v1::RemoteRequest r;
   r.set_request_id(1);
@@ -376,8 +380,16 @@ TEST(GatewayRemote, NodesQueryListsTheTableWithHeartbeatAgeAndLastEmcy) {
   EXPECT_EQ(five.last_emcy_code(), 0x8210u);
   EXPECT_EQ(five.last_emcy_register(), 0x11u);
   EXPECT_EQ(five.last_emcy_age_ms(), 200);
+  EXPECT_EQ(five.kind(), "CiA401");
   EXPECT_EQ(result.nodes(1).local_node(), 6u);
   EXPECT_EQ(result.nodes(1).last_emcy_age_ms(), -1);
+  EXPECT_EQ(result.nodes(1).kind(), "");  // 1001h and a segmented answer say nothing of it
+  // A manufacturer profile (seed 003: profile 0, the version in the high word).
+  rig.from_node(Frame::standard(0x586, {0x43, 0x00, 0x10, 0x00, 0x00, 0x00, 0x03, 0x00}));
+  r.set_request_id(2);
+  rig.request(r);
+  ASSERT_NE(rig.result(2), nullptr);
+  EXPECT_EQ(rig.result(2)->nodes(1).kind(), "mfr-v3");
 }
 
 TEST(GatewayRemote, ARepeatedRequestIdIsNeverRunTwice) {

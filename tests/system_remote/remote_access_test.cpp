@@ -415,6 +415,9 @@ TEST_F(RemoteAccess, NmtCommandsReachTheModuleBus) {
 
 // `nodes`: one line per node of the two modules, fields in the documented order, then OK.
 TEST_F(RemoteAccess, NodesListsEveryNode) {
+  // The gateway learns a node's kind from an answer with its device type (1000h:00), never by
+  // asking itself: read it once, as a master would at boot.
+  const std::string device_type = ask("2 10 read 0x1000 0 u32");
   client_->send("[50] nodes\n");
   const auto lines = client_->lines_until("[50] OK", kEvent);
   ASSERT_FALSE(lines.empty());
@@ -430,6 +433,12 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
     if (!std::regex_match(l, m, row)) continue;
     seen[m[1].str() + "/" + m[3].str()] = m[4].str();
     EXPECT_NE(m[8].str(), "-") << "a beating node has a heartbeat age: " << l;
+    if (m[1].str() == "2" && m[3].str() == "10") {
+      const auto type = std::stoul(device_type);
+      EXPECT_EQ(m[6].str(), (type & 0xFFFFu) ? "CiA" + std::to_string(type & 0xFFFFu)
+                                             : "mfr-v" + std::to_string(type >> 16))
+          << l;
+    }
   }
   const std::map<std::string, std::string> expected = {
       {"2/10", "42"}, {"2/11", "43"}, {"3/1", "5"}, {"3/2", "6"}, {"3/3", "7"}};
