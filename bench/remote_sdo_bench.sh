@@ -160,15 +160,12 @@ stop_bridge() {
 }
 
 val() { grep "^$2=" "$1" | cut -d= -f2- || true; }
-# probe OUT MODE ARGS...: runs the probe; its key=value lines go to OUT. Endpoint modes set the
-# session's sdo_timeout to 60 s: the surface waits for a gateway's answer only that timeout plus
-# answer_slack (5 s), whatever the transfer's size, and a 64 KiB segmented download takes longer
-# than 10 s on the UML guest's module bus.
+# probe OUT MODE ARGS...: runs the probe; its key=value lines go to OUT. Both ways use the same
+# SDO timeout: the surface's wait for a long gateway-run transfer follows its progress reports.
 probe() {
-  local out=$1 t=$timeout_ms
+  local out=$1
   shift
-  [[ $1 == endpoint* ]] && t=60000
-  "$probe" "$@" --timeout-ms $t >"$out" 2>&1 || true
+  "$probe" "$@" --timeout-ms $timeout_ms >"$out" 2>&1 || true
 }
 
 # measure LINK RUN CASE WAY: one measurement, one row in $work/table
