@@ -241,6 +241,9 @@ TEST_F(SurfaceRemoteTest, ConfiguredNetworkNumbersReplaceTheDefault) {
   EXPECT_EQ(nets[2].net, 10u);
   EXPECT_EQ(nets[2].gateway, "gw");
   EXPECT_TRUE(nets[2].connected);
+  // on_10's request is never answered: stopping completes it, while on_10 still exists.
+  remote->stop();
+  EXPECT_TRUE(run_until(io, [&] { return on_10.outcome.has_value(); }));
 }
 
 TEST_F(SurfaceRemoteTest, UnknownNodesAndNetworksAreRefusedAtOnceWithoutARequest) {
