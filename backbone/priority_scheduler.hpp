@@ -2,11 +2,11 @@
 // competes, lowest priority key first and equal keys in arrival order, so a stream (one sender,
 // one COB-ID, ...) never reorders while streams overtake each other. Each lane has its own bound
 // and overflow rule; a push may replace the queued value of its stream (conflation). Pure,
-// header-only, no allocation after construction.
+// header-only; memory grows with what is queued (up to the bounds), not with the bounds, and is
+// given back once the queue has drained after a large backlog.
 #pragma once
 
 #include <algorithm>
-#include <bit>
 #include <cstddef>
 #include <cstdint>
 #include <limits>
@@ -19,16 +19,15 @@ namespace canbridge::backbone {
 
 namespace detail {
 
-// Open-addressing map from stream key to stream, sized at construction for at most `capacity`
-// entries at load <= 1/2, so it never rehashes or allocates (std::unordered_map would allocate a
-// node per queued item).
+// Open-addressing map from stream key to stream at load <= 1/2, doubling when it would pass it
+// (std::unordered_map would allocate a node per queued item). It starts small: a lane bounded at
+// 65,536 items mostly holds a handful of streams.
 class StreamIndex {
  public:
   static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+  static constexpr std::size_t kInitialBuckets = 16;
 
-  explicit StreamIndex(std::size_t capacity)
-      : buckets_(std::bit_ceil(std::max<std::size_t>(capacity * 2, 2))),
-        mask_(buckets_.size() - 1) {}
+  StreamIndex() : buckets_(kInitialBuckets), mask_(kInitialBuckets - 1) {}
 
   std::uint32_t find(std::uint64_t key) const {
     for (std::size_t i = home(key);; i = (i + 1) & mask_) {
@@ -37,8 +36,9 @@ class StreamIndex {
     }
   }
 
-  // Precondition: `key` is absent and fewer than `capacity` entries are present.
+  // Precondition: `key` is absent.
   void insert(std::uint64_t key, std::uint32_t slot) {
+    if ((size_ + 1) * 2 > buckets_.size()) grow();
     std::size_t i = home(key);
     while (buckets_[i].slot != kNone) i = (i + 1) & mask_;
     buckets_[i] = Bucket{key, slot};
@@ -67,6 +67,13 @@ class StreamIndex {
   }
 
   std::size_t size() const { return size_; }
+  std::size_t buckets() const { return buckets_.size(); }
+
+  // Back to the initial size, freeing the buckets. Precondition: empty.
+  void shrink() {
+    std::vector<Bucket>(kInitialBuckets).swap(buckets_);
+    mask_ = kInitialBuckets - 1;
+  }
 
  private:
   struct Bucket {
@@ -83,6 +90,16 @@ class StreamIndex {
     key *= 0x94d049bb133111ebULL;
     key ^= key >> 31;
     return static_cast<std::size_t>(key) & mask_;
+  }
+
+  void grow() {
+    std::vector<Bucket> old(buckets_.size() * 2);
+    old.swap(buckets_);
+    mask_ = buckets_.size() - 1;
+    size_ = 0;
+    for (const Bucket& b : old) {
+      if (b.slot != kNone) insert(b.key, b.slot);
+    }
   }
 
   std::vector<Bucket> buckets_;
@@ -143,8 +160,13 @@ class PriorityScheduler {
     std::uint64_t popped = 0;
   };
 
-  // Reserves everything the limits allow up front. Throws std::invalid_argument when the limits
-  // together reach 2^32 - 1 items.
+  // Once the queue drains, storage beyond this many items is given back: a burst that queued
+  // 100,000 frames leaves an idle process small again, while a steady trickle does not
+  // allocate and free on every wake.
+  static constexpr std::size_t kKeptWhenIdle = 1024;
+
+  // Allocates nothing for the items yet: storage grows as they are queued. Throws
+  // std::invalid_argument when the limits together reach 2^32 - 1 items.
   explicit PriorityScheduler(std::vector<Lane> lanes) {
     std::size_t total = 0;
     for (const Lane& lane : lanes) {
@@ -155,11 +177,6 @@ class PriorityScheduler {
     }
     lanes_.reserve(lanes.size());
     for (const Lane& lane : lanes) lanes_.emplace_back(lane);
-    slots_.reserve(total);
-    free_slots_.reserve(total);
-    streams_.reserve(total);  // a stream holds at least one item
-    free_streams_.reserve(total);
-    heap_.reserve(total);
   }
 
   // Queues `item` at the tail of stream `stream` of `lane`. It competes with the other streams'
@@ -217,6 +234,13 @@ class PriorityScheduler {
     return result;
   }
 
+  // The item of stream `stream` in `lane` that leaves first (the oldest queued), or null when the
+  // stream has none: how long it has waited tells whether the link keeps up with the stream.
+  const Item* stream_head(std::size_t lane, std::uint64_t stream) const {
+    const std::uint32_t s = lanes_.at(lane).index.find(stream);
+    return s == kNone ? nullptr : &*slots_[streams_[s].head].item;
+  }
+
   std::optional<Front> front() const {
     if (heap_.empty()) return std::nullopt;
     const Stream& stream = streams_[heap_.front()];
@@ -232,6 +256,7 @@ class PriorityScheduler {
     const std::uint32_t priority = slots_[streams_[s].head].priority;
     Popped popped{remove_head(s), lane, priority};
     ++lanes_[lane].counters.popped;
+    if (heap_.empty()) release_storage_if_large();
     return popped;
   }
 
@@ -268,6 +293,7 @@ class PriorityScheduler {
     std::erase_if(heap_, [this](std::uint32_t s) { return streams_[s].tail == kNone; });
     for (std::size_t pos = 0; pos < heap_.size(); ++pos) move_in_heap(heap_[pos], pos);
     for (std::size_t pos = heap_.size() / 2; pos-- > 0;) sift_down(pos);
+    if (heap_.empty()) release_storage_if_large();
     return removed;
   }
 
@@ -277,6 +303,9 @@ class PriorityScheduler {
   // Streams with at least one item queued; never more than size().
   std::size_t stream_count() const { return heap_.size(); }
   const Counters& counters(std::size_t lane) const { return lanes_.at(lane).counters; }
+  // Items the storage holds room for now (queued or not): grows with the backlog, never with
+  // the bounds alone.
+  std::size_t storage_items() const { return slots_.capacity(); }
 
  private:
   static constexpr std::uint32_t kNone = detail::StreamIndex::kNone;
@@ -303,7 +332,7 @@ class PriorityScheduler {
   };
 
   struct LaneState {
-    explicit LaneState(const Lane& lane) : options(lane), index(lane.max_items) {}
+    explicit LaneState(const Lane& lane) : options(lane) {}
     Lane options;
     detail::StreamIndex index;  // stream key -> stream, for the streams of this lane
     std::size_t size = 0;
@@ -314,7 +343,7 @@ class PriorityScheduler {
 
   std::uint32_t allocate_slot() {
     if (free_slots_.empty()) {
-      slots_.emplace_back();  // within the reservation: never reallocates
+      slots_.emplace_back();  // may reallocate: indices stay valid, references do not
       return static_cast<std::uint32_t>(slots_.size() - 1);
     }
     const std::uint32_t index = free_slots_.back();
@@ -359,6 +388,17 @@ class PriorityScheduler {
     heap_.pop_back();
     if (pos < heap_.size()) restore_heap(pos);
     free_streams_.push_back(s);
+  }
+
+  // Called with nothing queued: every slot and stream is free, so the pools can start over.
+  void release_storage_if_large() {
+    if (slots_.capacity() <= kKeptWhenIdle && streams_.capacity() <= kKeptWhenIdle) return;
+    std::vector<Slot>().swap(slots_);
+    std::vector<std::uint32_t>().swap(free_slots_);
+    std::vector<Stream>().swap(streams_);
+    std::vector<std::uint32_t>().swap(free_streams_);
+    std::vector<std::uint32_t>().swap(heap_);
+    for (LaneState& l : lanes_) l.index.shrink();
   }
 
   // Returns slot `index` to the pool, out of its lane's arrival order (not out of its stream).

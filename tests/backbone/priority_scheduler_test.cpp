@@ -277,6 +277,66 @@ TEST(PriorityScheduler, ZeroLimitsQueueNothing) {
   EXPECT_TRUE(scheduler.empty());
 }
 
+TEST(PriorityScheduler, StreamHeadIsTheOldestQueuedItemOfThatStreamInThatLane) {
+  Scheduler scheduler = two_lanes(8, 8);
+  EXPECT_EQ(scheduler.stream_head(kDropping, 5), nullptr);
+  scheduler.push(kDropping, 5, 2, false, "a");
+  scheduler.push(kDropping, 5, 2, false, "b");
+  scheduler.push(kRefusing, 5, 1, false, "same key, other lane");
+  scheduler.push(kDropping, 6, 0, false, "other stream");
+  ASSERT_NE(scheduler.stream_head(kDropping, 5), nullptr);
+  EXPECT_EQ(*scheduler.stream_head(kDropping, 5), "a");
+  EXPECT_EQ(*scheduler.stream_head(kRefusing, 5), "same key, other lane");
+  EXPECT_EQ(*scheduler.stream_head(kDropping, 6), "other stream");
+  EXPECT_EQ(scheduler.stream_head(kDropping, 7), nullptr);
+  // A conflation changes the newest item, not the head.
+  scheduler.push(kDropping, 5, 2, true, "c");
+  scheduler.push(kDropping, 5, 2, true, "d");
+  EXPECT_EQ(*scheduler.stream_head(kDropping, 5), "a");
+  EXPECT_EQ(drain(scheduler),
+            (std::vector<std::string>{"other stream", "same key, other lane", "a", "b", "d"}));
+  EXPECT_EQ(scheduler.stream_head(kDropping, 5), nullptr);
+}
+
+TEST(PriorityScheduler, StorageGrowsWithTheBacklogNotTheBoundsAndIsGivenBackWhenDrained) {
+  PriorityScheduler<std::uint64_t> scheduler(
+      {{1u << 22, Overflow::refuse}, {1u << 22, Overflow::drop_oldest}});
+  EXPECT_EQ(scheduler.storage_items(), 0u);
+  // 20,000 items in 5,000 streams: each lane's stream index doubles many times on the way.
+  constexpr std::uint64_t kItems = 20000;
+  constexpr std::uint64_t kStreams = 5000;
+  for (std::uint64_t i = 0; i < kItems; ++i) {
+    ASSERT_EQ(scheduler.push(i % 2, i % kStreams, static_cast<std::uint32_t>(i % 7), false, i),
+              Push::queued);
+  }
+  EXPECT_EQ(scheduler.stream_count(), kStreams);
+  EXPECT_GE(scheduler.storage_items(), kItems);
+  for (std::uint64_t s = 0; s < kStreams; ++s) {
+    ASSERT_NE(scheduler.stream_head(s % 2, s), nullptr);
+    EXPECT_EQ(*scheduler.stream_head(s % 2, s), s);  // each stream's first item, found again
+  }
+  // Every stream leaves in its own order after the rehashes.
+  std::vector<std::uint64_t> last(kStreams, kItems);
+  std::uint64_t popped = 0;
+  while (auto p = scheduler.pop()) {
+    const std::uint64_t stream = p->item % kStreams;
+    if (last[stream] != kItems) {
+      ASSERT_GT(p->item, last[stream]);
+    }
+    last[stream] = p->item;
+    ++popped;
+  }
+  EXPECT_EQ(popped, kItems);
+  // Drained after a large backlog: the storage is given back.
+  EXPECT_EQ(scheduler.storage_items(), 0u);
+  // A small backlog keeps its storage: a steady trickle does not allocate on every wake.
+  for (std::uint64_t i = 0; i < 10; ++i) scheduler.push(1, i, 0, false, i);
+  while (scheduler.pop()) {
+  }
+  EXPECT_GE(scheduler.storage_items(), 10u);
+  EXPECT_LE(scheduler.storage_items(), Scheduler::kKeptWhenIdle);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Random operations against an obviously correct model: a vector searched linearly.
 
