@@ -160,8 +160,9 @@ class GatewayEnd {
   }
 
   void produce(backbone::PayloadSink& sink) {
+    const auto now = sink.now();  // one clock reading per top-up, as the roles read per batch
     while (next_ < total_ && outbox_.size() < kOutboxTopUp) {
-      if (!outbox_.push(kModule, workload_frame(next_), {})) break;
+      if (!outbox_.push(kModule, workload_frame(next_), {}, now)) break;
       ++next_;
     }
     outbox_.produce(sink);

@@ -90,11 +90,18 @@ bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
                        const DeliveryOptions& options, Clock::time_point now) {
   const DeliveryClass delivery = classify(frame, options);
   const Lane& lane = lane_of(delivery);
-  const bool replace = lane.conflation == Conflation::always ||
-                       (lane.conflation == Conflation::module_option && options.conflate_pdos);
-  const auto result =
-      queue_.push(static_cast<std::size_t>(delivery), fifo_key(lane, module_id, frame),
-                  priority_of(lane, frame), replace, Entry{module_id, frame, now});
+  const std::size_t lane_index = static_cast<std::size_t>(delivery);
+  const std::uint64_t stream = fifo_key(lane, module_id, frame);
+  const auto link_behind = [&] {
+    if (options_.conflate_after.count() <= 0) return true;
+    const Entry* head = queue_.stream_head(lane_index, stream);
+    return head != nullptr && now - head->born > options_.conflate_after;
+  };
+  const bool replace =
+      lane.conflation == Conflation::always ||
+      (lane.conflation == Conflation::module_option && options.conflate_pdos && link_behind());
+  const auto result = queue_.push(lane_index, stream, priority_of(lane, frame), replace,
+                                  Entry{module_id, frame, now});
   return result != backbone::SchedulerPush::refused;
 }
 

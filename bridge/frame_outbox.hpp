@@ -64,6 +64,11 @@ class FrameOutbox {
     // A reliable frame queued longer than this is never sent (backbone::SessionOptions has the
     // same bound for what was sent and not yet acknowledged). Zero: no limit.
     std::chrono::milliseconds reliable_max_age{0};
+    // Process data of a module that conflates (`conflate_pdos`) is conflated only while the link
+    // is behind that COB-ID: when its oldest queued frame has waited longer than this. Until
+    // then every frame is kept, in order, so a burst the link can carry crosses whole (and in
+    // large batches). Zero: always conflate.
+    std::chrono::milliseconds conflate_after{200};
   };
   using Clock = std::chrono::steady_clock;
   enum class Discard { too_old, peer_restart };
@@ -77,9 +82,10 @@ class FrameOutbox {
   // Queues one frame of `module_id` in the lane of its delivery class (classify(frame,
   // options)). False when the frame was refused (counted): a reliable frame that will not be sent,
   // or a fragment. A frame that displaced an older value is queued (the drop is counted).
-  // `now`: when the frame was read off its bus, for reliable_max_age.
+  // `now`: when the frame was read off its bus, for reliable_max_age and conflate_after; one
+  // reading serves a whole batch read off the bus (a clock read can be a system call).
   bool push(std::uint32_t module_id, const can::Frame& frame, const DeliveryOptions& options,
-            Clock::time_point now = Clock::now());
+            Clock::time_point now);
 
   // Moves queued frames into the session's write, lowest arbitration priority first, as
   // FrameBatch payloads: a run of frames of one module and one reliability per payload.

@@ -7,7 +7,9 @@
 
 #include <cstdint>
 #include <cstdio>
+#include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "backbone/session.hpp"
@@ -122,6 +124,18 @@ constexpr DeliveryOptions kConflate{.conflate_pdos = true};
 constexpr DeliveryOptions kKeep{.conflate_pdos = false};
 constexpr DeliveryOptions kFragments{.conflate_pdos = true, .pdop_fragments = true};
 
+// When the frames of a test were read off their bus: one instant, as one batch read gives them.
+const FrameOutbox::Clock::time_point kNow =
+    FrameOutbox::Clock::time_point{} + std::chrono::hours(1);
+
+// conflate_after 0: the link counts as behind whenever a value is still queued, so frames pushed
+// at one instant conflate (the rule before conflate_after existed).
+FrameOutbox::Options always_conflating() {
+  FrameOutbox::Options options;
+  options.conflate_after = std::chrono::milliseconds(0);
+  return options;
+}
+
 can::Frame extended(std::uint32_t id, std::initializer_list<std::uint8_t> bytes) {
   return can::Frame::make(id, can::FrameFlags::extended, bytes);
 }
@@ -140,7 +154,7 @@ TEST(FrameOutbox, FramesLeaveInCanArbitrationOrder) {
   const can::Frame emcy = can::Frame::standard(0x083, {0x00, 0x10});
   const can::Frame sync = can::Frame::standard(0x080, {});
   for (const auto& f : {heartbeat, sdo, pdo_next, nmt, ext_same_base, pdo, emcy, sync}) {
-    ASSERT_TRUE(outbox.push(kModule, f, kConflate));
+    ASSERT_TRUE(outbox.push(kModule, f, kConflate, kNow));
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -152,9 +166,10 @@ TEST(FrameOutbox, FramesLeaveInCanArbitrationOrder) {
 TEST(FrameOutbox, FramesOfOneCobIdStayInArrivalOrder) {
   FrameOutbox outbox({});
   for (std::uint8_t i = 0; i < 20; ++i) {
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), kConflate));  // reliable
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {i}), kConflate));        // reliable
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), kKeep));            // process
+    ASSERT_TRUE(
+        outbox.push(1, can::Frame::standard(0x585, {0x43, i}), kConflate, kNow));    // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {i}), kConflate, kNow));  // reliable
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x185, {i}), kKeep, kNow));      // process
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -181,11 +196,11 @@ TEST(FrameOutbox, PacketFragmentsLeaveInBusOrderNotArbitrationOrder) {
   }
   const can::Frame other = can::Frame::standard(0x182, {0x22});  // another node's PDO
   for (bool in_order : {false, true}) {
-    FrameOutbox outbox({});
+    FrameOutbox outbox(always_conflating());
     for (const auto& f : fragments) {
-      ASSERT_TRUE(outbox.push(1, f, in_order ? kFragments : kConflate));
+      ASSERT_TRUE(outbox.push(1, f, in_order ? kFragments : kConflate, kNow));
     }
-    ASSERT_TRUE(outbox.push(1, other, kConflate));  // node 2 is no pdop node
+    ASSERT_TRUE(outbox.push(1, other, kConflate, kNow));  // node 2 is no pdop node
     FakeSink sink;
     ASSERT_TRUE(drain(outbox, sink));
     const auto frames = all_frames(decode(sink));
@@ -203,12 +218,12 @@ TEST(FrameOutbox, PacketFragmentsLeaveInBusOrderNotArbitrationOrder) {
 }
 
 TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
-  FrameOutbox conflating({});
+  FrameOutbox conflating(always_conflating());
   for (std::uint8_t v = 1; v <= 5; ++v) {
-    ASSERT_TRUE(conflating.push(1, can::Frame::standard(0x181, {v}), kConflate));
+    ASSERT_TRUE(conflating.push(1, can::Frame::standard(0x181, {v}), kConflate, kNow));
   }
   // Same COB-ID on another module is another signal: not conflated with module 1's.
-  ASSERT_TRUE(conflating.push(2, can::Frame::standard(0x181, {9}), kConflate));
+  ASSERT_TRUE(conflating.push(2, can::Frame::standard(0x181, {9}), kConflate, kNow));
   EXPECT_EQ(conflating.size(), 2u);
   EXPECT_EQ(conflating.counters().conflated, 4u);
   FakeSink sink;
@@ -219,9 +234,9 @@ TEST(FrameOutbox, ConflationKeepsTheLatestProcessValueOnlyWhenAllowed) {
   EXPECT_EQ(batches[0].frames, (std::vector{can::Frame::standard(0x181, {5})}));
   EXPECT_EQ(batches[1].module_id, 2u);
 
-  FrameOutbox keeping({});
+  FrameOutbox keeping(always_conflating());
   for (std::uint8_t v = 1; v <= 5; ++v) {
-    ASSERT_TRUE(keeping.push(1, can::Frame::standard(0x181, {v}), kKeep));
+    ASSERT_TRUE(keeping.push(1, can::Frame::standard(0x181, {v}), kKeep, kNow));
   }
   EXPECT_EQ(keeping.counters().conflated, 0u);
   FakeSink all;
@@ -241,7 +256,7 @@ TEST(FrameOutbox, ReliableFramesAreNeverConflated) {
                                           can::Frame::standard(0x705, {0x00}),
                                           extended(0x1234567, {1}),
                                           extended(0x1234567, {2})};
-  for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, kConflate));
+  for (const auto& f : frames) ASSERT_TRUE(outbox.push(1, f, kConflate, kNow));
   EXPECT_EQ(outbox.size(), frames.size());
   EXPECT_EQ(outbox.counters().conflated, 0u);
   FakeSink sink;
@@ -256,11 +271,11 @@ TEST(FrameOutbox, HeartbeatStatesAreConflatedAndUnreliableWhileBootUpsAreNot) {
   // as a replay (reliable payloads are resent). Boot-ups are events: every one is delivered.
   FrameOutbox outbox({});
   for (std::uint8_t state : {0x7F, 0x05, 0x05, 0x04}) {
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {state}), kKeep));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x705, {state}), kKeep, kNow));
   }
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x706, {0x05}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x706, {0x05}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x707, {0x00}), kKeep, kNow));
   EXPECT_EQ(outbox.counters().conflated, 3u);
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
@@ -283,15 +298,15 @@ TEST(FrameOutbox, WithdrawnSdoRequestsAreNeverSentAndLaterOnesAre) {
   const can::Frame nmt = can::Frame::standard(0x000, {0x01, 0x25});
   // Another withdrawn request behind the master's NMT (not at the head of the master's FIFO).
   const can::Frame old_request_2 = can::Frame::standard(0x626, {0x40, 0x00, 0x10, 0x00, 0, 0, 0});
-  ASSERT_TRUE(outbox.push(1, old_request, kConflate));
-  ASSERT_TRUE(outbox.push(1, nmt, kConflate));
-  ASSERT_TRUE(outbox.push(1, response, kConflate));
-  ASSERT_TRUE(outbox.push(1, old_request_2, kConflate));
+  ASSERT_TRUE(outbox.push(1, old_request, kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, nmt, kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, response, kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, old_request_2, kConflate, kNow));
   outbox.withdraw_queued_sdo_requests();
   EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 2u);
   EXPECT_EQ(outbox.size(), 2u);  // gone at once: the NMT no longer waits behind a request
   const can::Frame new_request = can::Frame::standard(0x625, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0});
-  ASSERT_TRUE(outbox.push(1, new_request, kConflate));
+  ASSERT_TRUE(outbox.push(1, new_request, kConflate, kNow));
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   EXPECT_EQ(all_frames(decode(sink)), (std::vector{nmt, response, new_request}));
@@ -341,8 +356,8 @@ TEST(FrameOutbox, DiscardQueuedDropsEverythingAndReportsTheReliableFrames) {
   });
   const can::Frame reset = can::Frame::standard(0x000, {0x81, 0x25});
   const can::Frame pdo = can::Frame::standard(0x225, {1, 2});
-  ASSERT_TRUE(outbox.push(1, reset, kConflate));
-  ASSERT_TRUE(outbox.push(1, pdo, kConflate));
+  ASSERT_TRUE(outbox.push(1, reset, kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, pdo, kConflate, kNow));
   outbox.discard_queued();
   EXPECT_TRUE(outbox.empty());
   EXPECT_EQ(reported, (std::vector{reset}));
@@ -357,7 +372,8 @@ TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
   const can::Frame request = can::Frame::standard(0x625, {0x23, 0x00, 0x18, 0x01, 1, 2, 3, 4});
   const can::Frame nmt = can::Frame::standard(0x000, {0x82, 0x25});
   const can::Frame emcy = can::Frame::standard(0x0A5, {1, 2});
-  for (const auto& f : {nmt, emcy, request}) ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate));
+  for (const auto& f : {nmt, emcy, request})
+    ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate, kNow));
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   ASSERT_EQ(sink.sent.size(), 1u);
@@ -384,15 +400,15 @@ TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
   options.max_process_frames = 2;
   FrameOutbox outbox(options);
   for (std::uint8_t i = 0; i < 4; ++i) {
-    EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {i}), kConflate));
+    EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {i}), kConflate, kNow));
   }
-  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x585, {4}), kConflate));
+  EXPECT_FALSE(outbox.push(1, can::Frame::standard(0x585, {4}), kConflate, kNow));
   EXPECT_EQ(outbox.counters().reliable_refused, 1u);
   // Process data has its own bound, so a full reliable lane does not block it (and vice versa);
   // a full process lane drops its oldest frame for the newest.
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep));
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), kKeep));
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), kKeep));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep, kNow));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), kKeep, kNow));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), kKeep, kNow));
   const OutboxCounters c = outbox.counters();
   EXPECT_EQ(c.process_dropped, 1u);
   EXPECT_EQ(c.reliable_refused, 1u);
@@ -409,13 +425,13 @@ TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
     if (f.id != 0x585) process_ids.push_back(f.id);
   }
   EXPECT_EQ(process_ids, (std::vector<std::uint32_t>{0x182, 0x183}));
-  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kConflate));
+  EXPECT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kConflate, kNow));
 }
 
 TEST(FrameOutbox, ReliableFramesWaitWhileTheResendBufferIsFull) {
   FrameOutbox outbox({});
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {0x00, 0x10}), kConflate));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x60}), kConflate));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x085, {0x00, 0x10}), kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x60}), kConflate, kNow));
   FakeSink sink;
   sink.reliable_room_ = false;
   for (int write = 0; write < 3; ++write) {
@@ -441,8 +457,10 @@ TEST(FrameOutbox, NoPayloadExceedsTheRoomOfItsWrite) {
     for (int i = 0; i < 300; ++i) {
       const auto v = static_cast<std::uint8_t>(i);
       const auto pdo = static_cast<std::uint32_t>(0x181 + i % 50);
-      if (!outbox.push(1, can::Frame::standard(pdo, {v, v, v, v, v, v, v, v}), kKeep)) return false;
-      if (!outbox.push(2, extended(0x100000u + static_cast<std::uint32_t>(i), {v}), kConflate)) {
+      if (!outbox.push(1, can::Frame::standard(pdo, {v, v, v, v, v, v, v, v}), kKeep, kNow))
+        return false;
+      if (!outbox.push(2, extended(0x100000u + static_cast<std::uint32_t>(i), {v}), kConflate,
+                       kNow)) {
         return false;
       }
     }
@@ -473,14 +491,14 @@ TEST(FrameOutbox, BatchesSplitByModuleAndClass) {
   FrameOutbox outbox({});
   // Arbitration order interleaves modules and classes: 0x181(m1) 0x182(m1) | 0x183(m2) |
   // 0x184(m1) | 0x585(m1, reliable) 0x586(m1, reliable) | 0x705(m2, reliable).
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), kKeep));
-  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {2}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x183, {3}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {4}), kKeep, kNow));
   // SDO and boot-up are reliable whatever the conflate flag says.
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), kKeep));
-  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {0x00}), kKeep));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {5}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x586, {6}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(2, can::Frame::standard(0x705, {0x00}), kKeep, kNow));
   FakeSink sink;
   sink.next_write();
   outbox.produce(sink);  // everything fits one write
@@ -506,7 +524,7 @@ TEST(FrameOutbox, StandardFramesCostAboutTenBytesEach) {
   for (std::size_t i = 0; i < kFrames; ++i) {
     const auto v = static_cast<std::uint8_t>(i);
     const auto id = static_cast<std::uint32_t>(0x181 + i % 0x3FF);  // 0x181..0x57F: PDOs
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(id, {v, 1, 2, 3, 4, 5, 6, 7}), kKeep));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(id, {v, 1, 2, 3, 4, 5, 6, 7}), kKeep, kNow));
   }
   FakeSink sink(16 * 1024);
   ASSERT_TRUE(drain(outbox, sink));
@@ -558,7 +576,7 @@ TEST(FrameOutbox, OneNodesReliableFramesKeepItsOrderWhileNodesFollowArbitration)
                                                                  {emcy_5_reset, "emcy-reset 5"}};
   FrameOutbox outbox({});
   for (const auto& f : {boot_up_5, emcy_3, emcy_5, sdo_3, emcy_5_reset}) {
-    ASSERT_TRUE(outbox.push(1, f, kConflate));
+    ASSERT_TRUE(outbox.push(1, f, kConflate, kNow));
   }
   FakeSink sink;
   sink.next_write();
@@ -574,8 +592,8 @@ TEST(FrameOutbox, NodesOfDifferentModulesAreDifferentSenders) {
   FrameOutbox outbox({});
   const can::Frame boot_up_5 = can::Frame::standard(0x705, {0x00});
   const can::Frame emcy_5 = can::Frame::standard(0x085, {0x00, 0x50, 0x01});
-  ASSERT_TRUE(outbox.push(1, boot_up_5, kConflate));
-  ASSERT_TRUE(outbox.push(2, emcy_5, kConflate));
+  ASSERT_TRUE(outbox.push(1, boot_up_5, kConflate, kNow));
+  ASSERT_TRUE(outbox.push(2, emcy_5, kConflate, kNow));
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   const auto batches = decode(sink);
@@ -597,12 +615,117 @@ TEST(FrameOutbox, TheMastersFramesKeepTheMastersOrder) {
       {request, "request"}, {nmt_start, "nmt"}, {sync, "sync"}, {emcy_1, "emcy 1"}, {lss, "lss"}};
   FrameOutbox outbox({});
   for (const auto& f : {request, nmt_start, sync, emcy_1, lss}) {
-    ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate));
+    ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate, kNow));
   }
   FakeSink sink;
   ASSERT_TRUE(drain(outbox, sink));
   EXPECT_EQ(names(all_frames(decode(sink)), known),
             (std::vector<std::string>{"sync", "emcy 1", "request", "nmt", "lss"}));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Process data conflates only while the link is behind (Options::conflate_after, 200 ms).
+
+using std::chrono::milliseconds;
+
+can::Frame counter_pdo(std::uint32_t id, std::uint32_t n) {
+  return can::Frame::standard(
+      id, {static_cast<std::uint8_t>(n), static_cast<std::uint8_t>(n >> 8), 0, 0, 0, 0, 0, 0});
+}
+
+TEST(FrameOutbox, AYoungBurstOfOneCobIdCrossesWholeInOrderInLargeBatches) {
+  // One TPDO at 20,000 frames/s for 100 ms: its oldest frame never waits 200 ms, so nothing is
+  // conflated, and the frames queued together leave together.
+  FrameOutbox outbox({});
+  constexpr std::uint32_t kFrames = 2000;
+  std::vector<can::Frame> sent;
+  for (std::uint32_t i = 0; i < kFrames; ++i) {
+    sent.push_back(counter_pdo(0x181, i));
+    ASSERT_TRUE(outbox.push(1, sent.back(), kConflate, kNow + std::chrono::microseconds(50 * i)));
+  }
+  EXPECT_EQ(outbox.size(), kFrames);
+  EXPECT_EQ(outbox.counters().conflated, 0u);
+  FakeSink sink;
+  sink.now_ = kNow + milliseconds(100);
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)), sent);
+  EXPECT_LE(outbox.counters().batches_sent, kFrames / 300);  // about 400 frames per 4 KiB batch
+}
+
+TEST(FrameOutbox, OnceTheOldestFrameOfACobIdWaitedPastTheLimitNewValuesConflate) {
+  FrameOutbox outbox({});
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 1), kConflate, kNow));
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 2), kConflate, kNow + milliseconds(100)));
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 3), kConflate, kNow + milliseconds(200)));  // at
+  EXPECT_EQ(outbox.counters().conflated, 0u);
+  // Past the limit: the frames queued in time stay; the newer ones share one entry after them.
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 4), kConflate, kNow + milliseconds(201)));
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 5), kConflate, kNow + milliseconds(230)));
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 6), kConflate, kNow + milliseconds(260)));
+  EXPECT_EQ(outbox.counters().conflated, 2u);
+  EXPECT_EQ(outbox.size(), 4u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)), (std::vector{counter_pdo(0x181, 1), counter_pdo(0x181, 2),
+                                                   counter_pdo(0x181, 3), counter_pdo(0x181, 6)}));
+  // The link caught up: the COB-ID's frames are all kept again.
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 7), kConflate, kNow + milliseconds(300)));
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 8), kConflate, kNow + milliseconds(301)));
+  EXPECT_EQ(outbox.size(), 2u);
+  EXPECT_EQ(outbox.counters().conflated, 2u);
+}
+
+TEST(FrameOutbox, OnlyTheCobIdThatIsBehindConflates) {
+  FrameOutbox outbox({});
+  const auto late = kNow + milliseconds(250);
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, 1), kConflate, kNow));  // waits 250+ ms below
+  ASSERT_TRUE(outbox.push(1, counter_pdo(0x182, 1), kConflate, late));
+  ASSERT_TRUE(outbox.push(2, counter_pdo(0x181, 1), kConflate, late));  // module 2: its own
+  ASSERT_TRUE(outbox.push(3, counter_pdo(0x181, 1), kKeep, kNow));      // keeps whatever the age
+  for (std::uint32_t v = 2; v <= 4; ++v) {
+    const auto at = late + milliseconds(v);
+    ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, v), kConflate, at));
+    ASSERT_TRUE(outbox.push(1, counter_pdo(0x182, v), kConflate, at));
+    ASSERT_TRUE(outbox.push(2, counter_pdo(0x181, v), kConflate, at));
+    ASSERT_TRUE(outbox.push(3, counter_pdo(0x181, v), kKeep, at));
+  }
+  EXPECT_EQ(outbox.counters().conflated, 2u);  // module 1's 0x181: values 3 and 4 into 2
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  std::map<std::pair<std::uint32_t, std::uint32_t>, std::vector<std::uint8_t>> values;
+  for (const auto& b : decode(sink)) {
+    for (const auto& f : b.frames) values[{b.module_id, f.id}].push_back(f.data[0]);
+  }
+  EXPECT_EQ(values[std::pair(1u, 0x181u)], (std::vector<std::uint8_t>{1, 4}));
+  EXPECT_EQ(values[std::pair(1u, 0x182u)], (std::vector<std::uint8_t>{1, 2, 3, 4}));
+  EXPECT_EQ(values[std::pair(2u, 0x181u)], (std::vector<std::uint8_t>{1, 2, 3, 4}));
+  EXPECT_EQ(values[std::pair(3u, 0x181u)], (std::vector<std::uint8_t>{1, 2, 3, 4}));
+}
+
+TEST(FrameOutbox, ConflateAfterZeroConflatesEveryQueuedValue) {
+  FrameOutbox outbox(always_conflating());
+  for (std::uint32_t v = 1; v <= 5; ++v) {
+    ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, v), kConflate, kNow));
+  }
+  EXPECT_EQ(outbox.size(), 1u);
+  EXPECT_EQ(outbox.counters().conflated, 4u);
+}
+
+TEST(FrameOutbox, AFullProcessLaneDropsTheOldestOfAYoungBurst) {
+  FrameOutbox::Options options;
+  options.max_process_frames = 3;
+  FrameOutbox outbox(options);
+  for (std::uint32_t v = 1; v <= 5; ++v) {
+    ASSERT_TRUE(outbox.push(1, counter_pdo(0x181, v), kConflate, kNow + milliseconds(v)));
+  }
+  const auto lane = outbox.counters().lanes[static_cast<std::size_t>(DeliveryClass::process_data)];
+  EXPECT_EQ(lane.conflated, 0u);
+  EXPECT_EQ(lane.dropped_oldest, 2u);
+  EXPECT_EQ(outbox.counters().process_dropped, 2u);
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  EXPECT_EQ(all_frames(decode(sink)),
+            (std::vector{counter_pdo(0x181, 3), counter_pdo(0x181, 4), counter_pdo(0x181, 5)}));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -612,10 +735,11 @@ TEST(FrameOutbox, AFullLatestValueLaneDropsTheOldestValue) {
   FrameOutbox::Options options;
   options.max_latest_values = 2;
   FrameOutbox outbox(options);
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x701, {0x05}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x702, {0x05}), kKeep));
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x701, {0x04}), kKeep));  // replaces, in place
-  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x703, {0x7F}), kKeep));  // drops node 1's
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x701, {0x05}), kKeep, kNow));
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x702, {0x05}), kKeep, kNow));
+  ASSERT_TRUE(
+      outbox.push(1, can::Frame::standard(0x701, {0x04}), kKeep, kNow));  // replaces, in place
+  ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x703, {0x7F}), kKeep, kNow));  // drops node 1's
   const auto lane = outbox.counters().lanes[static_cast<std::size_t>(DeliveryClass::latest_value)];
   EXPECT_EQ(lane.conflated, 1u);
   EXPECT_EQ(lane.dropped_oldest, 1u);
@@ -632,14 +756,15 @@ TEST(FrameOutbox, AFullLatestValueLaneDropsTheOldestValue) {
 
 TEST(FrameOutbox, AFullProcessLaneDropsTheOldestWhetherOrNotItConflates) {
   for (const DeliveryOptions& options : {kKeep, kConflate}) {
-    FrameOutbox::Options bounds;
+    FrameOutbox::Options bounds = always_conflating();
     bounds.max_process_frames = 3;
     FrameOutbox outbox(bounds);
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), options));
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), options));
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {2}), options));  // conflated or kept
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), options));
-    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {1}), options));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181, {1}), options, kNow));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x182, {1}), options, kNow));
+    ASSERT_TRUE(
+        outbox.push(1, can::Frame::standard(0x181, {2}), options, kNow));  // conflated or kept
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x183, {1}), options, kNow));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x184, {1}), options, kNow));
     const auto lane =
         outbox.counters().lanes[static_cast<std::size_t>(DeliveryClass::process_data)];
     FakeSink sink;
@@ -666,9 +791,10 @@ TEST(FrameOutbox, AFullFragmentLaneRefusesNewFragments) {
   const can::Frame f0 = can::Frame::standard(0x1A1, {0, 1, 2, 3, 4, 5, 6, 7});
   const can::Frame f1 = can::Frame::standard(0x1E1, {1, 1, 2, 3, 4, 5, 6, 7});
   const can::Frame f2 = can::Frame::standard(0x1A1, {2, 1, 2, 3, 4, 5, 6, 7});
-  EXPECT_TRUE(outbox.push(1, f0, kFragments));
-  EXPECT_TRUE(outbox.push(1, f1, kFragments));
-  EXPECT_FALSE(outbox.push(1, f2, kFragments));  // an older fragment stays: its packet is intact
+  EXPECT_TRUE(outbox.push(1, f0, kFragments, kNow));
+  EXPECT_TRUE(outbox.push(1, f1, kFragments, kNow));
+  EXPECT_FALSE(
+      outbox.push(1, f2, kFragments, kNow));  // an older fragment stays: its packet is intact
   const auto c = outbox.counters();
   EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::ordered_fragment)].refused, 1u);
   EXPECT_EQ(c.lanes[static_cast<std::size_t>(DeliveryClass::ordered_fragment)].conflated, 0u);
@@ -680,11 +806,11 @@ TEST(FrameOutbox, AFullFragmentLaneRefusesNewFragments) {
 }
 
 TEST(FrameOutbox, LaneCountersAddUpAcrossOutboxesAndShowInOneSummary) {
-  FrameOutbox a({});
-  FrameOutbox b({});
-  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {1}), kConflate));
-  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {2}), kConflate));
-  ASSERT_TRUE(b.push(1, can::Frame::standard(0x585, {1}), kConflate));
+  FrameOutbox a(always_conflating());
+  FrameOutbox b(always_conflating());
+  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {1}), kConflate, kNow));
+  ASSERT_TRUE(a.push(1, can::Frame::standard(0x181, {2}), kConflate, kNow));
+  ASSERT_TRUE(b.push(1, can::Frame::standard(0x585, {1}), kConflate, kNow));
   OutboxCounters sum;
   sum += a.counters();
   sum += b.counters();
@@ -715,10 +841,10 @@ TEST(FrameOutbox, UnreliableBatchesCarryTheRunningCountOfProcessFramesSent) {
   FakeSink sink;
   for (std::uint8_t i = 0; i < 60; ++i) {
     // Process data, not conflated (every frame counts), with some SDO responses among it.
-    ASSERT_TRUE(
-        outbox.push(1, can::Frame::standard(0x181 + (i % 20), {i, i, i, i}), DeliveryOptions{}));
+    ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x181 + (i % 20), {i, i, i, i}),
+                            DeliveryOptions{}, kNow));
     if (i % 10 == 0) {
-      ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), DeliveryOptions{}));
+      ASSERT_TRUE(outbox.push(1, can::Frame::standard(0x585, {0x43, i}), DeliveryOptions{}, kNow));
     }
   }
   ASSERT_TRUE(drain(outbox, sink));
