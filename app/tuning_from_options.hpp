@@ -22,6 +22,7 @@ inline BackboneTuning make_tuning(const config::SessionTuning& t) {
   out.session.max_write_bytes = t.max_write_bytes;
   out.outbox.max_reliable_frames = t.queue_reliable_frames;
   out.outbox.max_process_frames = t.queue_process_frames;
+  out.outbox.conflate_after = t.conflate_after;
   // One batch never exceeds a write, nor a quarter of the resend buffer (so it always fits).
   out.outbox.max_batch_bytes = std::max<std::size_t>(
       64, std::min({t.max_write_bytes, t.resend_buffer_bytes / 4, std::size_t{4096}}));

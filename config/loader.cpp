@@ -134,6 +134,9 @@ class Reader : public YamlReader {
         out.*c.field = static_cast<std::size_t>(*v);
       }
     }
+    if (auto after = backbone_ms(backbone, "conflate_after_ms", 0, 60000)) {
+      out.conflate_after = *after;
+    }
     read_tcp_framing(backbone, out);
   }
 
@@ -561,7 +564,7 @@ void read_gateway_backbone(Reader& in, const YAML::Node& root, GatewayOptions& o
                {"connect", "serial", "auth", "reconnect_min_ms", "reconnect_max_ms", "keepalive_ms",
                 "dead_after_ms", "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages",
                 "resend_buffer_bytes", "max_write_bytes", "queue_reliable_frames",
-                "queue_process_frames", "tcp_framing"});
+                "queue_process_frames", "conflate_after_ms", "tcp_framing"});
   check_one_transport(in, root, backbone);
   read_gateway_link(in, backbone, out);
   in.session_tuning(backbone, out.session);
@@ -633,11 +636,11 @@ void read_surface_backbone(Reader& in, const YAML::Node& root, SurfaceOptions& o
     return in.problem(backbone, "backbone",
                       "must be a mapping with 'listen: host:port' (TCP), 'serial:' lines, or both");
   }
-  in.only_keys(
-      backbone, "backbone",
-      {"listen", "serial", "auth", "admission", "conflate_pdos", "keepalive_ms", "dead_after_ms",
-       "retransmit_ms", "reliable_max_age_ms", "resend_buffer_messages", "resend_buffer_bytes",
-       "max_write_bytes", "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
+  in.only_keys(backbone, "backbone",
+               {"listen", "serial", "auth", "admission", "conflate_pdos", "conflate_after_ms",
+                "keepalive_ms", "dead_after_ms", "retransmit_ms", "reliable_max_age_ms",
+                "resend_buffer_messages", "resend_buffer_bytes", "max_write_bytes",
+                "queue_reliable_frames", "queue_process_frames", "tcp_framing"});
   // An empty list ("serial: []") reaches no gateway either.
   const YAML::Node lines = backbone["serial"];
   if (!key_of(backbone, "listen") && (!lines || (lines.IsSequence() && lines.size() == 0))) {

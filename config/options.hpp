@@ -124,6 +124,10 @@ struct SessionTuning {
   // queue refuses, counted and reported); process data is conflated or dropped.
   std::size_t queue_reliable_frames = 1u << 16;
   std::size_t queue_process_frames = 1u << 14;
+  // Process data that may be conflated (`conflate_pdos`) is conflated only once the oldest queued
+  // frame of its COB-ID has waited this long: the link has fallen behind. A burst the link can
+  // carry crosses whole, in order. 0: conflate whenever a value is still queued.
+  std::chrono::milliseconds conflate_after{200};
   // COBS + CRC-32C framing on TCP links too, for a TCP path that can corrupt bytes (a serial-to-
   // Ethernet converter, a radio bridge). Both ends must agree.
   bool tcp_crc_framing = false;

@@ -41,6 +41,7 @@ void expect_default_session(const SessionTuning& s) {
   EXPECT_EQ(s.max_write_bytes, d.max_write_bytes);
   EXPECT_EQ(s.queue_reliable_frames, d.queue_reliable_frames);
   EXPECT_EQ(s.queue_process_frames, d.queue_process_frames);
+  EXPECT_EQ(s.conflate_after, d.conflate_after);
 }
 
 // The samples show every pdop key at its default, like the session keys.
@@ -297,6 +298,7 @@ TEST(Config, SerialGatewayLoads) {
   EXPECT_EQ(g.session.max_write_bytes, 512u);
   EXPECT_EQ(g.session.queue_reliable_frames, 4096u);
   EXPECT_EQ(g.session.queue_process_frames, 1024u);
+  EXPECT_EQ(g.session.conflate_after, std::chrono::milliseconds(2000));
   ASSERT_EQ(g.modules.size(), 2u);
   EXPECT_TRUE(g.modules[0].conflate_pdos);
   EXPECT_FALSE(g.modules[1].conflate_pdos);
@@ -313,6 +315,7 @@ TEST(Config, SurfaceWithListenerAndTwoSerialLinesLoads) {
   EXPECT_EQ(s.serial[1].baud, 921600u);
   EXPECT_TRUE(s.serial[1].hardware_flow_control);
   EXPECT_FALSE(s.conflate_pdos);
+  EXPECT_EQ(s.session.conflate_after, std::chrono::milliseconds(0));  // 0 is valid: always
   EXPECT_EQ(s.session.keepalive, std::chrono::milliseconds(250));
   EXPECT_EQ(s.session.dead_after, std::chrono::milliseconds(1000));
   EXPECT_EQ(s.session.max_write_bytes, 512u);
@@ -386,7 +389,11 @@ INSTANTIATE_TEST_SUITE_P(
         BadCase{"gateway_conflate_not_bool.yaml", 8, "modules[0].conflate_pdos",
                 "must be true or false"},
         BadCase{"surface_conflate_not_bool.yaml", 6, "backbone.conflate_pdos",
-                "must be true or false"}),
+                "must be true or false"},
+        BadCase{"gateway_conflate_after_too_long.yaml", 6, "backbone.conflate_after_ms",
+                "60001 is out of range 0..60000"},
+        BadCase{"surface_conflate_after_negative.yaml", 7, "backbone.conflate_after_ms",
+                "-1 is out of range 0..60000"}),
     bad_case_name);
 
 class BadPdopFile : public ::testing::TestWithParam<BadCase> {};
