@@ -59,9 +59,9 @@ class FrameBatchBuilder {
   bool have_last_ = false;
   std::uint16_t last_word_ = 0;
   std::uint32_t last_can_id_ = 0;
-  std::size_t words_ = 0;       // head words in the batch
-  std::size_t run_base_ = 0;    // the word after the latest run's word: where the next gap counts
-  bool last_in_run_ = false;    // the latest word already has a head_runs pair (the last one)
+  std::size_t words_ = 0;     // head words in the batch
+  std::size_t run_base_ = 0;  // the word after the latest run's word: where the next gap counts
+  bool last_in_run_ = false;  // the latest word already has a head_runs pair (the last one)
 };
 
 // Why a received FrameBatch was refused (the whole batch is dropped and counted).

@@ -294,7 +294,7 @@ TEST(FrameBatchCodec, RoundTripsThousandsOfRandomBatches) {
   RecordProperty("frames_checked", std::to_string(frames_checked));
 }
 
-// --- Head runs (protocol 2.6) ---------------------------------------------------------------------
+// --- Head runs (protocol 2.6) -----------------------------------------------------------------
 
 // `frames` with each frame repeated 1..4 times (runs of equal frames apart from the payload and
 // timestamp), as a backlog of few COB-IDs leaves the outbox.
@@ -316,23 +316,28 @@ TEST(FrameBatchHeadRuns, WritesTheDocumentedRunLayout) {
   const Frame ext = Frame::make(0x1234567, FrameFlags::extended, {0x01, 0x02});
   const Frame other_ext = Frame::make(0x1234568, FrameFlags::extended, {0x03, 0x04});
   const Frame rtr = frame(0x7FF, FrameFlags::remote, 8);
-  const std::vector<Frame> frames{
-      Frame::standard(0x181, {1}), Frame::standard(0x181, {2}), Frame::standard(0x181, {3}),
-      Frame::standard(0x182, {4}),                     // word 1: one frame
-      ext,                         ext, other_ext,     // words 2 (run of 2) and 3: ids differ
-      rtr,                         rtr,                // word 4, a run of 2 remote frames
-      Frame::standard(0x181, {5}),                     // word 5: equal to word 0, not adjacent
-  };
+  // Word 0: a run of three; word 1: one frame; words 2 (a run of two) and 3: extended ids that
+  // differ; word 4: a run of two remote frames; word 5: equal to word 0, but not adjacent.
+  const std::vector<Frame> frames{Frame::standard(0x181, {1}),
+                                  Frame::standard(0x181, {2}),
+                                  Frame::standard(0x181, {3}),
+                                  Frame::standard(0x182, {4}),
+                                  ext,
+                                  ext,
+                                  other_ext,
+                                  rtr,
+                                  rtr,
+                                  Frame::standard(0x181, {5})};
   const v1::FrameBatch batch = build(frames, false, 9, true);
-  EXPECT_EQ(batch.head(), head(0x0981) + head(0x0982) + head(0x9000) + head(0x9000) +
-                              head(0xC000) + head(0x0981));
+  EXPECT_EQ(batch.head(), head(0x0981) + head(0x0982) + head(0x9000) + head(0x9000) + head(0xC000) +
+                              head(0x0981));
   // (gap, repeats): word 0 + 2 more; word 2 (gap 2 after word 0) + 1; word 4 (gap 2) + 1.
   EXPECT_EQ(std::vector<std::uint32_t>(batch.head_runs().begin(), batch.head_runs().end()),
             (std::vector<std::uint32_t>{1, 2, 2, 1, 2, 1}));
   // One escaped entry per word, not per frame.
-  EXPECT_EQ(std::vector<std::uint32_t>(batch.escaped_can_id().begin(),
-                                       batch.escaped_can_id().end()),
-            (std::vector<std::uint32_t>{0x81234567u, 0x81234568u, 0x400007FFu}));
+  EXPECT_EQ(
+      std::vector<std::uint32_t>(batch.escaped_can_id().begin(), batch.escaped_can_id().end()),
+      (std::vector<std::uint32_t>{0x81234567u, 0x81234568u, 0x400007FFu}));
   EXPECT_EQ(batch.data(), std::string("\x01\x02\x03\x04\x01\x02\x01\x02\x03\x04\x05"));
 
   const auto out = decode_over_wire(batch);
@@ -580,7 +585,9 @@ v1::FrameBatch good_runs() {
   b.add_head_runs(2);
   b.add_head_runs(1);  // word 1
   b.add_head_runs(1);
-  b.set_data("ababab" "cc");
+  b.set_data(
+      "ababab"
+      "cc");
   return b;
 }
 
@@ -611,7 +618,7 @@ TEST(FrameBatchCodecRefuses, RunsThatAreNotPairsOrPointNowhere) {
   past_end.set_head_runs(2, 0xFFFFFFFF);  // would wrap a 32-bit index back into range
   EXPECT_EQ(refuse(past_end), BatchError::bad_run);
   past_end.set_head_runs(2, 2);  // word 2: the remote frame, a run of 2 now
-  past_end.set_data("abababc");   // and the extended frame a single one
+  past_end.set_data("abababc");  // and the extended frame a single one
   EXPECT_EQ(refuse(past_end), BatchError::none);
 
   v1::FrameBatch no_repeats = good_runs();
@@ -664,7 +671,8 @@ TEST(FrameBatchCodecRefuses, RunColumnsThatDoNotCountTheRepeats) {
   EXPECT_EQ(refuse(per_frame_escapes), BatchError::escape_mismatch);
 
   v1::FrameBatch late_bad_stamp = good_runs();  // the bad timestamp is a repeat's
-  for (std::int64_t d : std::vector<std::int64_t>{0, 0, std::numeric_limits<std::int64_t>::max(), 0, 0, 0}) {
+  for (std::int64_t d :
+       std::vector<std::int64_t>{0, 0, std::numeric_limits<std::int64_t>::max(), 0, 0, 0}) {
     late_bad_stamp.add_timestamp_delta_us(d);
   }
   EXPECT_EQ(refuse(late_bad_stamp), BatchError::bad_timestamp);
@@ -712,8 +720,9 @@ TEST(FrameBatchCodecRefuses, RandomlyCorruptedBatchesCleanly) {
       case 6:
         if (b.head_runs_size() != 0) {
           const int i = static_cast<int>(rng() % b.head_runs_size());
-          b.set_head_runs(i, rng() % 3 == 0 ? static_cast<std::uint32_t>(rng())
-                                            : b.head_runs(i) + static_cast<std::uint32_t>(rng() % 3) - 1);
+          b.set_head_runs(i, rng() % 3 == 0
+                                 ? static_cast<std::uint32_t>(rng())
+                                 : b.head_runs(i) + static_cast<std::uint32_t>(rng() % 3) - 1);
         }
         break;
       case 7:
