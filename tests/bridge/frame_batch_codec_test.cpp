@@ -8,8 +8,11 @@
 #include <limits>
 #include <random>
 #include <set>
+#include <span>
 #include <string>
 #include <vector>
+
+#include "bridge/frame_outbox.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -375,6 +378,51 @@ TEST(FrameBatchHeadRuns, SetHeadRunsSwitchesTheFormBetweenBatches) {
   EXPECT_EQ(batch.head_runs_size(), 0);
   EXPECT_EQ(batch.head().size(), 8u);
   EXPECT_EQ(decode_over_wire(batch), frames);
+}
+
+// Takes every payload a FrameOutbox produces (the outbox's own tests have the full fake).
+class CollectingSink : public backbone::PayloadSink {
+ public:
+  std::size_t room() const override { return room_; }
+  bool reliable_room(std::size_t) const override { return true; }
+  void send_reliable(std::string payload) override { take(payload); }
+  void send_unreliable(std::span<const std::uint8_t> p) override {
+    take(std::string(reinterpret_cast<const char*>(p.data()), p.size()));
+  }
+  std::vector<v1::FrameBatch> batches;
+
+ private:
+  void take(const std::string& payload) {
+    room_ = payload.size() < room_ ? room_ - payload.size() : 0;
+    v1::Payload parsed;
+    EXPECT_TRUE(parsed.ParseFromString(payload));
+    batches.push_back(parsed.frames());
+  }
+  std::size_t room_ = 4096;
+};
+
+// What the gateway and the surface do on every link: head runs only when the peer's hello says
+// it decodes them; the same backlog crosses in either form.
+TEST(FrameBatchHeadRuns, TheOutboxBuildsTheFormItsPeerDecodes) {
+  for (const bool runs : {false, true}) {
+    SCOPED_TRACE(runs ? "peer at 2.6" : "peer at 2.5");
+    FrameOutbox outbox(FrameOutbox::Options{});
+    outbox.set_head_runs(runs);
+    std::vector<Frame> backlog;
+    for (std::uint8_t i = 0; i < 20; ++i) {
+      backlog.push_back(Frame::standard(0x081, {i, 1, 2, 3, 4, 5, 6, 7}));  // EMCY: reliable
+      ASSERT_TRUE(outbox.push(1, backlog.back(), {}));
+    }
+    CollectingSink sink;
+    outbox.produce(sink);
+    ASSERT_EQ(sink.batches.size(), 1u);
+    const v1::FrameBatch& batch = sink.batches.front();
+    EXPECT_EQ(batch.head_runs_size(), runs ? 2 : 0);
+    EXPECT_EQ(batch.head().size(), runs ? 2u : 40u);
+    std::vector<Frame> out;
+    ASSERT_EQ(decode_frame_batch(batch, out), BatchError::none);
+    EXPECT_EQ(out, backlog);
+  }
 }
 
 TEST(FrameBatchHeadRuns, ABurstOfOneCobIdCostsItsPayloadBytes) {
