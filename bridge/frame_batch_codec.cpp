@@ -121,20 +121,47 @@ void FrameBatchBuilder::start(v1::FrameBatch& batch, std::uint32_t module_id) {
   last_in_run_ = false;
 }
 
-void FrameBatchBuilder::append(v1::FrameBatch& batch, const can::Frame& frame) {
+namespace {
+// A frame's head word and (when it escapes) SocketCAN can_id, clamped as append() documents.
+struct Head {
+  std::uint16_t word;
+  bool escaped;
+  std::uint32_t can_id;
+  std::uint8_t len;
+};
+
+Head head_of(const can::Frame& frame) {
   // Clamped so a malformed Frame never reads past frame.data nor poisons the receiver's batch.
   const auto len = static_cast<std::uint8_t>(std::min<std::size_t>(frame.len, can::kMaxPayload));
-  auto word = static_cast<std::uint16_t>(len << kHeadLengthShift);
-  const bool escaped = frame.is_extended() || frame.is_remote();
-  std::uint32_t can_id = 0;
-  if (escaped) {
-    can_id = frame.id & (frame.is_extended() ? kIdMask : can::kMaxStandardId);
-    if (frame.is_extended()) can_id |= kEffFlag;
-    if (frame.is_remote()) can_id |= kRtrFlag;
-    word |= kHeadEscape;
+  Head h{static_cast<std::uint16_t>(len << kHeadLengthShift),
+         frame.is_extended() || frame.is_remote(), 0, len};
+  if (h.escaped) {
+    h.can_id = frame.id & (frame.is_extended() ? kIdMask : can::kMaxStandardId);
+    if (frame.is_extended()) h.can_id |= kEffFlag;
+    if (frame.is_remote()) h.can_id |= kRtrFlag;
+    h.word |= kHeadEscape;
   } else {
-    word |= static_cast<std::uint16_t>(frame.id & kHeadIdMask);
+    h.word |= static_cast<std::uint16_t>(frame.id & kHeadIdMask);
   }
+  return h;
+}
+}  // namespace
+
+std::size_t FrameBatchBuilder::cost(const can::Frame& frame) const {
+  const Head h = head_of(frame);
+  const std::size_t payload = frame.is_remote() ? 0 : h.len;
+  if (runs_ && have_last_ && h.word == last_word_ && (!h.escaped || h.can_id == last_can_id_)) {
+    return payload + (last_in_run_ ? 0 : 2);  // a new pair: gap and repeats, one byte each
+  }
+  return kHeadBytes + payload + (h.escaped ? 5 : 0);
+}
+
+void FrameBatchBuilder::append(v1::FrameBatch& batch, const can::Frame& frame) {
+  const Head h = head_of(frame);
+  const auto len = h.len;
+  const auto word = h.word;
+  const bool escaped = h.escaped;
+  const std::uint32_t can_id = h.can_id;
   if (runs_ && have_last_ && word == last_word_ && (!escaped || can_id == last_can_id_)) {
     // The same head again: one more repeat of the latest word, which gets a pair if it has none.
     auto& runs = *batch.mutable_head_runs();

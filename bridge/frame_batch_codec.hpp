@@ -47,6 +47,10 @@ class FrameBatchBuilder {
   void start(v1::FrameBatch& batch, std::uint32_t module_id);
   void append(v1::FrameBatch& batch, const can::Frame& frame);
 
+  // About the bytes append(batch, frame) would add to the batch being built (an upper bound
+  // within a byte or two), so a caller filling a byte budget fills it with what runs save.
+  std::size_t cost(const can::Frame& frame) const;
+
   // Between batches: a batch must not hold runs when its receiver may be older.
   void set_head_runs(bool on) { runs_ = on; }
   bool head_runs() const { return runs_; }
