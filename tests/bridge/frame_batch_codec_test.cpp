@@ -425,6 +425,26 @@ TEST(FrameBatchHeadRuns, TheOutboxBuildsTheFormItsPeerDecodes) {
   }
 }
 
+TEST(FrameBatchHeadRuns, CostIsWhatAppendAddsToTheColumns) {
+  std::mt19937 rng(7);
+  for (const bool runs : {false, true}) {
+    v1::FrameBatch batch;
+    FrameBatchBuilder builder(false, runs);
+    builder.start(batch, 1);
+    std::size_t costs = 0;
+    for (const Frame& f : with_repeats(rng, random_frames(rng, 200, false))) {
+      costs += builder.cost(f);
+      builder.append(batch, f);
+    }
+    // head, data, escaped ids (at most 5 bytes each) and pairs (1-byte varints here).
+    std::size_t columns = batch.head().size() + batch.data().size() +
+                          5 * static_cast<std::size_t>(batch.escaped_can_id_size());
+    for (std::uint32_t v : batch.head_runs()) columns += v < 128 ? 1 : 2;
+    EXPECT_GE(costs + 8, columns) << runs;
+    EXPECT_LE(costs, columns + 8) << runs;
+  }
+}
+
 TEST(FrameBatchHeadRuns, ABurstOfOneCobIdCostsItsPayloadBytes) {
   constexpr int kFrames = 47;  // what a 512-byte batch of the serial sample config holds
   v1::Payload payload;
