@@ -140,7 +140,7 @@ class GatewayEnd {
         stream_(options_, backbone::PeerStream::Handlers{
                               [this](backbone::PayloadSink& sink) { produce(sink); },
                               [](std::span<const std::uint8_t>, bool) {},
-                              [this](const Hello&) { on_up(); }, nullptr}) {}
+                              [this](const Hello& peer) { on_up(peer); }, nullptr}) {}
 
   void attach(std::shared_ptr<backbone::MessageLink> link) {
     auto session =
@@ -155,7 +155,9 @@ class GatewayEnd {
   const bridge::FrameOutbox& outbox() const { return outbox_; }
 
  private:
-  void on_up() {
+  void on_up(const Hello& peer) {
+    // As the gateway does: head runs only to a peer that decodes them.
+    outbox_.set_head_runs(peer.protocol_minor() >= bridge::kHeadRunsMinor);
     if (!first_up) first_up = Clock::now();
   }
 

@@ -58,6 +58,50 @@ BatchError parse_head(std::uint16_t word, const v1::FrameBatch& batch, int& next
   return BatchError::none;
 }
 
+// Checks head_runs against the `words` head words and counts the frames they stand for.
+BatchError count_frames(const v1::FrameBatch& batch, std::size_t words, std::size_t& frames) {
+  if (words > kMaxBatchFrames) return BatchError::too_many_frames;
+  const auto& runs = batch.head_runs();
+  if (runs.size() % 2 != 0) return BatchError::bad_run;
+  frames = words;
+  std::size_t base = 0;  // the word after the previous pair's word
+  for (int p = 0; p < runs.size(); p += 2) {
+    const std::uint32_t gap = runs.Get(p);
+    const std::uint32_t repeats = runs.Get(p + 1);
+    // Compared before adding, so a hostile gap cannot wrap the index back into range.
+    if (gap == 0 || gap > words - base || repeats == 0) return BatchError::bad_run;
+    base += gap;
+    if (repeats > kMaxBatchFrames - frames) return BatchError::too_many_frames;
+    frames += repeats;
+  }
+  return BatchError::none;
+}
+
+// Walks head_runs (already checked by count_frames) alongside the head words.
+class RunCursor {
+ public:
+  explicit RunCursor(const v1::FrameBatch& batch) : runs_(batch.head_runs()) { seek(0); }
+
+  // The frames head word `word` stands for; words are asked for in order, each once.
+  std::size_t frames_of(std::size_t word) {
+    if (word != next_word_) return 1;
+    const std::size_t frames = 1 + std::size_t{runs_.Get(pair_ + 1)};
+    pair_ += 2;
+    seek(word + 1);
+    return frames;
+  }
+
+ private:
+  void seek(std::size_t base) {
+    next_word_ = pair_ < runs_.size() ? base + runs_.Get(pair_) - 1 : kNone;
+  }
+
+  static constexpr std::size_t kNone = static_cast<std::size_t>(-1);
+  const google::protobuf::RepeatedField<std::uint32_t>& runs_;
+  int pair_ = 0;
+  std::size_t next_word_ = kNone;
+};
+
 // Advances the running timestamp `us` by `delta`, or fails if it would leave [kMinUs, kMaxUs].
 bool advance(std::int64_t& us, std::int64_t delta) {
   // Both differences fit in int64 because us itself is within the bounds.
@@ -71,24 +115,76 @@ void FrameBatchBuilder::start(v1::FrameBatch& batch, std::uint32_t module_id) {
   batch.Clear();
   batch.set_module_id(module_id);
   last_us_ = 0;
+  have_last_ = false;
+  words_ = 0;
+  run_base_ = 0;
+  last_in_run_ = false;
+}
+
+namespace {
+// A frame's head word and (when it escapes) SocketCAN can_id, clamped as append() documents.
+struct Head {
+  std::uint16_t word;
+  bool escaped;
+  std::uint32_t can_id;
+  std::uint8_t len;
+};
+
+Head head_of(const can::Frame& frame) {
+  // Clamped so a malformed Frame never reads past frame.data nor poisons the receiver's batch.
+  const auto len = static_cast<std::uint8_t>(std::min<std::size_t>(frame.len, can::kMaxPayload));
+  Head h{static_cast<std::uint16_t>(len << kHeadLengthShift),
+         frame.is_extended() || frame.is_remote(), 0, len};
+  if (h.escaped) {
+    h.can_id = frame.id & (frame.is_extended() ? kIdMask : can::kMaxStandardId);
+    if (frame.is_extended()) h.can_id |= kEffFlag;
+    if (frame.is_remote()) h.can_id |= kRtrFlag;
+    h.word |= kHeadEscape;
+  } else {
+    h.word |= static_cast<std::uint16_t>(frame.id & kHeadIdMask);
+  }
+  return h;
+}
+}  // namespace
+
+std::size_t FrameBatchBuilder::cost(const can::Frame& frame) const {
+  const Head h = head_of(frame);
+  const std::size_t payload = frame.is_remote() ? 0 : h.len;
+  if (runs_ && have_last_ && h.word == last_word_ && (!h.escaped || h.can_id == last_can_id_)) {
+    return payload + (last_in_run_ ? 0 : 2);  // a new pair: gap and repeats, one byte each
+  }
+  return kHeadBytes + payload + (h.escaped ? 5 : 0);
 }
 
 void FrameBatchBuilder::append(v1::FrameBatch& batch, const can::Frame& frame) {
-  // Clamped so a malformed Frame never reads past frame.data nor poisons the receiver's batch.
-  const auto len = static_cast<std::uint8_t>(std::min<std::size_t>(frame.len, can::kMaxPayload));
-  auto word = static_cast<std::uint16_t>(len << kHeadLengthShift);
-  if (frame.is_extended() || frame.is_remote()) {
-    std::uint32_t can_id = frame.id & (frame.is_extended() ? kIdMask : can::kMaxStandardId);
-    if (frame.is_extended()) can_id |= kEffFlag;
-    if (frame.is_remote()) can_id |= kRtrFlag;
-    batch.add_escaped_can_id(can_id);
-    word |= kHeadEscape;
+  const Head h = head_of(frame);
+  const auto len = h.len;
+  const auto word = h.word;
+  const bool escaped = h.escaped;
+  const std::uint32_t can_id = h.can_id;
+  if (runs_ && have_last_ && word == last_word_ && (!escaped || can_id == last_can_id_)) {
+    // The same head again: one more repeat of the latest word, which gets a pair if it has none.
+    auto& runs = *batch.mutable_head_runs();
+    if (last_in_run_) {
+      runs.Set(runs.size() - 1, runs.Get(runs.size() - 1) + 1);
+    } else {
+      const std::size_t word_index = words_ - 1;
+      runs.Add(static_cast<std::uint32_t>(word_index - run_base_ + 1));
+      runs.Add(1);
+      run_base_ = word_index + 1;
+      last_in_run_ = true;
+    }
   } else {
-    word |= static_cast<std::uint16_t>(frame.id & kHeadIdMask);
+    if (escaped) batch.add_escaped_can_id(can_id);
+    std::string& head = *batch.mutable_head();
+    head.push_back(static_cast<char>(word & 0xFF));
+    head.push_back(static_cast<char>(word >> 8));
+    ++words_;
+    have_last_ = true;
+    last_word_ = word;
+    last_can_id_ = can_id;
+    last_in_run_ = false;
   }
-  std::string& head = *batch.mutable_head();
-  head.push_back(static_cast<char>(word & 0xFF));
-  head.push_back(static_cast<char>(word >> 8));
   if (!frame.is_remote()) {
     batch.mutable_data()->append(reinterpret_cast<const char*>(frame.data.data()), len);
   }
@@ -116,6 +212,10 @@ std::string_view to_string(BatchError error) {
       return "escape-mismatch";
     case BatchError::bad_timestamp:
       return "bad-timestamp";
+    case BatchError::bad_run:
+      return "bad-run";
+    case BatchError::too_many_frames:
+      return "too-many-frames";
   }
   return "unknown";
 }
@@ -124,7 +224,9 @@ BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Fram
   const std::string& head = batch.head();
   const std::string& data = batch.data();
   if (head.size() % kHeadBytes != 0) return BatchError::column_mismatch;
-  const std::size_t n = head.size() / kHeadBytes;
+  const std::size_t words = head.size() / kHeadBytes;
+  std::size_t n = 0;
+  if (const BatchError e = count_frames(batch, words, n); e != BatchError::none) return e;
   const bool timed = batch.timestamp_delta_us_size() != 0;
   if (timed && static_cast<std::size_t>(batch.timestamp_delta_us_size()) != n) {
     return BatchError::column_mismatch;
@@ -136,15 +238,18 @@ BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Fram
     int next_escape = 0;
     std::size_t payload_bytes = 0;
     std::int64_t us = 0;
+    int stamp = 0;
+    RunCursor runs(batch);
     can::Frame f;
-    for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t i = 0; i < words; ++i) {
       if (const BatchError e = parse_head(head_word(head, i), batch, next_escape, f);
           e != BatchError::none) {
         return e;
       }
-      if (!f.is_remote()) payload_bytes += f.len;
-      if (timed && !advance(us, batch.timestamp_delta_us(static_cast<int>(i)))) {
-        return BatchError::bad_timestamp;
+      const std::size_t count = runs.frames_of(i);
+      if (!f.is_remote()) payload_bytes += f.len * count;
+      for (std::size_t k = 0; timed && k < count; ++k) {
+        if (!advance(us, batch.timestamp_delta_us(stamp++))) return BatchError::bad_timestamp;
       }
     }
     if (next_escape != batch.escaped_can_id_size()) return BatchError::escape_mismatch;
@@ -156,18 +261,23 @@ BatchError decode_frame_batch(const v1::FrameBatch& batch, std::vector<can::Fram
   int next_escape = 0;
   std::size_t offset = 0;
   std::int64_t us = 0;
-  for (std::size_t i = 0; i < n; ++i) {
+  int stamp = 0;
+  RunCursor runs(batch);
+  for (std::size_t i = 0; i < words; ++i) {
     can::Frame f;
     parse_head(head_word(head, i), batch, next_escape, f);
-    if (!f.is_remote()) {
-      std::copy_n(data.data() + offset, f.len, reinterpret_cast<char*>(f.data.data()));
-      offset += f.len;
+    const std::size_t count = runs.frames_of(i);
+    for (std::size_t k = 0; k < count; ++k) {
+      if (!f.is_remote()) {
+        std::copy_n(data.data() + offset, f.len, reinterpret_cast<char*>(f.data.data()));
+        offset += f.len;
+      }
+      if (timed) {
+        advance(us, batch.timestamp_delta_us(stamp++));
+        f.timestamp = std::chrono::microseconds(us);
+      }
+      out.push_back(f);
     }
-    if (timed) {
-      advance(us, batch.timestamp_delta_us(static_cast<int>(i)));
-      f.timestamp = std::chrono::microseconds(us);
-    }
-    out.push_back(f);
   }
   return BatchError::none;
 }

@@ -156,7 +156,9 @@ void FrameOutbox::produce(backbone::PayloadSink& sink) {
     for (auto next = queue_.front(); next; next = queue_.front()) {
       if (drop_front_if_too_old(now)) continue;
       if (kLanes[next->lane].reliable != reliable || next->item->module_id != module_id) break;
-      const std::size_t bytes = frame_bytes(next->item->frame);
+      // With head runs a repeated head costs nothing: count what the batch really grows by.
+      const std::size_t bytes =
+          builder_.head_runs() ? builder_.cost(next->item->frame) : frame_bytes(next->item->frame);
       if (used + bytes > budget) break;
       born = std::min(born, next->item->born);
       builder_.append(batch, queue_.pop()->item.frame);

@@ -96,6 +96,10 @@ class FrameOutbox {
   // master was told failed. Frames queued afterwards are not affected.
   void withdraw_queued_sdo_requests();
 
+  // Whether the batches may use FrameBatch.head_runs: on when the peer's hello says it decodes
+  // them (protocol minor >= kHeadRunsMinor); set on every link, before it carries anything.
+  void set_head_runs(bool on) { builder_.set_head_runs(on); }
+
   // The peer this outbox feeds is a new process: everything queued was meant for the old one.
   void discard_queued();
   void on_discard(DiscardObserver observer) { on_discard_ = std::move(observer); }

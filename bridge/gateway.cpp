@@ -109,7 +109,8 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
 backbone::PeerStream::Handlers Gateway::stream_handlers() {
   return {[this](backbone::PayloadSink& sink) { produce(sink); },
           [this](std::span<const std::uint8_t> payload, bool) { on_payload(payload); },
-          [this](const v1::Hello&) {
+          [this](const v1::Hello& peer) {
+            outbox_.set_head_runs(peer.protocol_minor() >= kHeadRunsMinor);
             // The surface may be a new process: it learns the pdop nodes on every link.
             pdop_.announce_nodes();
           },

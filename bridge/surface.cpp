@@ -30,7 +30,10 @@ struct Surface::Gateway {
                    [this, &surface](std::span<const std::uint8_t> payload, bool) {
                      surface.on_payload(*this, payload);
                    },
-                   [this, &surface](const v1::Hello&) { surface.table_.set_connected(id, true); },
+                   [this, &surface](const v1::Hello& peer) {
+                     outbox.set_head_runs(peer.protocol_minor() >= kHeadRunsMinor);
+                     surface.table_.set_connected(id, true);
+                   },
                    [this, &surface] { surface.on_gateway_down(*this); },
                    // A new gateway process: nothing queued for the old one goes.
                    [this](const v1::Hello&) { outbox.discard_queued(); },

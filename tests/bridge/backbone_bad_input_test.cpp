@@ -449,5 +449,101 @@ TEST(GatewayBadInput, GarbageFromTheSurfaceDropsTheLinkAndTheGatewayReconnects) 
   EXPECT_TRUE(drains(io));
 }
 
+// Protocol 2.6 sends FrameBatch.head_runs only to a peer that says it decodes them: a raw surface
+// at minor 5 gets the plain form of the same backlog a surface at minor 6 gets in runs, and the
+// gateway decodes both forms from the surface.
+void gateway_talks_to_a_surface_at_minor(std::uint32_t minor) {
+  SCOPED_TRACE("surface at protocol minor " + std::to_string(minor));
+  asio::io_context io{1};
+  can::VirtualBus bus(io.get_executor(), "module-bus");
+  NodeMap map;
+  ASSERT_TRUE(map.add_module(1, NodeMap::default_pairs(1)).empty());
+  std::vector<GatewayModule> modules;
+  modules.push_back({1, bus.connect("gateway"), true});
+  BusRecorder node(io, bus.connect("node"));
+  Gateway gateway(io.get_executor(), "gw", std::move(map), std::move(modules), patient_tuning());
+  gateway.start();
+  tcp::acceptor acceptor(io, tcp::endpoint(asio::ip::make_address("127.0.0.1"), 0));
+  auto client =
+      backbone::TcpClient::create(io.get_executor(), "127.0.0.1", acceptor.local_endpoint().port());
+  client->start([&](auto link) { gateway.attach(link); });
+  acceptor.non_blocking(true);
+  tcp::socket socket(io);
+  ASSERT_TRUE(run_until(io, [&] {
+    boost::system::error_code ec;
+    acceptor.accept(socket, ec);
+    return !ec;
+  }));
+  socket.non_blocking(false);
+  RawPeer surface(std::move(socket));
+  ASSERT_TRUE(surface.wait(io, [&] { return surface.hello() != nullptr; }));
+  EXPECT_EQ(surface.hello()->hello().protocol_minor(), backbone::kProtocolMinor);
+
+  // A backlog of one EMCY COB-ID (reliable, never conflated) while the surface is not there yet.
+  constexpr std::size_t kFrames = 6;
+  for (std::uint8_t i = 0; i < kFrames; ++i)
+    ASSERT_TRUE(node.send(can::Frame::standard(0x081, {i})));
+  ASSERT_TRUE(run_until(io, [&] { return gateway.counters().from_buses >= kFrames; }));
+  v1::Envelope h = hello(v1::Hello::ROLE_SURFACE, backbone::kProtocolMajor, {}, 0x600 + minor);
+  h.mutable_hello()->set_protocol_minor(minor);
+  surface.send(delimited(h));
+
+  std::size_t frames = 0;
+  std::size_t head_words = 0;
+  int runs = 0;
+  std::vector<can::Frame> decoded;
+  ASSERT_TRUE(surface.wait(io, [&] {
+    frames = head_words = 0;
+    runs = 0;
+    decoded.clear();
+    for (const auto& e : surface.received) {
+      v1::Payload p;
+      if (e.payload().empty() || !p.ParseFromString(e.payload()) || !p.has_frames()) continue;
+      EXPECT_EQ(decode_frame_batch(p.frames(), decoded), BatchError::none);
+      head_words += p.frames().head().size() / 2;
+      runs += p.frames().head_runs_size();
+    }
+    return decoded.size() >= kFrames;
+  }));
+  ASSERT_EQ(decoded.size(), kFrames);
+  for (std::uint8_t i = 0; i < kFrames; ++i) EXPECT_EQ(decoded[i].data[0], i);
+  if (minor >= kHeadRunsMinor) {
+    EXPECT_GT(runs, 0);
+    EXPECT_LT(head_words, kFrames);
+  } else {
+    EXPECT_EQ(runs, 0);
+    EXPECT_EQ(head_words, kFrames);
+  }
+
+  // From the surface: a batch in the form its minor allows, written to the module bus in order.
+  v1::Payload p;
+  FrameBatchBuilder b(false, minor >= kHeadRunsMinor);
+  b.start(*p.mutable_frames(), kAnyModule);
+  for (std::uint8_t i = 0; i < 3; ++i)
+    b.append(*p.mutable_frames(), can::Frame::standard(0x628, {i}));
+  EXPECT_EQ(p.frames().head_runs_size(), minor >= kHeadRunsMinor ? 2 : 0);
+  surface.send(delimited(data(1, p.SerializeAsString())));
+  ASSERT_TRUE(run_until(io, [&] { return node.frames.size() >= 3; }));
+  EXPECT_EQ(node.frames,
+            (std::vector{can::Frame::standard(0x608, {0}), can::Frame::standard(0x608, {1}),
+                         can::Frame::standard(0x608, {2})}));
+  EXPECT_EQ(gateway.counters().malformed_payloads, 0u);
+
+  client->stop();
+  gateway.stop();
+  node.close();
+  EXPECT_TRUE(run_until(io, [&] { return node.done(); }));
+  acceptor.close();
+  EXPECT_TRUE(drains(io));
+}
+
+TEST(GatewayHeadRuns, ASurfaceAtProtocol2_5GetsThePlainFormAndIsStillDecoded) {
+  gateway_talks_to_a_surface_at_minor(5);
+}
+
+TEST(GatewayHeadRuns, ASurfaceAtProtocol2_6GetsHeadRunsAndSendsThem) {
+  gateway_talks_to_a_surface_at_minor(kHeadRunsMinor);
+}
+
 }  // namespace
 }  // namespace canbridge::bridge

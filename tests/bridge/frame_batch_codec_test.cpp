@@ -8,8 +8,11 @@
 #include <limits>
 #include <random>
 #include <set>
+#include <span>
 #include <string>
 #include <vector>
+
+#include "bridge/frame_outbox.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -35,9 +38,9 @@ Frame frame(std::uint32_t id, std::uint8_t flags, std::uint8_t len) {
 }
 
 v1::FrameBatch build(const std::vector<Frame>& frames, bool timestamps = false,
-                     std::uint32_t module_id = 1) {
+                     std::uint32_t module_id = 1, bool head_runs = false) {
   v1::FrameBatch batch;
-  FrameBatchBuilder builder(timestamps);
+  FrameBatchBuilder builder(timestamps, head_runs);
   builder.start(batch, module_id);
   for (const auto& f : frames) builder.append(batch, f);
   return batch;
@@ -294,6 +297,209 @@ TEST(FrameBatchCodec, RoundTripsThousandsOfRandomBatches) {
   RecordProperty("frames_checked", std::to_string(frames_checked));
 }
 
+// --- Head runs (protocol 2.6) -----------------------------------------------------------------
+
+// `frames` with each frame repeated 1..4 times (runs of equal frames apart from the payload and
+// timestamp), as a backlog of few COB-IDs leaves the outbox.
+std::vector<Frame> with_repeats(std::mt19937& rng, const std::vector<Frame>& frames) {
+  std::vector<Frame> out;
+  for (const Frame& f : frames) {
+    const unsigned copies = 1 + rng() % 4;
+    for (unsigned c = 0; c < copies; ++c) {
+      Frame copy = f;
+      copy.data[0] = static_cast<std::uint8_t>(copy.data[0] + c);
+      copy.timestamp += std::chrono::microseconds(c * 7);
+      out.push_back(copy);
+    }
+  }
+  return out;
+}
+
+TEST(FrameBatchHeadRuns, WritesTheDocumentedRunLayout) {
+  const Frame ext = Frame::make(0x1234567, FrameFlags::extended, {0x01, 0x02});
+  const Frame other_ext = Frame::make(0x1234568, FrameFlags::extended, {0x03, 0x04});
+  const Frame rtr = frame(0x7FF, FrameFlags::remote, 8);
+  // Word 0: a run of three; word 1: one frame; words 2 (a run of two) and 3: extended ids that
+  // differ; word 4: a run of two remote frames; word 5: equal to word 0, but not adjacent.
+  const std::vector<Frame> frames{Frame::standard(0x181, {1}),
+                                  Frame::standard(0x181, {2}),
+                                  Frame::standard(0x181, {3}),
+                                  Frame::standard(0x182, {4}),
+                                  ext,
+                                  ext,
+                                  other_ext,
+                                  rtr,
+                                  rtr,
+                                  Frame::standard(0x181, {5})};
+  const v1::FrameBatch batch = build(frames, false, 9, true);
+  EXPECT_EQ(batch.head(), head(0x0981) + head(0x0982) + head(0x9000) + head(0x9000) + head(0xC000) +
+                              head(0x0981));
+  // (gap, repeats): word 0 + 2 more; word 2 (gap 2 after word 0) + 1; word 4 (gap 2) + 1.
+  EXPECT_EQ(std::vector<std::uint32_t>(batch.head_runs().begin(), batch.head_runs().end()),
+            (std::vector<std::uint32_t>{1, 2, 2, 1, 2, 1}));
+  // One escaped entry per word, not per frame.
+  EXPECT_EQ(
+      std::vector<std::uint32_t>(batch.escaped_can_id().begin(), batch.escaped_can_id().end()),
+      (std::vector<std::uint32_t>{0x81234567u, 0x81234568u, 0x400007FFu}));
+  EXPECT_EQ(batch.data(), std::string("\x01\x02\x03\x04\x01\x02\x01\x02\x03\x04\x05"));
+
+  const auto out = decode_over_wire(batch);
+  EXPECT_EQ(out, frames);
+}
+
+TEST(FrameBatchHeadRuns, OffByDefaultAndThePlainFormIsUnchanged) {
+  const std::vector<Frame> frames(5, Frame::standard(0x181, {1, 2, 3}));
+  FrameBatchBuilder builder;
+  EXPECT_FALSE(builder.head_runs());
+  const v1::FrameBatch plain = build(frames);
+  EXPECT_EQ(plain.head_runs_size(), 0);
+  EXPECT_EQ(plain.head().size(), 2 * frames.size());
+  // Field 7 never appears on the wire, so a 2.5 peer parses exactly what it always did.
+  v1::FrameBatch old_view = plain;
+  old_view.clear_head_runs();
+  EXPECT_EQ(plain.SerializeAsString(), old_view.SerializeAsString());
+  EXPECT_EQ(decode_over_wire(plain), frames);
+}
+
+TEST(FrameBatchHeadRuns, SetHeadRunsSwitchesTheFormBetweenBatches) {
+  const std::vector<Frame> frames(4, Frame::standard(0x181, {7}));
+  v1::FrameBatch batch;
+  FrameBatchBuilder builder;
+  builder.set_head_runs(true);
+  builder.start(batch, 1);
+  for (const auto& f : frames) builder.append(batch, f);
+  EXPECT_EQ(batch.head(), head(0x0981));
+  EXPECT_EQ(batch.head_runs_size(), 2);
+  EXPECT_EQ(decode_over_wire(batch), frames);
+
+  builder.set_head_runs(false);  // the peer turned out to be 2.5 on the next link
+  builder.start(batch, 1);
+  for (const auto& f : frames) builder.append(batch, f);
+  EXPECT_EQ(batch.head_runs_size(), 0);
+  EXPECT_EQ(batch.head().size(), 8u);
+  EXPECT_EQ(decode_over_wire(batch), frames);
+}
+
+// Takes every payload a FrameOutbox produces (the outbox's own tests have the full fake).
+class CollectingSink : public backbone::PayloadSink {
+ public:
+  std::size_t room() const override { return room_; }
+  bool reliable_room(std::size_t) const override { return true; }
+  void send_reliable(std::string payload) override { take(payload); }
+  void send_unreliable(std::span<const std::uint8_t> p) override {
+    take(std::string(reinterpret_cast<const char*>(p.data()), p.size()));
+  }
+  std::vector<v1::FrameBatch> batches;
+
+ private:
+  void take(const std::string& payload) {
+    room_ = payload.size() < room_ ? room_ - payload.size() : 0;
+    v1::Payload parsed;
+    EXPECT_TRUE(parsed.ParseFromString(payload));
+    batches.push_back(parsed.frames());
+  }
+  std::size_t room_ = 4096;
+};
+
+// What the gateway and the surface do on every link: head runs only when the peer's hello says
+// it decodes them; the same backlog crosses in either form.
+TEST(FrameBatchHeadRuns, TheOutboxBuildsTheFormItsPeerDecodes) {
+  for (const bool runs : {false, true}) {
+    SCOPED_TRACE(runs ? "peer at 2.6" : "peer at 2.5");
+    FrameOutbox outbox(FrameOutbox::Options{});
+    outbox.set_head_runs(runs);
+    std::vector<Frame> backlog;
+    for (std::uint8_t i = 0; i < 20; ++i) {
+      backlog.push_back(Frame::standard(0x081, {i, 1, 2, 3, 4, 5, 6, 7}));  // EMCY: reliable
+      ASSERT_TRUE(outbox.push(1, backlog.back(), {}));
+    }
+    CollectingSink sink;
+    outbox.produce(sink);
+    ASSERT_EQ(sink.batches.size(), 1u);
+    const v1::FrameBatch& batch = sink.batches.front();
+    EXPECT_EQ(batch.head_runs_size(), runs ? 2 : 0);
+    EXPECT_EQ(batch.head().size(), runs ? 2u : 40u);
+    std::vector<Frame> out;
+    ASSERT_EQ(decode_frame_batch(batch, out), BatchError::none);
+    EXPECT_EQ(out, backlog);
+  }
+}
+
+TEST(FrameBatchHeadRuns, CostIsWhatAppendAddsToTheColumns) {
+  std::mt19937 rng(7);
+  for (const bool runs : {false, true}) {
+    v1::FrameBatch batch;
+    FrameBatchBuilder builder(false, runs);
+    builder.start(batch, 1);
+    std::size_t costs = 0;
+    for (const Frame& f : with_repeats(rng, random_frames(rng, 200, false))) {
+      costs += builder.cost(f);
+      builder.append(batch, f);
+    }
+    // head, data, escaped ids (at most 5 bytes each) and pairs (1-byte varints here).
+    std::size_t columns = batch.head().size() + batch.data().size() +
+                          5 * static_cast<std::size_t>(batch.escaped_can_id_size());
+    for (std::uint32_t v : batch.head_runs()) columns += v < 128 ? 1 : 2;
+    EXPECT_GE(costs + 8, columns) << runs;
+    EXPECT_LE(costs, columns + 8) << runs;
+  }
+}
+
+TEST(FrameBatchHeadRuns, ABurstOfOneCobIdCostsItsPayloadBytes) {
+  constexpr int kFrames = 47;  // what a 512-byte batch of the serial sample config holds
+  v1::Payload payload;
+  FrameBatchBuilder builder(false, true);
+  builder.start(*payload.mutable_frames(), 1);
+  for (int i = 0; i < kFrames; ++i) {
+    const auto b = static_cast<std::uint8_t>(i);
+    builder.append(*payload.mutable_frames(), Frame::standard(0x181, {b, 1, 2, 3, 4, 5, 6, b}));
+  }
+  const double per_frame = static_cast<double>(payload.ByteSizeLong()) / kFrames;
+  std::cout << "[ measured ] " << payload.ByteSizeLong() << " bytes for " << kFrames
+            << " frames of one COB-ID = " << per_frame << " bytes/frame\n";
+  RecordProperty("bytes_per_frame", std::to_string(per_frame));
+  EXPECT_LE(per_frame, 8.4);  // plain: 10.3
+  std::vector<Frame> out;
+  ASSERT_EQ(decode_frame_batch(payload.frames(), out), BatchError::none);
+  EXPECT_EQ(out.size(), static_cast<std::size_t>(kFrames));
+}
+
+TEST(FrameBatchHeadRuns, RoundTripsRandomBatchesInBothFormsAndRunsNeverCostMuchMore) {
+  std::mt19937 rng(20261202);
+  v1::FrameBatch plain;
+  v1::FrameBatch runs;
+  std::size_t repeated = 0;
+  for (int round = 0; round < 2000; ++round) {
+    const bool timestamps = rng() % 2 != 0;
+    auto frames = random_frames(rng, rng() % 40, timestamps);
+    if (rng() % 4 != 0) frames = with_repeats(rng, frames);
+    FrameBatchBuilder p(timestamps, false);
+    FrameBatchBuilder r(timestamps, true);
+    p.start(plain, 5);
+    r.start(runs, 5);
+    for (const auto& f : frames) {
+      p.append(plain, f);
+      r.append(runs, f);
+    }
+    ASSERT_EQ(plain.head_runs_size(), 0) << round;
+    ASSERT_EQ(plain.head().size(), 2 * frames.size()) << round;
+    repeated += plain.head().size() / 2 - runs.head().size() / 2;
+    // With gaps below 128 a pair costs two varint bytes and saves at least one head word, so
+    // the run form is never more than the field's tag and length larger.
+    ASSERT_LE(runs.ByteSizeLong(), plain.ByteSizeLong() + 2) << round;
+    for (const v1::FrameBatch* b : {&plain, &runs}) {
+      const auto out = decode_over_wire(*b);
+      ASSERT_EQ(out.size(), frames.size()) << round;
+      for (std::size_t i = 0; i < frames.size(); ++i) {
+        ASSERT_EQ(out[i], frames[i]) << round << "/" << i;
+        const auto expected = timestamps ? frames[i].timestamp : std::chrono::nanoseconds(0);
+        ASSERT_EQ(out[i].timestamp, expected) << round << "/" << i;
+      }
+    }
+  }
+  EXPECT_GT(repeated, 10000u);  // the runs form was exercised, not just allowed
+}
+
 // --- Refusals ----------------------------------------------------------------------------------
 
 // Decodes into an `out` that already holds frames and checks the refusal leaves it untouched.
@@ -440,6 +646,106 @@ TEST(FrameBatchCodecRefuses, TimestampsBeyondWhatNanosecondsHold) {
   EXPECT_EQ(refuse(with({max_us, 0, -max_us})), BatchError::none);
 }
 
+// good() with the standard frame a run of three and the extended one a run of two.
+v1::FrameBatch good_runs() {
+  v1::FrameBatch b = good();
+  b.add_head_runs(1);  // word 0
+  b.add_head_runs(2);
+  b.add_head_runs(1);  // word 1
+  b.add_head_runs(1);
+  b.set_data(
+      "ababab"
+      "cc");
+  return b;
+}
+
+TEST(FrameBatchCodecRefuses, NothingInTheBaseRunBatch) {
+  EXPECT_EQ(refuse(good_runs()), BatchError::none);
+  std::vector<Frame> out;
+  ASSERT_EQ(decode_frame_batch(good_runs(), out), BatchError::none);
+  const Frame std_frame = Frame::standard(0x123, {'a', 'b'});
+  const Frame ext_frame = Frame::make(0x12345, FrameFlags::extended, {'c'});
+  EXPECT_EQ(out, (std::vector<Frame>{std_frame, std_frame, std_frame, ext_frame, ext_frame,
+                                     frame(0x700, FrameFlags::remote, 8)}));
+}
+
+TEST(FrameBatchCodecRefuses, RunsThatAreNotPairsOrPointNowhere) {
+  v1::FrameBatch odd = good_runs();
+  odd.add_head_runs(1);
+  EXPECT_EQ(refuse(odd), BatchError::bad_run);
+
+  v1::FrameBatch zero_gap = good_runs();
+  zero_gap.set_head_runs(2, 0);  // the same word twice
+  EXPECT_EQ(refuse(zero_gap), BatchError::bad_run);
+  zero_gap.set_head_runs(0, 0);  // before the first word
+  EXPECT_EQ(refuse(zero_gap), BatchError::bad_run);
+
+  v1::FrameBatch past_end = good_runs();
+  past_end.set_head_runs(2, 3);  // word 3 of 3 words (0..2)
+  EXPECT_EQ(refuse(past_end), BatchError::bad_run);
+  past_end.set_head_runs(2, 0xFFFFFFFF);  // would wrap a 32-bit index back into range
+  EXPECT_EQ(refuse(past_end), BatchError::bad_run);
+  past_end.set_head_runs(2, 2);  // word 2: the remote frame, a run of 2 now
+  past_end.set_data("abababc");  // and the extended frame a single one
+  EXPECT_EQ(refuse(past_end), BatchError::none);
+
+  v1::FrameBatch no_repeats = good_runs();
+  no_repeats.set_head_runs(1, 0);
+  EXPECT_EQ(refuse(no_repeats), BatchError::bad_run);
+
+  v1::FrameBatch runs_without_head = good_runs();
+  runs_without_head.clear_head();
+  runs_without_head.clear_escaped_can_id();
+  runs_without_head.clear_data();
+  EXPECT_EQ(refuse(runs_without_head), BatchError::bad_run);
+}
+
+TEST(FrameBatchCodecRefuses, RunsBeyondTheFrameBound) {
+  // Zero-length frames cost nothing in a run: only the count bounds what a batch decodes to.
+  v1::FrameBatch b;
+  b.set_head(head(0x0181));  // 0x181, len 0
+  b.add_head_runs(1);
+  b.add_head_runs(static_cast<std::uint32_t>(kMaxBatchFrames - 1));
+  EXPECT_EQ(refuse(b), BatchError::none);
+  b.set_head_runs(1, static_cast<std::uint32_t>(kMaxBatchFrames));
+  EXPECT_EQ(refuse(b), BatchError::too_many_frames);
+  b.set_head_runs(1, 0xFFFFFFFF);
+  EXPECT_EQ(refuse(b), BatchError::too_many_frames);
+  // Two runs whose sum wraps 32 bits.
+  b.set_head(head(0x0181) + head(0x0182));
+  b.set_head_runs(1, 0x80000000u);
+  b.add_head_runs(1);
+  b.add_head_runs(0x80000000u);
+  EXPECT_EQ(refuse(b), BatchError::too_many_frames);
+  // And the plain form: more head words than the bound.
+  v1::FrameBatch wide;
+  wide.set_head(std::string(2 * (kMaxBatchFrames + 1), '\0'));
+  EXPECT_EQ(refuse(wide), BatchError::too_many_frames);
+}
+
+TEST(FrameBatchCodecRefuses, RunColumnsThatDoNotCountTheRepeats) {
+  v1::FrameBatch per_word_data = good_runs();
+  per_word_data.set_data("abc");  // one payload per word instead of per frame
+  EXPECT_EQ(refuse(per_word_data), BatchError::data_size_mismatch);
+
+  v1::FrameBatch per_word_stamps = good_runs();
+  for (int i = 0; i < 3; ++i) per_word_stamps.add_timestamp_delta_us(1);
+  EXPECT_EQ(refuse(per_word_stamps), BatchError::column_mismatch);
+  for (int i = 0; i < 3; ++i) per_word_stamps.add_timestamp_delta_us(1);
+  EXPECT_EQ(refuse(per_word_stamps), BatchError::none);
+
+  v1::FrameBatch per_frame_escapes = good_runs();  // a run shares one escaped entry
+  per_frame_escapes.add_escaped_can_id(0x80012345);
+  EXPECT_EQ(refuse(per_frame_escapes), BatchError::escape_mismatch);
+
+  v1::FrameBatch late_bad_stamp = good_runs();  // the bad timestamp is a repeat's
+  for (std::int64_t d :
+       std::vector<std::int64_t>{0, 0, std::numeric_limits<std::int64_t>::max(), 0, 0, 0}) {
+    late_bad_stamp.add_timestamp_delta_us(d);
+  }
+  EXPECT_EQ(refuse(late_bad_stamp), BatchError::bad_timestamp);
+}
+
 TEST(FrameBatchCodecRefuses, ABadLastFrameAfterManyGoodOnes) {
   std::mt19937 rng(3);
   v1::FrameBatch b = build(random_frames(rng, 500, true));
@@ -453,8 +759,10 @@ TEST(FrameBatchCodecRefuses, RandomlyCorruptedBatchesCleanly) {
   std::mt19937 rng(99);
   std::set<BatchError> seen;
   for (int round = 0; round < 3000; ++round) {
-    v1::FrameBatch b = build(random_frames(rng, 1 + rng() % 20, rng() % 2 != 0));
-    switch (rng() % 6) {
+    const bool runs = rng() % 2 != 0;
+    v1::FrameBatch b = build(with_repeats(rng, random_frames(rng, 1 + rng() % 20, rng() % 2 != 0)),
+                             false, 1, runs);
+    switch (rng() % (runs ? 8 : 6)) {
       case 0:
         if (!b.head().empty())
           (*b.mutable_head())[rng() % b.head().size()] ^= static_cast<char>(1u << (rng() % 8));
@@ -477,13 +785,24 @@ TEST(FrameBatchCodecRefuses, RandomlyCorruptedBatchesCleanly) {
       case 5:
         b.add_timestamp_delta_us(static_cast<std::int64_t>(rng()) << (rng() % 40));
         break;
+      case 6:
+        if (b.head_runs_size() != 0) {
+          const int i = static_cast<int>(rng() % b.head_runs_size());
+          b.set_head_runs(i, rng() % 3 == 0
+                                 ? static_cast<std::uint32_t>(rng())
+                                 : b.head_runs(i) + static_cast<std::uint32_t>(rng() % 3) - 1);
+        }
+        break;
+      case 7:
+        b.add_head_runs(static_cast<std::uint32_t>(rng() % 4));
+        break;
     }
     seen.insert(refuse(b));
   }
   // The corruptions reach every refusal (and sometimes still decode).
   for (BatchError e :
        {BatchError::none, BatchError::column_mismatch, BatchError::bad_length, BatchError::bad_id,
-        BatchError::data_size_mismatch, BatchError::escape_mismatch}) {
+        BatchError::data_size_mismatch, BatchError::escape_mismatch, BatchError::bad_run}) {
     EXPECT_TRUE(seen.count(e) != 0) << to_string(e);
   }
 }
@@ -492,11 +811,12 @@ TEST(FrameBatchCodec, NamesEveryError) {
   std::set<std::string_view> names;
   for (BatchError e :
        {BatchError::none, BatchError::column_mismatch, BatchError::bad_length, BatchError::bad_id,
-        BatchError::data_size_mismatch, BatchError::escape_mismatch, BatchError::bad_timestamp}) {
+        BatchError::data_size_mismatch, BatchError::escape_mismatch, BatchError::bad_timestamp,
+        BatchError::bad_run, BatchError::too_many_frames}) {
     EXPECT_NE(to_string(e), "unknown");
     names.insert(to_string(e));
   }
-  EXPECT_EQ(names.size(), 7u);
+  EXPECT_EQ(names.size(), 9u);
 }
 
 }  // namespace

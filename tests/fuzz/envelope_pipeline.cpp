@@ -35,19 +35,23 @@ void check_frame_batch(const v1::FrameBatch& batch) {
     require(timed || f.timestamp.count() == 0, "timestamp without a timestamp column");
   }
 
-  // Whatever form the batch had, the builder's canonical form must decode to the same frames.
-  bridge::FrameBatchBuilder builder(timed);
-  v1::FrameBatch again;
-  builder.start(again, batch.module_id());
-  for (std::size_t i = 1; i < frames.size(); ++i) builder.append(again, frames[i]);
-  require(again.module_id() == batch.module_id(), "module id lost");
-  std::vector<can::Frame> redecoded;
-  require(bridge::decode_frame_batch(again, redecoded) == bridge::BatchError::none,
-          "a re-encoded batch was refused");
-  require(redecoded.size() + 1 == frames.size(), "re-encoding changed the frame count");
-  for (std::size_t i = 0; i < redecoded.size(); ++i) {
-    require(redecoded[i] == frames[i + 1], "re-encoding changed a frame");
-    require(redecoded[i].timestamp == frames[i + 1].timestamp, "re-encoding changed a timestamp");
+  // Whatever form the batch had, the builder's canonical forms must decode to the same frames:
+  // the plain one (for a peer before protocol 2.6) and the one with head runs.
+  for (const bool runs : {false, true}) {
+    bridge::FrameBatchBuilder builder(timed, runs);
+    v1::FrameBatch again;
+    builder.start(again, batch.module_id());
+    for (std::size_t i = 1; i < frames.size(); ++i) builder.append(again, frames[i]);
+    require(again.module_id() == batch.module_id(), "module id lost");
+    require(runs || again.head_runs_size() == 0, "head runs in the plain form");
+    std::vector<can::Frame> redecoded;
+    require(bridge::decode_frame_batch(again, redecoded) == bridge::BatchError::none,
+            "a re-encoded batch was refused");
+    require(redecoded.size() + 1 == frames.size(), "re-encoding changed the frame count");
+    for (std::size_t i = 0; i < redecoded.size(); ++i) {
+      require(redecoded[i] == frames[i + 1], "re-encoding changed a frame");
+      require(redecoded[i].timestamp == frames[i + 1].timestamp, "re-encoding changed a timestamp");
+    }
   }
 }
 

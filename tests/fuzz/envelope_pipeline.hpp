@@ -14,7 +14,8 @@ void require(bool holds, const char* invariant);
 
 // Parses `message` as a canbridge.v1.Envelope and, when it carries a payload, the payload as a
 // canbridge.v1.Payload and its FrameBatch as CAN frames. Garbage must be refused, never crash;
-// a FrameBatch that decodes must survive re-encoding with FrameBatchBuilder unchanged.
+// a FrameBatch that decodes (plain or with head runs) must survive re-encoding with
+// FrameBatchBuilder in either form unchanged.
 void process_envelope(std::span<const std::uint8_t> message);
 
 }  // namespace canbridge::fuzz

@@ -27,9 +27,10 @@ std::span<const std::uint8_t> bytes(const std::string& s) {
   return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
 }
 
-std::string frames_envelope(std::uint64_t seq, const std::vector<Frame>& frames, bool timed) {
+std::string frames_envelope(std::uint64_t seq, const std::vector<Frame>& frames, bool timed,
+                            bool head_runs = false) {
   v1::Payload payload;
-  canbridge::bridge::FrameBatchBuilder builder(timed);
+  canbridge::bridge::FrameBatchBuilder builder(timed, head_runs);
   builder.start(*payload.mutable_frames(), 3);
   for (const Frame& f : frames) builder.append(*payload.mutable_frames(), f);
   v1::Envelope envelope;
@@ -73,6 +74,13 @@ std::vector<std::string> envelopes() {
   out.push_back(
       frames_envelope(2, {timed, Frame::standard(0x581, {0x43, 0x00, 0x10, 0x00})}, true));
   out.push_back(frames_envelope(3, {}, false));
+  // Protocol 2.6 head runs: a run of a standard id, one of an extended id, one of remote frames.
+  const Frame ext = Frame::make(0x18FF50E5, FrameFlags::extended, {0xAB});
+  Frame later = timed;
+  later.timestamp += std::chrono::microseconds(120);
+  out.push_back(frames_envelope(
+      4, {timed, later, later, Frame::standard(0x182, {}), ext, ext, remote, remote, remote}, true,
+      true));
   return out;
 }
 
