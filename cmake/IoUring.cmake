@@ -20,5 +20,7 @@ if(CANBRIDGE_IO_URING)
   target_link_libraries(canbridge_asio INTERFACE canbridge_liburing)
   # HAS_IO_URING alone would use io_uring for files only; without epoll it serves every object.
   target_compile_definitions(canbridge_asio INTERFACE BOOST_ASIO_HAS_IO_URING BOOST_ASIO_DISABLE_EPOLL)
-  message(STATUS "canbridge: Boost.Asio on io_uring (${CANBRIDGE_LIBURING_LIBRARY})")
+  message(WARNING "canbridge: Boost.Asio on io_uring (${CANBRIDGE_LIBURING_LIBRARY}) is experimental: "
+    "serial ports (ptys) fail with 'Interrupted system call' on it, so the serial backbone does not "
+    "work (docs/performance.md)")
 endif()
