@@ -54,6 +54,30 @@ bool BusWriter::write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane
   return accepted;
 }
 
+std::size_t BusWriter::write_each(std::span<const can::Frame> frames,
+                                  std::vector<can::Frame>* accepted) {
+  const bool was_backlogged = queue_.backlogged();
+  out_.clear();
+  const std::size_t room = bus_.send_room();
+  std::size_t dropped = 0;
+  for (const can::Frame& frame : frames) {
+    // out_ never holds more than `room`: offer() appends only what fits in what is left.
+    if (!queue_.offer(std::span<const can::Frame>(&frame, 1), bus_lane_of(frame),
+                      room - out_.size(), out_)) {
+      ++dropped;
+    } else if (accepted != nullptr) {
+      accepted->push_back(frame);
+    }
+  }
+  send(out_);
+  if (!queue_.empty() && idle_) {
+    idle_ = false;
+    wake_.cancel();
+  }
+  after_change(was_backlogged);
+  return dropped;
+}
+
 asio::awaitable<void> BusWriter::run() {
   while (!stopped_) {
     if (queue_.empty()) {
@@ -80,12 +104,9 @@ asio::awaitable<void> BusWriter::run() {
 
 void BusWriter::send(const std::vector<can::Frame>& frames) {
   if (frames.empty()) return;
-  std::size_t sent = 0;
-  for (const can::Frame& frame : frames) {
-    // The queue handed out only what the bus said it had room for.
-    if (!bus_.send(frame)) break;
-    ++sent;
-  }
+  // The queue handed out only what the bus said it had room for: one batch send takes it all
+  // (unless the bus closed meanwhile).
+  const std::size_t sent = bus_.send(std::span<const can::Frame>(frames));
   refused_ += frames.size() - sent;
   if (sent != 0 && on_written_) on_written_(std::span<const can::Frame>(frames.data(), sent));
 }

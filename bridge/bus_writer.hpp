@@ -25,6 +25,21 @@ inline BusWriteQueue::Lane bus_lane_of(const can::Frame& frame) {
              : BusWriteQueue::Lane::reliable;
 }
 
+// The most frames one backbone message brings: an outbox never builds a batch above 4096 bytes
+// (app/tuning_from_options.hpp caps max_batch_bytes there), and a frame takes at least its
+// 2-byte head in it.
+inline constexpr std::size_t kMaxFramesPerBackboneMessage = 4096 / 2;
+
+// Options for a bus fed from the backbone, whose owner stops reading the backbone while the queue
+// is backlogged(). A link stops delivering between messages, so once the pause engages at most
+// the rest of one message still arrives: process data is dropped only beyond that, which makes
+// the pause, not a drop, the answer to a bus slower than the link.
+inline BusWriteQueue::Options backbone_fed_write_options() {
+  BusWriteQueue::Options options;
+  options.max_waiting_for_process_data = options.high_watermark + kMaxFramesPerBackboneMessage;
+  return options;
+}
+
 class BusWriter {
  public:
   // Frames just handed to the bus, in bus order (loop guards, counters, NMT bookkeeping).
@@ -46,6 +61,12 @@ class BusWriter {
   // One frame, or a unit that goes whole (BusWriteQueue::offer). False when dropped (counted).
   bool write(const can::Frame& frame, BusWriteQueue::Lane lane);
   bool write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane);
+  // A run of frames, each a unit of its own in its lane (bus_lane_of), in order: as write(frame,
+  // lane) for each, but what can go at once goes with one batch send and one Written call (one
+  // clock read for the run, not one per frame). Returns how many were dropped (counted); the
+  // frames that were not are appended to `accepted` when given.
+  std::size_t write_each(std::span<const can::Frame> frames,
+                         std::vector<can::Frame>* accepted = nullptr);
 
   // Runs once if the writer's loop ends while not stopped (the bus closed for good, or the loop
   // threw), with why: its owner stops, as for any of its loops (coro::spawn_owned).

@@ -122,7 +122,7 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
 void Gateway::add_module_bus(std::size_t m) {
   node_table_.add_module(map_.modules()[m].profile, modules_[m].heartbeat_lost_after);
   writers_.push_back(std::make_unique<BusWriter>(
-      executor_, *modules_[m].bus, BusWriteQueue::Options{},
+      executor_, *modules_[m].bus, backbone_fed_write_options(),
       [this, m](std::span<const can::Frame> frames) { on_written(m, frames); },
       [this](bool) { on_backlog_changed(); }));
   identity_.module_ids.push_back(modules_[m].id);
@@ -513,21 +513,27 @@ void Gateway::on_payload(std::span<const std::uint8_t> payload) {
 }
 
 void Gateway::write_to_buses(std::optional<std::size_t> only) {
+  to_bus_.resize(writers_.size());
+  for (auto& frames : to_bus_) frames.clear();
   for (const can::Frame& frame : decoded_) {
     const std::uint64_t renames_refused = translator_.dropped(DropReason::rename_refused);
     translator_.to_modules(frame, [&](std::size_t m, can::Frame local) {
       if (only && *only != m) return;
       if (refuse_colliding_sdo(m, local)) return;
       sdo_.to_bus(m, local);
-      // In order behind what waits for the bus; only process data may be dropped (counted).
-      if (!writers_[m]->write(local, bus_lane_of(local))) {
-        warn_.warn(Warn::kBusRefused,
-                   "gateway: bus {} is backed up: process data dropped (counted as bus-refused)",
-                   modules_[m].bus->name());
-      }
+      to_bus_[m].push_back(local);
     });
     if (translator_.dropped(DropReason::rename_refused) != renames_refused) {
       report_refused_rename();
+    }
+  }
+  // A bus's frames of the batch at once, in order behind what waits for the bus: one batch send.
+  // Only process data may be dropped (counted).
+  for (std::size_t m = 0; m < to_bus_.size(); ++m) {
+    if (!to_bus_[m].empty() && writers_[m]->write_each(to_bus_[m]) != 0) {
+      warn_.warn(Warn::kBusRefused,
+                 "gateway: bus {} is backed up: process data dropped (counted as bus-refused)",
+                 modules_[m].bus->name());
     }
   }
   after_node_input();

@@ -223,6 +223,7 @@ class Gateway {
   GatewayCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;
+  std::vector<std::vector<can::Frame>> to_bus_;  // per module bus: its frames of one batch
   WarnOnce<kWarnKinds> warn_;
   bool claims_changed_ = false;  // a node moved: the next NodeEvents carries the new claims
   bool stopped_ = false;

@@ -80,7 +80,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       relay_(rpdop_relay),
       deadlines_(executor_),
       writer_(
-          executor_, *bus_, BusWriteQueue::Options{},
+          executor_, *bus_, backbone_fed_write_options(),
           [this](std::span<const can::Frame> frames) {
             const auto now = LoopGuard::Clock::now();
             for (const can::Frame& frame : frames) loop_guard_.wrote(frame, now);
@@ -366,14 +366,23 @@ void Surface::on_frames(Gateway& from, const v1::FrameBatch& batch) {
   from.line_loss.on_batch(from.stream.peer_hello().session_id(), batch.process_frames_sent(),
                           decoded_.size());
   counters_.frames_received += decoded_.size();
+  to_bus_.clear();
   for (const can::Frame& frame : decoded_) {
     // Only its own nodes' COB-IDs: never another module's heartbeat, never NMT or SYNC.
     if (const std::optional<NotItsOwn> why = table_.refuses(from.id, frame)) {
       drop_not_its_own(from, *why, frame.id);
       continue;
     }
-    if (guard_.on_gateway_frame(from.id, frame)) send_to_bus(frame, batch.module_id());
+    if (guard_.on_gateway_frame(from.id, frame)) to_bus_.push_back(frame);
   }
+  // The whole batch at once: one batch send to the bus, one clock read for the loop guard.
+  to_bus_accepted_.clear();
+  if (writer_.write_each(to_bus_, monitor_ ? &to_bus_accepted_ : nullptr) != 0) {
+    warn_.warn(Warn::kBusRefused,
+               "surface: bus {} is backed up: process data dropped (counted as bus-refused)",
+               bus_->name());
+  }
+  if (monitor_ && !to_bus_accepted_.empty()) monitor_(to_bus_accepted_, batch.module_id(), true);
 }
 
 void Surface::drop_not_its_own(Gateway& from, NotItsOwn why, std::uint32_t cob) {

@@ -243,6 +243,8 @@ class Surface {
   SurfaceCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;
+  std::vector<can::Frame> to_bus_;           // the decoded frames of one batch that go to the bus
+  std::vector<can::Frame> to_bus_accepted_;  // ... of those, the ones the writer took
   WarnOnce<kWarnKinds> warn_;
   bool stopped_ = false;
   std::function<void(const std::string&)> on_failure_;

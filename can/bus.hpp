@@ -5,6 +5,7 @@
 #include <boost/asio/awaitable.hpp>
 #include <cstdint>
 #include <functional>
+#include <span>
 #include <string>
 #include <system_error>
 #include <vector>
@@ -52,6 +53,16 @@ class Bus {
   // Queues a frame for transmission, strictly in FIFO order, without blocking or suspending.
   // Returns false when the bounded transmit queue is full; the drop is counted.
   virtual bool send(const Frame& frame) = 0;
+  // Queues a run of frames, in order, as send(frame) does for each: takes the longest prefix it
+  // has room for and returns its length; it stops at the first frame it refuses (counted as
+  // send(frame) counts it) and never looks at the frames after it. A bus with a driver of its
+  // own hands the run over at once, in one system call where it can; this default sends them
+  // one by one.
+  virtual std::size_t send(std::span<const Frame> frames) {
+    std::size_t taken = 0;
+    while (taken < frames.size() && send(frames[taken])) ++taken;
+    return taken;
+  }
   // How many frames send() takes now without refusing (free transmit-queue slots; the largest
   // size_t for a bus without a bound). For writers of frame sequences that must go whole or not
   // at all (PDO Packet fragments): a sequence with a gap in it can pass as intact.

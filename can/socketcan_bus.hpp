@@ -36,7 +36,7 @@ struct SocketCanOptions {
   // CAN_RAW_ERR_FILTER: error classes to receive (CAN_ERR_* bits); they drive state(), never
   // reach the reader. All classes by default; 0 disables error frames.
   std::uint32_t error_mask = 0x1FFFFFFFU;
-  std::size_t batch_size = 64;  // frames per recvmmsg/sendmmsg and per receive_batch
+  std::size_t batch_size = 64;  // frames per recvmmsg, per receive_batch and per writer sendmmsg
 };
 
 // Not thread-safe, like the rest of the loop: use it from the executor's one thread.
@@ -58,6 +58,10 @@ class SocketCanBus final : public Bus {
   const std::string& name() const override;
   boost::asio::awaitable<std::error_code> receive_batch(std::vector<Frame>& out) override;
   bool send(const Frame& frame) override;
+  // With its transmit queue empty: one non-blocking sendmmsg for the run (up to
+  // min(transmit_queue_frames, 1024) frames); the rest, and everything while frames are queued,
+  // waits in the queue in order for the writer.
+  std::size_t send(std::span<const Frame> frames) override;
   std::size_t send_room() const override;
   std::size_t withdraw_queued(const std::function<bool(const Frame&)>& withdrawn) override;
   boost::asio::awaitable<std::error_code> wait_send_room(std::size_t frames) override;

@@ -107,5 +107,84 @@ TEST_F(BusWriterTest, ClosingTheBusDropsWhatWaitsAndCountsIt) {
       writer.queue().counters().dropped[static_cast<std::size_t>(BusWriteQueue::Drop::closed)], 2u);
 }
 
+// A backbone message's frames go to the bus with one batch send and one Written call (the roles
+// read the clock once per call), in order, with what does not fit waiting behind.
+TEST_F(BusWriterTest, ARunGoesWithOneWrittenCallAndTheRestWaitsInOrder) {
+  std::vector<std::size_t> calls;
+  BusWriter counting{io.get_executor(),
+                     *bus,
+                     BusWriteQueue::Options{},
+                     [&](std::span<const can::Frame> frames) {
+                       calls.push_back(frames.size());
+                       written.insert(written.end(), frames.begin(), frames.end());
+                     },
+                     {}};
+  counting.start();
+  std::vector<can::Frame> run;
+  for (std::uint8_t i = 0; i < 7; ++i) run.push_back(emcy(i));
+  medium.hold(true);
+  EXPECT_EQ(counting.write_each(run), 0u);
+  EXPECT_EQ(calls, std::vector<std::size_t>{3});  // the bus's three slots, in one call
+  EXPECT_EQ(counting.queue().waiting(), 4u);
+  medium.hold(false);
+  ASSERT_TRUE(test::run_until(io, [&] { return far.frames.size() == 7; }));
+  for (std::uint8_t i = 0; i < 7; ++i) EXPECT_EQ(far.frames[i], emcy(i)) << int{i};
+  EXPECT_EQ(written, far.frames);
+  counting.stop();
+  io.poll();
+}
+
+// Issue 17: a long stream of process data from the backbone into a bus slower than the link.
+// The link delivers whole messages of the largest size an outbox builds, the next one only while
+// the writer's owner has not paused it (as a StreamLink does); the bus takes 300 frames per turn
+// of the loop. The pause engages before any drop: backbone_fed_write_options() leaves room for the
+// rest of the message that crossed the high watermark.
+TEST(BusWriterBackpressure, AStreamOf100000ProcessFramesIntoASlowBusPausesAndDropsNothing) {
+  constexpr std::uint32_t kFrames = 100'000;
+  boost::asio::io_context io{1};
+  can::VirtualBus medium{io.get_executor(), "slow"};
+  std::unique_ptr<can::Bus> bus = medium.connect("writer", 256);
+  test::BusRecorder far{io, medium.connect("far")};
+  bool paused = false;
+  std::uint64_t pauses = 0;
+  BusWriter writer{io.get_executor(), *bus, backbone_fed_write_options(),
+                   [](std::span<const can::Frame>) {},
+                   [&](bool backlogged) {
+                     paused = backlogged;
+                     if (backlogged) ++pauses;
+                   }};
+  writer.start();
+  medium.hold(true);
+  auto tpdo = [](std::uint32_t seq) {
+    return can::Frame::standard(
+        0x185, {static_cast<std::uint8_t>(seq), static_cast<std::uint8_t>(seq >> 8),
+                static_cast<std::uint8_t>(seq >> 16)});
+  };
+  ASSERT_EQ(bus_lane_of(tpdo(0)), Lane::process_data);
+  std::uint32_t next = 0;
+  std::vector<can::Frame> message;
+  std::size_t dropped = 0;
+  for (int turn = 0; turn < 10'000 && far.frames.size() < kFrames; ++turn) {
+    while (!paused && next < kFrames) {
+      message.clear();
+      while (message.size() < kMaxFramesPerBackboneMessage && next < kFrames) {
+        message.push_back(tpdo(next++));
+      }
+      dropped += writer.write_each(message);
+    }
+    medium.release_held(300);
+    io.poll();
+  }
+  EXPECT_EQ(dropped, 0u);
+  EXPECT_EQ(writer.queue().dropped(), 0u);
+  EXPECT_GT(pauses, 1u);
+  ASSERT_EQ(far.frames.size(), kFrames);
+  for (std::uint32_t i = 0; i < kFrames; ++i) ASSERT_EQ(far.frames[i], tpdo(i)) << i;
+  writer.stop();
+  bus->close();
+  far.close();
+  EXPECT_TRUE(test::run_until(io, [&] { return far.done(); }));
+}
+
 }  // namespace
 }  // namespace canbridge::bridge

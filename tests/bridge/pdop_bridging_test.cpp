@@ -72,6 +72,7 @@ class RoomLimitedBus final : public can::Bus {
   asio::awaitable<std::error_code> receive_batch(std::vector<can::Frame>& out) override {
     return inner_->receive_batch(out);
   }
+  using can::Bus::send;  // the batch send: frame by frame through this one
   bool send(const can::Frame& frame) override {
     if (room == 0) return false;
     if (room != kUnbounded) --room;

@@ -33,6 +33,7 @@ class ScriptedBus final : public can::Bus {
     }
     co_return std::make_error_code(std::errc::operation_canceled);
   }
+  using can::Bus::send;  // the batch send: frame by frame through this one
   bool send(const can::Frame&) override { return !closed_; }
   std::size_t send_room() const override { return closed_ ? 0 : 64; }
   // Its 64 slots never fill (send() hands nothing to a driver), so room is there until it closes.

@@ -149,6 +149,32 @@ TEST(VirtualBus, HeldSendsQueueAndRoomWaitEndsWhenTheyLeave) {
   EXPECT_EQ(a->counters().tx_frames, 4u);
 }
 
+// The batch send: the run is delivered in order, sharing one timestamp (one clock read); while
+// the medium is held it queues behind what waits, taking only the prefix that fits.
+TEST(VirtualBus, ABatchSendDeliversTheRunInOrderOrQueuesThePrefixThatFits) {
+  asio::io_context io;
+  VirtualBus medium(io.get_executor(), "vbus");
+  auto a = medium.connect("a", 3);
+  auto b = medium.connect("b");
+  const std::vector<Frame> run = {Frame::standard(0x181, {1}), Frame::standard(0x281, {2}),
+                                  Frame::standard(0x181, {3}), Frame::standard(0x381, {4})};
+  EXPECT_EQ(a->send(std::span<const Frame>(run)), run.size());  // more than the queue: none waits
+  auto at_b = receive_all(io, *b);
+  ASSERT_EQ(at_b, run);
+  for (const Frame& f : at_b) EXPECT_EQ(f.timestamp, at_b.front().timestamp);
+
+  medium.hold(true);
+  ASSERT_TRUE(a->send(Frame::standard(0x100, {0})));
+  EXPECT_EQ(a->send(std::span<const Frame>(run)), 2u);  // two slots left: the first refusal ends it
+  EXPECT_EQ(a->counters().tx_dropped_queue, 1u);
+  medium.hold(false);
+  at_b = receive_all(io, *b);
+  ASSERT_EQ(at_b.size(), 3u);
+  EXPECT_EQ(at_b[0], Frame::standard(0x100, {0}));
+  EXPECT_EQ(at_b[1], run[0]);
+  EXPECT_EQ(at_b[2], run[1]);
+}
+
 TEST(VirtualBus, RoomWaitIsImmediateWithRoomAndFailsOnClose) {
   asio::io_context io;
   VirtualBus medium(io.get_executor(), "vbus");

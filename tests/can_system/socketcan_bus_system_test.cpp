@@ -355,6 +355,75 @@ TEST(SocketCanSystem, SendsLeaveInStrictFifoOrder) {
               static_cast<unsigned long long>(c.tx_retries));
 }
 
+// The batch send: with nothing queued, one non-blocking sendmmsg hands the whole run to the
+// kernel before send() returns (the writer has not run: the loop was not turned), and candump
+// sees it exactly in order. A run sent while frames are queued goes behind them.
+TEST(SocketCanSystem, ABatchSendGoesToTheKernelAtOnceAndCandumpSeesItInOrder) {
+  constexpr std::size_t kRun = 1000;  // above the ~200 frames a default send buffer holds
+  asio::io_context io(1);
+  SocketCanOptions o = options_for("vcan0");
+  o.transmit_queue_frames = kRun;
+  o.batch_size = 64;  // the writer's batches: far smaller than the run
+  auto sender = SocketCanBus::open(io.get_executor(), o);
+  std::vector<Frame> run;
+  for (std::size_t i = 0; i < kRun; ++i) {
+    Frame f = (i % 3 == 0) ? Frame::make(0x10000000u + i % 7, FrameFlags::extended, {})
+                           : Frame::make(0x200u + i % 16, 0, {});
+    f.len = 4;
+    for (int b = 0; b < 4; ++b) f.data[static_cast<std::size_t>(b)] = (i >> (8 * b)) & 0xFF;
+    run.push_back(f);
+  }
+  const std::vector<Frame> behind = {Frame::make(0x301, 0, {1}), Frame::make(0x302, 0, {2})};
+
+  const int before = test::receivers_on("vcan0");
+  // A receive buffer for all of it: candump gets no CPU while the one sendmmsg runs.
+  ChildProcess candump({"candump", "-L", "-r", "4194304", "-n", std::to_string(kRun + 3), "vcan0"});
+  ASSERT_TRUE(test::wait_for_receivers("vcan0", before)) << candump.output();
+  EXPECT_EQ(sender->send(std::span<const Frame>(run)), kRun);
+  EXPECT_EQ(sender->counters().tx_frames, kRun);  // all in the kernel already
+  EXPECT_EQ(sender->queued(), 0u);
+  // One frame queued for the writer: a run after it waits behind it, whole, in order.
+  ASSERT_TRUE(sender->send(Frame::make(0x300, 0, {0})));
+  EXPECT_EQ(sender->send(std::span<const Frame>(behind)), behind.size());
+  EXPECT_EQ(sender->queued(), 1 + behind.size());
+  EXPECT_EQ(sender->counters().tx_frames, kRun);
+  ASSERT_TRUE(run_until(
+      io, [&] { return candump.finished(); }, 20s))
+      << candump.output();
+  EXPECT_EQ(candump.wait(1s).value_or(-1), 0);
+
+  std::istringstream log(candump.output());
+  std::vector<CandumpRecord> records;
+  ASSERT_EQ(read_candump_log(log, records), "");
+  ASSERT_EQ(records.size(), kRun + 3);
+  std::size_t first_mismatch = kRun;
+  for (std::size_t i = 0; i < kRun && first_mismatch == kRun; ++i) {
+    if (!(records[i].frame == run[i])) first_mismatch = i;
+  }
+  EXPECT_EQ(first_mismatch, kRun) << "frame " << first_mismatch << " out of order";
+  EXPECT_EQ(records[kRun].frame, Frame::make(0x300, 0, {0}));
+  EXPECT_EQ(records[kRun + 1].frame, behind[0]);
+  EXPECT_EQ(records[kRun + 2].frame, behind[1]);
+  const BusCounters c = sender->counters();
+  EXPECT_EQ(c.tx_frames, kRun + 3);
+  EXPECT_EQ(c.tx_dropped_queue + c.tx_dropped_error, 0u);
+}
+
+// A batch send takes the prefix the transmit queue has room for and refuses the first frame
+// beyond it (counted once); the frames after it are not looked at.
+TEST(SocketCanSystem, ABatchSendBehindAFullishQueueTakesThePrefixThatFits) {
+  asio::io_context io(1);
+  SocketCanOptions o = options_for("vcan0");
+  o.transmit_queue_frames = 4;
+  auto sender = SocketCanBus::open(io.get_executor(), o);
+  for (std::uint8_t i = 0; i < 3; ++i) ASSERT_TRUE(sender->send(Frame::make(0x310, 0, {i})));
+  const std::vector<Frame> run = {Frame::make(0x311, 0, {0}), Frame::make(0x311, 0, {1}),
+                                  Frame::make(0x311, 0, {2})};
+  EXPECT_EQ(sender->send(std::span<const Frame>(run)), 1u);
+  EXPECT_EQ(sender->queued(), 4u);
+  EXPECT_EQ(sender->counters().tx_dropped_queue, 1u);
+}
+
 TEST(SocketCanSystem, FullTransmitQueueRefusesAndCounts) {
   asio::io_context io(1);
   SocketCanOptions o = options_for("vcan0");
