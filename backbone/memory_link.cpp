@@ -160,6 +160,7 @@ void MemoryLink::schedule_delivery() {
 // stops delivery at once.
 void MemoryLink::deliver_turn() {
   delivery_scheduled_ = false;
+  ++input_batches_;
   while (!closing_ && !reading_paused_ && unread_bytes() > 0) {
     std::span<const std::uint8_t> rest(
         reinterpret_cast<const std::uint8_t*>(inbox_.data()) + inbox_offset_, unread_bytes());

@@ -69,6 +69,9 @@ class MemoryLink final : public MessageLink, public std::enable_shared_from_this
   LinkCounters counters() const override { return counters_; }
   const std::string& peer_name() const noexcept override { return peer_name_; }
   bool crc_framed() const noexcept override { return options_.crc_framed; }
+  // One batch per delivery turn: what the other end wrote since the last one.
+  std::uint64_t input_batches() const noexcept override { return input_batches_; }
+  bool input_waiting() override { return unread_bytes() > 0; }
 
   // Bytes written to this end and not yet delivered: what is in flight towards it.
   std::size_t unread_bytes() const noexcept { return inbox_.size() - inbox_offset_; }
@@ -114,6 +117,7 @@ class MemoryLink final : public MessageLink, public std::enable_shared_from_this
   bool writer_blocked_ = false;      // this end's writer waits for the other end to read
   bool peer_gone_ = false;           // the other end has ended
   bool wrote_after_peer_gone_ = false;
+  std::uint64_t input_batches_ = 0;
 };
 
 }  // namespace canbridge::backbone

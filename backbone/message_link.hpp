@@ -50,8 +50,21 @@ class MessageLink {
   virtual void start(MessageHandler on_message, Source source, ClosedHandler on_closed) = 0;
 
   // Tells an idle writer that the source has something. Cheap; call it as often as you like:
-  // wakes coalesce until the writer next calls the source.
+  // wakes coalesce until the writer next calls the source. A wake from inside on_message is
+  // served once the batch being delivered has been handed over: whatever all its messages
+  // queued (acks, answers) then goes out in one write.
   virtual void wake_writer() = 0;
+
+  // How many batches of input the reader has handed to on_message so far. A batch is what one
+  // read of the transport brought in (a large read is handed over in slices, so that what its
+  // messages queue is written, and time is looked at, while the rest is still being handled):
+  // its messages arrived together, so a user may read its clock once per batch, not per message.
+  virtual std::uint64_t input_batches() const noexcept = 0;
+
+  // Bytes have arrived that the reader has not handed over yet (waiting in the transport, or read
+  // and held while paused): the peer did send them, though this side has not run to read them.
+  // May cost a syscall; for rare decisions (is the link dead?), not per message.
+  virtual bool input_waiting() = 0;
 
   // While paused, no message reaches on_message and the transport is not read, so the peer's
   // writes back up into its own buffers: for a receiver that cannot take more for a while.

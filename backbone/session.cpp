@@ -63,7 +63,7 @@ void SessionLink::start() {
   std::weak_ptr<SessionLink> weak = weak_from_this();
   link_->start(
       [weak](std::span<const std::uint8_t> bytes) {
-        if (auto self = weak.lock()) self->core_.on_message(bytes, self->now());
+        if (auto self = weak.lock()) self->core_.on_message(bytes, self->input_now());
       },
       [weak](std::string& out) {
         if (auto self = weak.lock()) self->core_.fill(out, self->now());
@@ -83,6 +83,15 @@ Clock::time_point SessionLink::now() const {
   return clock_ ? clock_() : Clock::now();
 }
 
+Clock::time_point SessionLink::input_now() {
+  const std::uint64_t batch = link_->input_batches();
+  if (batch != input_batch_) {  // every delivery starts a batch, so the first message reads it
+    input_batch_ = batch;
+    input_time_ = now();
+  }
+  return input_time_;
+}
+
 void SessionLink::on_closed() {
   if (core_.closed()) return;
   auto self = shared_from_this();  // the stream may hold the last reference
@@ -93,9 +102,14 @@ void SessionLink::on_closed() {
   core_.on_link_closed(carried, link_->counters().close_reason.message());
 }
 
-// One timer per link, at the core's next deadline (measured on the session's clock).
+// One timer per link, at the core's next deadline (measured on the session's clock; without an
+// injected one that is the timer's own, and arming it reads no clock).
 void SessionLink::arm_timer() {
-  timer_.expires_after(std::max(core_.next_deadline() - now(), Clock::duration::zero()));
+  if (clock_) {
+    timer_.expires_after(std::max(core_.next_deadline() - now(), Clock::duration::zero()));
+  } else {
+    timer_.expires_at(core_.next_deadline());
+  }
   timer_.async_wait([weak = weak_from_this()](boost::system::error_code ec) {
     auto self = weak.lock();
     if (!ec && self) self->on_timer();

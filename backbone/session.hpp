@@ -55,6 +55,9 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
               SessionCounters& counters, SessionLogMemory* log);
 
   std::chrono::steady_clock::time_point now() const;
+  // The time of the input batch being delivered: the clock is read once per batch (a syscall
+  // where there is no vDSO), not once per message.
+  std::chrono::steady_clock::time_point input_now();
   void on_closed();
   void arm_timer();
   void on_timer();
@@ -64,6 +67,7 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
   void pause_reading(bool paused) override;
   BindResult bind(const v1::Hello& peer) override;
   void carry(PeerStream& stream) override;
+  bool input_waiting() override { return link_->input_waiting(); }
 
   std::shared_ptr<MessageLink> link_;
   std::function<std::chrono::steady_clock::time_point()> clock_;
@@ -71,7 +75,9 @@ class SessionLink : public std::enable_shared_from_this<SessionLink>, private Se
   SessionLogMemory own_log_;
   SessionCore core_;
   std::uint64_t rx_bytes_at_tick_ = 0;  // the link's rx_bytes at the last tick
-  boost::asio::steady_timer timer_;     // at the core's next deadline
+  std::uint64_t input_batch_ = 0;       // the link's input batch input_time_ was read for
+  std::chrono::steady_clock::time_point input_time_{};
+  boost::asio::steady_timer timer_;  // at the core's next deadline
 };
 
 // A random 64-bit id (never 0) for SessionLink::Identity::session_id.

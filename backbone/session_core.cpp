@@ -187,6 +187,9 @@ void SessionCore::on_message(std::span<const std::uint8_t> bytes, TimePoint now)
   if (!peer_hello_ok_ || !ready_) return before_ready(now);
   bool wake = on_acks(now);
   if (inbound_.body_case() == v1::Envelope::kPayload) wake = on_payload(now) || wake;
+  // A side that spends seconds on one large read (thousands of frames to write) does not tick
+  // meanwhile: its keepalive must not wait for the tick, or the peer declares it dead.
+  wake = keepalive_due(now) || wake;
   if (wake && !closed_) shell_.wake_writer();  // once: an idle writer writes at once
 }
 
@@ -798,13 +801,21 @@ EnvelopeHeader SessionCore::next_header(std::uint64_t seq, std::uint64_t unrelia
 void SessionCore::on_tick(TimePoint now, bool reading_paused, bool bytes_arrived) {
   if (closing_) return;  // closing already (its handler may come later)
   last_tick_ = now;
-  if (now - last_rx_ <= options_.dead_after && now - last_run_ > peer_patience()) {
+  const bool did_not_run = now - last_run_ > peer_patience();
+  if (now - last_rx_ <= options_.dead_after && did_not_run) {
     return close_stale("this side did not run for longer than the peer waits", now);
   }
   last_run_ = now;
   // Not reading (PeerStream::pause_input): the silence is ours, and so are the missing acks.
   if (reading_paused) last_rx_ = now;
   if (bytes_arrived) last_rx_ = now;  // part of a message: the peer is sending
+  if (now - last_rx_ > options_.dead_after && shell_.input_waiting()) {
+    // The peer did send: this side was too busy to read it (the tick comes late, or before the
+    // reader's turn). Unless it was busy for longer than the peer waits, the link is alive.
+    const char* why = "this side did not run for longer than the peer waits";
+    if (did_not_run) return close_stale(why, now);
+    last_rx_ = now;
+  }
   if (now - last_rx_ > options_.dead_after) {
     ++counters_.dead_links;
     spdlog::warn("backbone: nothing from {} for {} ms: link dead, closing it", link_.peer_name,
@@ -840,6 +851,12 @@ void SessionCore::tick_ready(TimePoint now, bool deaf) {
     wake = true;
   }
   if (wake) shell_.wake_writer();
+}
+
+bool SessionCore::keepalive_due(TimePoint now) {
+  if (!ready_ || keepalive_owed_ || now - last_tx_ < options_.keepalive_interval) return false;
+  keepalive_owed_ = true;
+  return true;
 }
 
 // The tick closes a link silent for dead_after within one period, and this side sends at least

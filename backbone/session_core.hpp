@@ -31,6 +31,9 @@ class SessionShell {
   virtual BindResult bind(const v1::Hello& peer) = 0;
   // This link carries `stream` from now on (close whatever link carried it before).
   virtual void carry(PeerStream& stream) = 0;
+  // Bytes from the peer wait unread (this side was too busy to read them): asked only before the
+  // link would be declared dead, since it may cost a syscall.
+  virtual bool input_waiting() { return false; }
 
  protected:
   virtual ~SessionShell() = default;
@@ -59,7 +62,9 @@ class SessionCore {
 
   // The link is up: every silence is measured from now. Wakes the writer (a preset hello).
   void start(TimePoint now);
-  // One message from the peer (a serialized Envelope without its length prefix).
+  // One message from the peer (a serialized Envelope without its length prefix). `now` may be
+  // the time its input batch began (read once per batch): a keepalive that fell due meanwhile
+  // is asked for here too, since a side busy with a long batch does not tick.
   void on_message(std::span<const std::uint8_t> bytes, TimePoint now);
   // Appends what to write now (delimited envelopes) to `out`: hello or refusal first, then
   // retransmissions, new reliable payloads, what the producer adds, and an ack if nothing else.
@@ -67,7 +72,8 @@ class SessionCore {
   // Time passed: dead and stale links, keepalives, retransmission, repeated resend requests.
   // `reading_paused`: the link is not read (the silence is ours, not the peer's).
   // `bytes_arrived`: the link read bytes since the last tick, though perhaps no whole message (a
-  // large message on a slow serial line takes seconds): the peer is alive.
+  // large message on a slow serial line takes seconds): the peer is alive. Before a link is
+  // declared dead the shell is asked whether bytes wait unread (SessionShell::input_waiting).
   void on_tick(TimePoint now, bool reading_paused, bool bytes_arrived = false);
   // When on_tick is due. The core must be ticked about this often: the gap between ticks is
   // how it notices that it was not run (frozen, not scheduled) for longer than the peer waits.
@@ -130,6 +136,9 @@ class SessionCore {
   const char* stale_reason(TimePoint now) const;
   void close_stale(const char* why, TimePoint now);
   void tick_ready(TimePoint now, bool deaf);
+  // Ready, and nothing written for a keepalive interval: a keepalive is owed from now; true when
+  // it was not owed before (the writer must be woken).
+  bool keepalive_due(TimePoint now);
   void drop_too_old(TimePoint now);
   Clock::duration peer_patience() const;
   Clock::duration resend_interval() const;

@@ -4,6 +4,7 @@
 #include <openssl/err.h>
 #include <openssl/ssl.h>
 #include <spdlog/spdlog.h>
+#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -29,6 +30,11 @@ constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
 
 // Past this, the write buffer is released after use so one burst does not pin memory forever.
 constexpr std::size_t kRetainedWriteCapacity = std::size_t{1} << 20;
+
+// One input batch: a full 64 KiB read of small messages can take its handlers a long time (each
+// frame written to a bus); in slices of this size the session looks at its clock (keepalives)
+// and what the messages queued (acks) goes out while the rest of the read is handled.
+constexpr std::size_t kInputSliceBytes = 4 * 1024;
 
 std::string describe(const tcp::endpoint& endpoint) {
   return endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
@@ -130,12 +136,31 @@ void StreamLink::start(MessageHandler on_message, Source source, ClosedHandler o
 
 void StreamLink::wake_writer() {
   wake_requested_ = true;
-  if (!writer_sleeping_) return;  // busy: it calls the source again once its write completes
-  writer_sleeping_ = false;       // one wake per sleep, however many wakes
+  // Busy: it calls the source again once its write completes. Delivering: deliver() starts the
+  // write once the batch is handed over, so that one write carries what all its messages queued.
+  if (!writer_sleeping_ || delivering_) return;
+  start_write();
+}
+
+void StreamLink::start_write() {
+  writer_sleeping_ = false;  // one wake per sleep, however many wakes
   // TLS records are written by the stream's own async machinery only (a raw send would bypass
   // the encryption), so a TLS writer is always resumed to write.
-  if (!is_tls() && write_inline()) return;  // nothing to send after all: the writer sleeps on
+  if (!is_tls() && write_inline()) {
+    writer_sleeping_ = !closing_;  // nothing to send after all: the writer sleeps on
+    return;
+  }
+  writer_resuming_ = true;
   wake_.cancel();
+}
+
+// The end of an input batch: what its messages queued goes out now. Inside a long read the writer
+// resumed after an earlier batch's inline send cannot run until the read is handled, so a batch
+// may send inline behind it too, as long as that send left nothing for it to finish.
+void StreamLink::write_after_batch(bool more_input) {
+  if (!wake_requested_ || closing_) return;
+  if (writer_sleeping_) return start_write();
+  if (more_input && writer_resuming_ && write_buffer_.empty() && !is_tls()) write_inline();
 }
 
 // The writer is asleep, so no write is in flight and the buffer is free: rather than resume the
@@ -158,11 +183,8 @@ bool StreamLink::write_inline() {
     return true;
   }
   if (closing_) return true;
-  if (write_buffer_.empty()) {
-    if (wake_requested_) return false;  // woken from inside the source: let the writer ask again
-    writer_sleeping_ = true;
-    return true;
-  }
+  // Woken from inside the source: let the writer ask again.
+  if (write_buffer_.empty()) return !wake_requested_;
   const ssize_t sent = is_serial()
                            ? ::write(native_handle(), write_buffer_.data(), write_buffer_.size())
                            : ::send(native_handle(), write_buffer_.data(), write_buffer_.size(),
@@ -213,6 +235,13 @@ void StreamLink::write_done() {
     write_buffer_.clear();
   }
   write_offset_ = 0;
+}
+
+bool StreamLink::input_waiting() {
+  if (!unread_.empty()) return true;
+  if (closing_) return false;
+  int waiting = 0;  // FIONREAD: the socket's receive queue; on a tty the same as TIOCINQ
+  return ::ioctl(native_handle(), FIONREAD, &waiting) == 0 && waiting > 0;
 }
 
 void StreamLink::pause_reading(bool paused) {
@@ -276,6 +305,13 @@ asio::awaitable<void> StreamLink::read_loop() {
 
 // Pulls one message at a time so that a handler calling close() stops delivery at once.
 void StreamLink::deliver() {
+  ++input_batches_;
+  std::size_t sliced = unread_.size();  // unread_ when the current batch began
+  delivering_ = true;
+  struct Done {
+    StreamLink& link;
+    ~Done() { link.delivering_ = false; }
+  } done{*this};
   while (!closing_ && !reading_paused_) {
     auto message = crc_framed_ ? deframer_.next(unread_) : decoder_.next(unread_);
     if (!message) {
@@ -284,7 +320,17 @@ void StreamLink::deliver() {
     }
     ++counters_.rx_messages;
     if (on_message_) on_message_(*message);
+    if (sliced - unread_.size() >= kInputSliceBytes && !unread_.empty()) {
+      // The end of a batch: write what it queued, start the next.
+      delivering_ = false;
+      write_after_batch(true);
+      delivering_ = true;
+      sliced = unread_.size();
+      ++input_batches_;
+    }
   }
+  delivering_ = false;
+  write_after_batch(false);  // a resumed writer runs next and takes what the batch queued
   if (crc_framed_) counters_.deframer = deframer_.counters();
 }
 
@@ -301,6 +347,7 @@ asio::awaitable<void> StreamLink::write_loop() {
         wake_.expires_at(asio::steady_timer::time_point::max());
         co_await wake_.async_wait(kNoError);
         writer_sleeping_ = false;
+        writer_resuming_ = false;
         continue;
       }
     }

@@ -73,7 +73,8 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
 
   // Tells an idle writer that the source has something. Cheap; call it as often as you like.
   // When the writer is idle this calls the source and sends right away (one non-blocking send);
-  // further wakes coalesce until that write has "completed" on a later turn of the loop.
+  // further wakes coalesce until that write has "completed" on a later turn of the loop. From
+  // inside on_message the send waits until the current input batch has been handed over.
   void wake_writer() override;
 
   // While paused the socket is not read: the peer's writes back up in the kernel buffers.
@@ -93,6 +94,9 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   const std::string& peer_name() const noexcept override { return peer_name_; }
   // COBS + CRC-32C framed: serial lines, or TCP across a lossy path (LinkFraming::cobs_crc32c).
   bool crc_framed() const noexcept override { return crc_framed_; }
+  std::uint64_t input_batches() const noexcept override { return input_batches_; }
+  // Held while paused, or waiting in the socket or serial driver (one ioctl).
+  bool input_waiting() override;
   // The identity a TLS handshake proved; empty on plain TCP and serial links.
   const std::string& authenticated_peer() const noexcept override { return authenticated_peer_; }
 
@@ -113,8 +117,13 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   // Turns the delimited messages the source appended to staging_ into serial frames.
   void frame_staged_for_serial();
   bool fill_write_buffer();
-  // Hands the messages in unread_ to on_message until it is empty, paused or closing.
+  // Hands the messages in unread_ to on_message until it is empty, paused or closing, in batches
+  // of about kInputSliceBytes; what they queue for the writer goes out after each batch.
   void deliver();
+  // The writer was woken while idle: send now (inline), or resume it.
+  void start_write();
+  // The end of an input batch (`more_input`: of a slice, the read goes on): send what it queued.
+  void write_after_batch(bool more_input);
 
   boost::asio::awaitable<void> read_loop();
   boost::asio::awaitable<void> write_loop();
@@ -158,6 +167,9 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   bool finished_ = false;         // loops stopped and on_closed ran
   bool writer_sleeping_ = false;  // the writer waits on wake_
   bool wake_requested_ = false;   // wake_writer() since the source was last called
+  bool delivering_ = false;       // inside deliver(): a wake waits for the end of the batch
+  bool writer_resuming_ = false;  // resumed after an inline send, and has not run yet
+  std::uint64_t input_batches_ = 0;
   bool reading_paused_ = false;
 };
 

@@ -63,11 +63,17 @@ class FakeShell final : public SessionShell {
   void pause_reading(bool paused) override { reading_paused = paused; }
   BindResult bind(const v1::Hello&) override { return {bind_to, v1::Refusal::PROTOCOL_ERROR, {}}; }
   void carry(PeerStream& stream) override { carried = &stream; }
+  bool input_waiting() override {
+    ++input_waiting_asked;
+    return unread_input;
+  }
 
   int wakes = 0;
   std::optional<std::error_code> closed;
   bool reading_paused = false;
   bool bytes_arriving = false;  // the link reads parts of a message, never a whole one
+  bool unread_input = false;    // bytes wait in the link, unread (this side was too busy)
+  int input_waiting_asked = 0;
   PeerStream* bind_to = nullptr;
   PeerStream* carried = nullptr;
 };
@@ -195,7 +201,7 @@ class SessionCoreTest : public ::testing::Test {
     for (;;) {
       End* due = nullptr;
       for (End* e : {&gateway, &surface}) {
-        if (e == frozen || e->shell.closed) continue;
+        if (e == frozen || e == busy || e->shell.closed) continue;
         if (!due || e->core->next_deadline() < due->core->next_deadline()) due = e;
       }
       if (!due || due->core->next_deadline() > end) break;
@@ -228,6 +234,7 @@ class SessionCoreTest : public ::testing::Test {
   Filter lose_to_surface;
   Filter lose_to_gateway;
   End* frozen = nullptr;  // not run: what reaches it waits
+  End* busy = nullptr;    // handles input and writes, but is never ticked (one long read)
   std::vector<std::vector<std::uint8_t>> held;
 };
 
@@ -423,6 +430,63 @@ TEST_F(SessionCoreTest, BytesOfAMessageStillArrivingAreNotSilence) {
   EXPECT_FALSE(gateway.shell.closed);
   gateway.shell.bytes_arriving = false;
   advance(test_options().dead_after + 2 * gateway.core->tick_period());
+  EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
+}
+
+// A side busy with one long read (thousands of frames to write to its bus) is not ticked for
+// seconds, yet handles input all the while: the keepalive it owes goes out from there, so the
+// peer, which hears nothing else from it, does not declare the link dead.
+TEST_F(SessionCoreTest, ASideBusyWithALongReadStillSendsItsKeepalives) {
+  connect();
+  ASSERT_TRUE(ready());
+  busy = &surface;
+  const auto dead_after = test_options().dead_after;
+  const int steps = static_cast<int>(3 * dead_after / 10ms);
+  for (int n = 1; n <= steps; ++n) {  // process data every 10 ms, never answered
+    gateway.to_send_unreliable.push_back(static_cast<std::uint64_t>(n));
+    advance(10ms);
+  }
+  EXPECT_FALSE(gateway.shell.closed);
+  EXPECT_EQ(gateway.counters.dead_links, 0u);
+  EXPECT_EQ(surface.unreliable.size(), static_cast<std::size_t>(steps));
+  // One per keepalive interval of the surface's silence, as the tick would have sent them.
+  const auto intervals = 3 * dead_after / test_options().keepalive_interval;
+  EXPECT_GE(surface.counters.keepalives_sent, static_cast<std::uint64_t>(intervals - 1));
+  EXPECT_EQ(gateway.shell.input_waiting_asked, 0);  // never near the verdict
+}
+
+// The tick may come late, or before the reader's turn, when this side was busy: bytes waiting
+// unread in the link were sent by the peer, so the peer is not silent. Once nothing waits any
+// more, silence counts again; the link is asked only when the verdict is near.
+TEST_F(SessionCoreTest, BytesWaitingUnreadAreNotSilence) {
+  connect();
+  ASSERT_TRUE(ready());
+  advance(3 * test_options().dead_after);  // keepalives both ways
+  EXPECT_EQ(gateway.shell.input_waiting_asked, 0);
+  gateway.shell.unread_input = true;
+  lose_to_gateway = [](const v1::Envelope&) { return true; };
+  advance(3 * test_options().dead_after);
+  EXPECT_FALSE(gateway.shell.closed);
+  EXPECT_GT(gateway.shell.input_waiting_asked, 0);
+  gateway.shell.unread_input = false;
+  advance(test_options().dead_after + 2 * gateway.core->tick_period());
+  EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
+  EXPECT_EQ(gateway.counters.dead_links, 1u);
+}
+
+// Input waiting unread after this side did not run for longer than the peer waits is no proof
+// that the link lived: the peer may have given up on it meanwhile. The late tick closes it as
+// stale, whatever waits.
+TEST_F(SessionCoreTest, InputWaitingAfterAFreezeLongerThanThePeersPatienceIsStale) {
+  connect();
+  ASSERT_TRUE(ready());
+  gateway.shell.unread_input = true;
+  frozen = &gateway;
+  advance(test_options().dead_after + 100ms);
+  frozen = nullptr;
+  gateway.core->on_tick(now, false, false);  // the late tick comes before the reader's turn
+  EXPECT_EQ(gateway.counters.stale_links_closed, 1u);
+  EXPECT_EQ(gateway.counters.dead_links, 0u);
   EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
 }
 

@@ -462,6 +462,32 @@ TEST_F(SessionTest, ASideThatDidNotRunLongerThanThePeerWaitsClosesTheLinkAsStale
   io.run_for(20ms);
 }
 
+// The session reads its clock once per input batch, not per message: thousands of process-data
+// messages in a few reads cost a few clock reads (each a syscall where there is no vDSO).
+TEST_F(SessionTest, TheClockIsReadPerInputBatchNotPerMessage) {
+  SessionOptions options = fast_options();
+  options.keepalive_interval = 1s;  // ticks (two clock reads each) every 250 ms only
+  options.retransmit_timeout = 1s;
+  options.dead_after = 5s;
+  SessionEnd gw{"gw", v1::Hello::ROLE_GATEWAY, options, {1}};
+  auto reads = std::make_shared<std::uint64_t>(0);
+  options.clock = [reads] {
+    ++*reads;
+    return std::chrono::steady_clock::now();
+  };
+  SessionEnd sf{"surface", v1::Hello::ROLE_SURFACE, options};
+  connect(io, gw, sf);
+  ASSERT_TRUE(run_until(io, [&] { return gw.stream().up() && sf.stream().up(); }));
+  constexpr std::uint64_t kCount = 5000;
+  const std::uint64_t before = *reads;
+  gw.send_unreliable_up_to(kCount);
+  ASSERT_TRUE(run_until(io, [&] { return sf.unreliable == kCount; }));
+  EXPECT_LT(*reads - before, kCount / 20);
+  close_links(gw);
+  close_links(sf);
+  io.run_for(20ms);
+}
+
 // What the surface sent a gateway process and that process never acknowledged is not replayed
 // to the gateway's next process: tombstones keep the sequence, the new process gets only what
 // was sent after it said hello.

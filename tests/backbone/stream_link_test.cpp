@@ -283,6 +283,89 @@ TEST_F(StreamLinkTest, HandlersCapturingTheLinkDoNotKeepItAlive) {
   EXPECT_TRUE(run_until(io, [&] { return weak.expired(); }));
 }
 
+// What the handlers of one read's messages queue goes out in one write once they have all been
+// handed over, not one write for the first and another for the rest.
+TEST_F(StreamLinkTest, AWakeFromInsideTheHandlerIsServedOnceTheBatchIsHandedOver) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle
+  constexpr std::uint32_t kCount = 50;
+  for (std::uint32_t i = 0; i < kCount; ++i) a_out.pending.push_back(numbered(i));
+  a->wake_writer();  // one inline send: b reads all of it at once
+  b->start(
+      [&](std::span<const std::uint8_t> m) {
+        b_out.pending.push_back("ack " + to_string(m).substr(0, 4));
+        b->wake_writer();
+      },
+      b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return a_in.messages.size() == kCount; }));
+  EXPECT_EQ(b->counters().tx_writes, 1u);
+  for (std::uint32_t i = 0; i < kCount; ++i) {
+    EXPECT_EQ(a_in.messages[i], "ack " + numbered(i).substr(0, 4));
+  }
+}
+
+// A large read is handed over in batches of about 4 KiB, each followed by the write of what its
+// messages queued: a side busy with one long read (thousands of frames to write to its bus) still
+// answers, and its keepalives go out, while it works through the rest.
+TEST_F(StreamLinkTest, ALargeReadIsHandedOverInBatchesEachFollowedByItsWrite) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  constexpr std::size_t kCount = 600;  // 101 bytes each on the wire: about 60 KB, one read
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle
+  for (std::size_t i = 0; i < kCount; ++i) a_out.pending.push_back(std::string(100, 'x'));
+  a->wake_writer();  // sent inline, before b reads anything
+  ASSERT_EQ(a->counters().tx_bytes, kCount * 101);
+  struct Seen {
+    std::uint64_t batch;
+    std::uint64_t writes;  // b's completed writes when the message was handed over
+  };
+  std::vector<Seen> seen;
+  b->start(
+      [&](std::span<const std::uint8_t>) {
+        seen.push_back({b->input_batches(), b->counters().tx_writes});
+        b_out.pending.push_back("ack");
+        b->wake_writer();
+      },
+      b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return seen.size() == kCount; }));
+  const std::uint64_t batches = seen.back().batch - seen.front().batch + 1;
+  EXPECT_GE(batches, kCount * 101 / (4 * 1024));
+  std::uint64_t written_between = 0;
+  for (std::size_t i = 1; i < kCount; ++i) {
+    if (seen[i].batch == seen[i - 1].batch) {
+      EXPECT_EQ(seen[i].writes, seen[i - 1].writes) << "a write inside a batch, message " << i;
+    } else if (seen[i].writes > seen[i - 1].writes) {
+      ++written_between;
+    }
+  }
+  // Every batch's acks before the next batch (a boundary between two reads may leave them to
+  // the resumed writer, which runs between the reads).
+  EXPECT_GE(written_between + 2, batches);
+  ASSERT_TRUE(run_until(io, [&] { return a_in.messages.size() == kCount; }));  // every ack
+}
+
+// Bytes in the socket that the reader has not handed over, or holds while paused, are input
+// waiting: the peer sent them, though this side has not run to read them.
+TEST_F(StreamLinkTest, InputWaitingSeesBytesTheReaderHasNotHandedOver) {
+  a->start(a_in.on_message(), a_out.source(), a_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return a_out.source_calls == 1; }));  // idle
+  EXPECT_FALSE(b->input_waiting());
+  a_out.pending.push_back("first");
+  a_out.pending.push_back("second");
+  a->wake_writer();  // inline: in b's socket now
+  EXPECT_TRUE(b->input_waiting());
+  b->start(
+      [&](std::span<const std::uint8_t> m) {
+        b_in.messages.push_back(to_string(m));
+        if (b_in.messages.size() == 1) b->pause_reading(true);
+      },
+      b_out.source(), b_in.on_closed());
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 1; }));
+  EXPECT_TRUE(b->input_waiting());  // "second", read and held
+  b->pause_reading(false);
+  ASSERT_TRUE(run_until(io, [&] { return b_in.messages.size() == 2; }));
+  EXPECT_FALSE(b->input_waiting());
+}
+
 TEST_F(StreamLinkTest, TcpNoDelayIsSetOnBothEnds) {
   EXPECT_NE(tcp_nodelay(a->native_handle()), 0);
   EXPECT_NE(tcp_nodelay(b->native_handle()), 0);

@@ -5,7 +5,10 @@
 #include "backbone/tls_upgrade.hpp"
 
 #include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <openssl/rand.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -233,6 +236,13 @@ TEST_F(TlsTest, PskLinkCarriesMessagesBothWaysAndEachEndNamesItsPeer) {
   EXPECT_TRUE(server_result->link->is_tls());
   EXPECT_EQ(server_result->link->authenticated_peer(), "gw1");
   EXPECT_EQ(client_result->link->authenticated_peer(), "surface");
+  // Under TLS too, the socket below sends each write at once (no Nagle delay) on both ends.
+  for (const auto& link : {server_result->link, client_result->link}) {
+    int nodelay = 0;
+    socklen_t length = sizeof nodelay;
+    ASSERT_EQ(::getsockopt(link->native_handle(), IPPROTO_TCP, TCP_NODELAY, &nodelay, &length), 0);
+    EXPECT_NE(nodelay, 0);
+  }
   EXPECT_EQ(surface->counters().succeeded, 1u);
   EXPECT_EQ(gateway->counters().succeeded, 1u);
   expect_messages_cross();
