@@ -2,8 +2,8 @@
 // 64-bit little-endian counter cangen -D i writes, and times them with kernel receive timestamps
 // against the same frames seen on a source interface.
 //
-//   can_counter --source vcan1 --sink vcan0 --id 181 [--sink-id 1a1] --count 100000 [--idle-ms
-//   3000]
+//   can_counter --source vcan1 --sink vcan0 --id 181 [--sink-id 1a1] --count 100000
+//               [--idle-ms 3000]
 //
 // --sink-id: the id the frames carry on the sink (default --id), for a bridge that translates
 // COB-IDs (module 1's node 1 TPDO 0x181 is the surface's 0x1A1).
