@@ -262,7 +262,7 @@ counters() {
   local g s
   g=$(grep "gateway tool-gateway:" "$work/$1.gateway.log" | tail -1 |
     grep -o "bus->backbone [0-9]* frames ([0-9]* batches)\|conflated [0-9]*\|process-dropped [0-9]*\|dead-links [0-9]*" |
-    tr '\n' ',' | sed 's/,$//; s/,/, /g' || true)
+    awk '!seen[$1]++' | tr '\n' ',' | sed 's/,$//; s/,/, /g' || true)
   s=$(grep "surface surface:" "$work/$1.surface.log" | tail -1 |
     grep -o "backbone->bus [0-9]*\|bus-refused [0-9]*\|dead-links [0-9]*" | head -3 |
     tr '\n' ',' | sed 's/,$//; s/,/, /g' || true)
@@ -367,7 +367,7 @@ tunnel_row() {
     "$(out "$name.p1k" latency_us_p50)" "$(out "$name.p1k" latency_us_p99)" \
     "$(out "$name.pmax" latency_us_p50)" "$(out "$name.pmax" latency_us_p99)" "${bpf:--}" \
     "${fb[5]}" "${fb[4]}" "${fb[0]}" "${fb[1]}" "${fb[2]}" "${fb[3]}" "$sdo_x" "${sc[0]}" "${sc[1]}"
-  echo "     $notes; $((SECONDS - t0)) s" | tee -a "$work/notes"
+  echo "     $label: $notes; $((SECONDS - t0)) s" | tee -a "$work/notes"
 }
 
 header "${columns[@]}"
