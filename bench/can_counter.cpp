@@ -2,8 +2,11 @@
 // 64-bit little-endian counter cangen -D i writes, and times them with kernel receive timestamps
 // against the same frames seen on a source interface.
 //
-//   can_counter --source vcan1 --sink vcan0 --id 181 --count 100000 [--idle-ms 3000]
+//   can_counter --source vcan1 --sink vcan0 --id 181 [--sink-id 1a1] --count 100000
+//               [--idle-ms 3000]
 //
+// --sink-id: the id the frames carry on the sink (default --id), for a bridge that translates
+// COB-IDs (module 1's node 1 TPDO 0x181 is the surface's 0x1A1).
 // Prints "ready" once both sockets are bound (start the sender after that), then key=value
 // results: delivered, lost, reordered, duplicates, kernel_drops, rate_fps (delivered frames per
 // second from the first frame on the source to the last on the sink), latency_us_p50/p99/max
@@ -30,6 +33,7 @@ namespace {
 struct Options {
   std::string source, sink;
   std::uint32_t id = 0x123;
+  std::uint32_t sink_id = 0xFFFFFFFF;  // unset: the same as id
   std::size_t count = 100000;
   int idle_ms = 3000;
 };
@@ -115,6 +119,8 @@ int main(int argc, char** argv) {
       o.sink = v;
     else if (k == "--id")
       o.id = static_cast<std::uint32_t>(std::strtoul(v, nullptr, 16));
+    else if (k == "--sink-id")
+      o.sink_id = static_cast<std::uint32_t>(std::strtoul(v, nullptr, 16));
     else if (k == "--count")
       o.count = std::strtoul(v, nullptr, 10);
     else if (k == "--idle-ms")
@@ -129,7 +135,7 @@ int main(int argc, char** argv) {
     return 2;
   }
   const int src = open_socket(o.source, o.id);
-  const int snk = open_socket(o.sink, o.id);
+  const int snk = open_socket(o.sink, o.sink_id == 0xFFFFFFFF ? o.id : o.sink_id);
   std::vector<Rx> at_source, at_sink;
   at_source.reserve(o.count);
   at_sink.reserve(o.count);
