@@ -411,7 +411,7 @@ TEST(FrameBatchHeadRuns, TheOutboxBuildsTheFormItsPeerDecodes) {
     std::vector<Frame> backlog;
     for (std::uint8_t i = 0; i < 20; ++i) {
       backlog.push_back(Frame::standard(0x081, {i, 1, 2, 3, 4, 5, 6, 7}));  // EMCY: reliable
-      ASSERT_TRUE(outbox.push(1, backlog.back(), {}));
+      ASSERT_TRUE(outbox.push(1, backlog.back(), {}, FrameOutbox::Clock::time_point{}));
     }
     CollectingSink sink;
     outbox.produce(sink);
