@@ -26,6 +26,8 @@
 #include <string>
 #include <vector>
 
+#include "bench/send_only_can_socket.hpp"
+
 namespace {
 
 struct Options {
@@ -41,24 +43,6 @@ std::int64_t now_ns() {
   timespec ts{};
   clock_gettime(CLOCK_MONOTONIC, &ts);
   return ts.tv_sec * 1'000'000'000LL + ts.tv_nsec;
-}
-
-int open_bus(const std::string& name) {
-  const int fd = socket(PF_CAN, SOCK_RAW, CAN_RAW);
-  if (fd < 0) {
-    std::perror("socket");
-    std::exit(1);
-  }
-  // Sent frames only: a pacer that also received would spend the CPU it is measuring.
-  setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, nullptr, 0);
-  sockaddr_can addr{};
-  addr.can_family = AF_CAN;
-  addr.can_ifindex = static_cast<int>(if_nametoindex(name.c_str()));
-  if (addr.can_ifindex == 0 || bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    std::fprintf(stderr, "bus_pacer: cannot bind %s\n", name.c_str());
-    std::exit(1);
-  }
-  return fd;
 }
 
 // Sends frames[0..n) with as few sendmmsg calls as the kernel allows (blocking socket).
@@ -125,7 +109,8 @@ int main(int argc, char** argv) {
     return 2;
   }
   std::vector<int> fds;
-  for (const auto& name : o.interfaces) fds.push_back(open_bus(name));
+  for (const auto& name : o.interfaces)
+    fds.push_back(canbridge::bench::open_send_only_can_socket(name, "bus_pacer"));
   std::vector<can_frame> frames;
   std::uint64_t sent = 0, wakes = 0, late_wakes = 0, largest = 0;
   const std::int64_t tick_ns = o.tick_us * 1000;

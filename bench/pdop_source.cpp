@@ -27,6 +27,7 @@
 #include <string>
 
 #include "bench/pdop_pattern.hpp"
+#include "bench/send_only_can_socket.hpp"
 #include "canopen/pdop.hpp"
 
 namespace {
@@ -45,24 +46,6 @@ std::int64_t now_ns(clockid_t clock) {
   timespec ts{};
   clock_gettime(clock, &ts);
   return ts.tv_sec * 1'000'000'000LL + ts.tv_nsec;
-}
-
-int open_socket(const std::string& name) {
-  const int fd = socket(PF_CAN, SOCK_RAW, CAN_RAW);
-  if (fd < 0) {
-    std::perror("socket");
-    std::exit(1);
-  }
-  // Send only: with no filter the socket queues nothing, whatever the bus carries.
-  setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, nullptr, 0);
-  sockaddr_can addr{};
-  addr.can_family = AF_CAN;
-  addr.can_ifindex = static_cast<int>(if_nametoindex(name.c_str()));
-  if (addr.can_ifindex == 0 || bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    std::fprintf(stderr, "pdop_source: cannot bind %s\n", name.c_str());
-    std::exit(1);
-  }
-  return fd;
 }
 
 }  // namespace
@@ -100,7 +83,7 @@ int main(int argc, char** argv) {
                  " [--tpdo 1..4] [--rate PACKETS_PER_S] [--fragment-gap-us US]\n");
     return 2;
   }
-  const int fd = open_socket(o.interface);
+  const int fd = canbridge::bench::open_send_only_can_socket(o.interface, "pdop_source");
 
   std::size_t frames = 0, enobufs = 0;
   const std::int64_t start_real = now_ns(CLOCK_REALTIME);

@@ -5,6 +5,7 @@
 #   bench/speed_bench.sh [BUILD_DIR] [RUNS]           (default: build, 1 run; medians over RUNS)
 #   CANBRIDGE_BASELINE=/work/baseline17/canbridge bench/speed_bench.sh ...   (before/after)
 #   CANBRIDGE_BENCH_TUNE="key=value ..." bench/speed_bench.sh ...            (the tcp-tuned row)
+#   CANBRIDGE_BENCH_ROWS=serial bench/speed_bench.sh ...     (only the canbridge rows matching it)
 #
 # Rows (paths), each run:
 #   raw             cangen vcan0 -> receiver on vcan0 (the ceiling)
@@ -162,6 +163,19 @@ echo "speed_bench: $(nproc) CPU, $(uname -r), runs $runs, burst $burst (serial $
   "SDO block download $sdo_size B, strace burst $strace_burst; baseline ${baseline:-none}"
 echo "config lines rewritten from config/*.yaml (< shipped, > used):"
 echo "  tcp-default:"
+# The baseline rows run the same configs without the keys the baseline does not know yet
+# (CANBRIDGE_BASELINE_DROP_KEYS, default: conflate_after_ms, new with issue 17), so they show the
+# old executable with its own defaults for those settings.
+if [[ -n $baseline ]]; then
+  mkdir -p "$work/before"
+  for d in "$work"/tcp* "$work"/tuned*; do
+    [[ -d $d ]] || continue
+    cp -r "$d" "$work/before/"
+    for key in ${CANBRIDGE_BASELINE_DROP_KEYS:-conflate_after_ms}; do
+      sed -i "/^ *$key:/d" "$work/before/$(basename "$d")"/*.yaml
+    done
+  done
+fi
 for r in gateway surface; do show_diff "$root/config/$r.yaml" "$work/tcp/$r.yaml"; done
 echo "  serial-BAUD (besides the above; BAUD 115200 shown):"
 for r in gateway surface; do show_diff "$work/tcp/$r.yaml" "$work/tcp-serial-115200/$r.yaml"; done
@@ -335,6 +349,8 @@ columns=(run path fps x lost reord p50_1k p99_1k p50_mx p99_max B/fr 4b_fps 4b_l
 # tunnel_row RUN LABEL EXE CONFDIR [BAUD]: every measurement of one canbridge path, one row.
 tunnel_row() {
   local r=$1 label=$2 exe=$3 conf=$4 baud=${5:-} name="$1.$2" count=$burst x t0=$SECONDS
+  # CANBRIDGE_BENCH_ROWS: a regular expression; only matching canbridge rows run (default all).
+  [[ $label =~ ${CANBRIDGE_BENCH_ROWS:-.} ]] || return 0
   [[ -n $baud ]] && count=$serial_burst
   start_bridge "$name" "$exe" "$conf" "$baud"
   measure "$name" vcan1 vcan0 1a1 "$count" burst
@@ -399,14 +415,16 @@ for ((r = 1; r <= runs; r++)); do
 
   for exe_label in "" before-; do
     exe=$canbridge
+    configs=$work
     if [[ -n $exe_label ]]; then
       [[ -z $baseline ]] && continue
       exe=$baseline
+      configs=$work/before
     fi
-    tunnel_row "$r" "${exe_label}tcp-default" "$exe" "$work/tcp"
-    [[ -n $tune ]] && tunnel_row "$r" "${exe_label}tcp-tuned" "$exe" "$work/tuned"
-    tunnel_row "$r" "${exe_label}serial-115200" "$exe" "$work/tcp-serial-115200" 115200
-    tunnel_row "$r" "${exe_label}serial-1M" "$exe" "$work/tcp-serial-1000000" 1000000
+    tunnel_row "$r" "${exe_label}tcp-default" "$exe" "$configs/tcp"
+    [[ -n $tune ]] && tunnel_row "$r" "${exe_label}tcp-tuned" "$exe" "$configs/tuned"
+    tunnel_row "$r" "${exe_label}serial-115200" "$exe" "$configs/tcp-serial-115200" 115200
+    tunnel_row "$r" "${exe_label}serial-1M" "$exe" "$configs/tcp-serial-1000000" 1000000
   done
   echo "     run $r took $(($(date +%s) - run_t0)) s"
 done

@@ -25,7 +25,8 @@ runs=${2:-5}
 
 if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
   exec "$root/tests/rig/vcan_rig.sh" --vcan 2 --mem 1536M --timeout 1200 -- \
-    env CANBRIDGE_IN_RIG=1 CANBRIDGE_BASELINE="${CANBRIDGE_BASELINE:-}" "$0" "$build" "$runs"
+    env CANBRIDGE_IN_RIG=1 CANBRIDGE_BASELINE="${CANBRIDGE_BASELINE:-}" \
+    CANBRIDGE_BASELINE_PRE_AUTH="${CANBRIDGE_BASELINE_PRE_AUTH:-}" "$0" "$build" "$runs"
 fi
 
 counter=$build/bench/can_counter
@@ -86,10 +87,15 @@ sed -e 's|auth: {mode: plain}|auth: {mode: psk}|' \
   "$work/surface.yaml" >"$work/tls/surface.yaml"
 sed -e "s|auth: {mode: plain}|auth: {mode: psk, key_file: $work/tls/bench-gw.key}|" \
   "$work/gateway.yaml" >"$work/tls/gateway.yaml"
-# A baseline from before issue 15 knows neither 'auth' nor 'gateways' (and refuses unknown keys).
+# The baseline runs the same configs; one from before issue 15 knew neither 'auth' nor
+# 'gateways' (and refuses unknown keys): CANBRIDGE_BASELINE_PRE_AUTH=1 leaves them out for it.
 mkdir -p "$work/before"
 for role in surface gateway; do
-  grep -v '^  auth: \|^gateways: ' "$work/$role.yaml" >"$work/before/$role.yaml"
+  if [[ -n ${CANBRIDGE_BASELINE_PRE_AUTH:-} ]]; then
+    grep -v '^  auth: \|^gateways: ' "$work/$role.yaml" >"$work/before/$role.yaml"
+  else
+    cp "$work/$role.yaml" "$work/before/$role.yaml"
+  fi
 done
 
 printf '%-4s %-7s %10s %6s %6s %6s %8s %8s %8s\n' run path frames/s ratio lost reord p50_us p99_us max_us
