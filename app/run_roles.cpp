@@ -48,6 +48,8 @@ backbone::SerialOptions serial_options(const config::SerialLineOptions& line,
   o.device = line.device;
   o.baud = line.baud;
   o.hardware_flow_control = line.hardware_flow_control;
+  // 8N1: ten bits on the line per byte. The writer stays at most a few ms ahead of the line.
+  o.link.line_bytes_per_second = line.baud / 10;
   if (gateway) {
     o.backoff_min = gateway->reconnect_min;
     o.backoff_max = gateway->reconnect_max;
@@ -147,7 +149,8 @@ int run_gateway(const config::GatewayOptions& options) {
   asio::io_context io(1);
   NodeMap map;
   std::vector<GatewayModule> modules = open_modules(io.get_executor(), options, map);
-  BackboneTuning tuning = make_tuning(options.session);
+  BackboneTuning tuning =
+      make_tuning(options.session, options.serial ? options.serial->baud / 10 : 0);
   tuning.session.authenticator = serial_authenticator(options);
   Gateway gateway(io.get_executor(), options.name, std::move(map), std::move(modules), tuning,
                   options.remote);
@@ -193,7 +196,12 @@ int run_surface(const config::SurfaceOptions& options) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
-  BackboneTuning tuning = make_tuning(options.session);
+  std::size_t slowest_line = 0;  // bytes/s; 0 while no serial line
+  for (const auto& line : options.serial) {
+    const std::size_t rate = line.baud / 10;
+    if (slowest_line == 0 || rate < slowest_line) slowest_line = rate;
+  }
+  BackboneTuning tuning = make_tuning(options.session, slowest_line);
   tuning.session.authenticator = serial_authenticators(options);
   const SurfacePolicy policy = surface_policy(options);
   Surface surface(io.get_executor(), options.name,

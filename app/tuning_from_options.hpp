@@ -10,7 +10,21 @@
 
 namespace canbridge::bridge {
 
-inline BackboneTuning make_tuning(const config::SessionTuning& t) {
+// The write bound when the config leaves it to the link: TCP takes large writes (fewer system
+// calls); a serial line takes about 50 ms of line time per write, because a frame queued during a
+// write waits for it to end (576 bytes at 115200 bit/s, 5000 at 1 Mbit/s).
+inline std::size_t derived_max_write_bytes(std::size_t slowest_line_bytes_per_second) {
+  constexpr std::size_t kTcpWriteBytes = 16 * 1024;
+  if (slowest_line_bytes_per_second == 0) return kTcpWriteBytes;
+  return std::clamp<std::size_t>(slowest_line_bytes_per_second / 20, 256, kTcpWriteBytes);
+}
+
+// `slowest_line_bytes_per_second`: the slowest serial line of the role (baud / 10), 0 for TCP.
+inline BackboneTuning make_tuning(const config::SessionTuning& config,
+                                  std::size_t slowest_line_bytes_per_second = 0) {
+  config::SessionTuning t = config;
+  if (t.max_write_bytes == 0)
+    t.max_write_bytes = derived_max_write_bytes(slowest_line_bytes_per_second);
   BackboneTuning out;
   out.session.keepalive_interval = t.keepalive;
   out.session.dead_after = t.dead_after;

@@ -77,7 +77,8 @@ StreamLink::StreamLink(Stream stream, std::string peer_name, StreamLinkOptions o
       wake_(std::visit([](auto& s) { return s.get_executor(); }, stream_),
             asio::steady_timer::time_point::max()),
       closed_(wake_.get_executor(), asio::steady_timer::time_point::max()),
-      resume_(wake_.get_executor(), asio::steady_timer::time_point::max()) {
+      resume_(wake_.get_executor(), asio::steady_timer::time_point::max()),
+      pace_(wake_.get_executor()) {
   crc_framed_ = options.framing == LinkFraming::cobs_crc32c ||
                 (options.framing == LinkFraming::automatic && is_serial());
   boost::system::error_code ec;
@@ -146,7 +147,9 @@ void StreamLink::start_write() {
   writer_sleeping_ = false;  // one wake per sleep, however many wakes
   // TLS records are written by the stream's own async machinery only (a raw send would bypass
   // the encryption), so a TLS writer is always resumed to write.
-  if (!is_tls() && write_inline()) {
+  // A paced writer is always resumed too: it must know what it wrote and when, to keep the line
+  // model, and a paced line carries few messages a second, so the inline send saves nothing.
+  if (!is_tls() && !paced() && write_inline()) {
     writer_sleeping_ = !closing_;  // nothing to send after all: the writer sleeps on
     return;
   }
@@ -160,7 +163,9 @@ void StreamLink::start_write() {
 void StreamLink::write_after_batch(bool more_input) {
   if (!wake_requested_ || closing_) return;
   if (writer_sleeping_) return start_write();
-  if (more_input && writer_resuming_ && write_buffer_.empty() && !is_tls()) write_inline();
+  if (more_input && writer_resuming_ && write_buffer_.empty() && !is_tls() && !paced()) {
+    write_inline();
+  }
 }
 
 // The writer is asleep, so no write is in flight and the buffer is free: rather than resume the
@@ -362,7 +367,25 @@ asio::awaitable<void> StreamLink::write_loop() {
       break;
     }
     write_done();
+    if (paced()) {
+      co_await pace(n);
+      if (closing_) break;
+    }
   }
+}
+
+asio::awaitable<void> StreamLink::pace(std::size_t bytes) {
+  using namespace std::chrono;
+  const auto now = steady_clock::now();
+  const auto line_time = duration_cast<steady_clock::duration>(duration<double>(
+      static_cast<double>(bytes) / static_cast<double>(options_.line_bytes_per_second)));
+  line_drained_at_ = std::max(line_drained_at_, now) + line_time;
+  const auto resume_at =
+      line_drained_at_ - duration_cast<steady_clock::duration>(options_.line_lead);
+  if (resume_at <= now) co_return;
+  // Wakes meanwhile are remembered (wake_requested_): the next fill takes what they queued.
+  pace_.expires_at(resume_at);
+  co_await pace_.async_wait(kNoError);
 }
 
 std::error_code StreamLink::read_end_reason(const boost::system::error_code& ec) const {
@@ -414,6 +437,7 @@ void StreamLink::end(std::error_code reason) {
   writer_sleeping_ = false;
   wake_.cancel();
   resume_.cancel();
+  pace_.cancel();
   if (loops_running_ == 0) finish();  // never started
 }
 

@@ -10,6 +10,7 @@
 #include <boost/asio/serial_port.hpp>
 #include <boost/asio/ssl/stream.hpp>
 #include <boost/asio/steady_timer.hpp>
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -50,6 +51,12 @@ struct StreamLinkOptions {
   int socket_buffer_size = 256 * 1024;
   // Shared by the links of one side (TcpServer sets one for all it accepts); empty: per link.
   std::shared_ptr<StreamLinkWarnings> warnings;
+  // A serial line's rate in bytes per second (baud / 10 for 8N1); 0: not paced. A paced writer
+  // keeps at most `line_lead` of line time written ahead of the line: what the driver, a UART's
+  // FIFO or a modem would otherwise buffer waits in the session's queues instead, where it
+  // batches (fewer bytes per frame), conflates by its real age and lets urgent frames go first.
+  std::size_t line_bytes_per_second = 0;
+  std::chrono::microseconds line_lead{20'000};
 };
 
 // Not thread-safe: every member must be called on the stream's executor (one io_context thread).
@@ -102,6 +109,10 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
 
   // The TCP peer (an empty endpoint on a serial link).
   const boost::asio::ip::tcp::endpoint& remote_endpoint() const noexcept { return remote_; }
+  bool paced() const noexcept { return options_.line_bytes_per_second > 0; }
+  // Paced links: accounts `bytes` just written and waits while the line is more than line_lead
+  // behind them.
+  boost::asio::awaitable<void> pace(std::size_t bytes);
   bool is_serial() const noexcept {
     return std::holds_alternative<boost::asio::serial_port>(stream_);
   }
@@ -157,6 +168,9 @@ class StreamLink final : public MessageLink, public std::enable_shared_from_this
   boost::asio::steady_timer wake_;    // condition variable for the idle writer
   boost::asio::steady_timer closed_;  // condition variable for async_wait_closed()
   boost::asio::steady_timer resume_;  // condition variable for the paused reader
+  boost::asio::steady_timer pace_;    // a paced writer waits for the line to drain
+  // Paced links: when the line will have sent every byte written so far (a model of the line).
+  std::chrono::steady_clock::time_point line_drained_at_{};
   MessageHandler on_message_;
   Source source_;
   ClosedHandler on_closed_;

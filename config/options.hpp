@@ -119,7 +119,10 @@ struct SessionTuning {
   std::chrono::milliseconds reliable_max_age{4000};
   std::size_t resend_buffer_messages = 4096;
   std::size_t resend_buffer_bytes = 4u << 20;
-  std::size_t max_write_bytes = 16 * 1024;
+  // Upper bound of one write; 0 (the default): derived from the link, 16384 on TCP and about
+  // 50 ms of line time on a serial line (576 bytes at 115200 bit/s), so an urgent frame never
+  // waits long behind a write (bridge::make_tuning).
+  std::size_t max_write_bytes = 0;
   // Frames waiting for the link, per peer: reliable ones are never dropped once queued (a full
   // queue refuses, counted and reported); process data is conflated or dropped.
   std::size_t queue_reliable_frames = 1u << 16;

@@ -562,5 +562,44 @@ TEST_F(SessionTest, PayloadsOlderThanTheMaxAgeAreNeverResent) {
   io.run_for(20ms);
 }
 
+// A paced serial writer (the line's rate, as the roles set it from the configured baud) never
+// gets more than line_lead ahead of the line: what it has not written waits with its source,
+// where the session batches and lets urgent frames go first, instead of in the tty's buffers.
+// Measured against the steady clock with a wide margin: the bound is the line model's, not a
+// speed.
+TEST(PacedSerialLink, WritesNoFasterThanTheLineCarriesThem) {
+  asio::io_context io;
+  auto [master, slave] = pty_pair(io);
+  StreamLinkOptions paced;
+  paced.line_bytes_per_second = 20'000;  // a 200,000 bit/s line
+  paced.line_lead = 20ms;
+  auto writer = StreamLink::create(std::move(master), "pty-master", paced);
+  auto reader = StreamLink::create(std::move(slave), "pty-slave");
+  constexpr int kMessages = 10;  // 1,000 bytes each: half a second of this line
+  int handed_over = 0;
+  std::vector<std::chrono::steady_clock::time_point> arrivals;
+  writer->start([](std::span<const std::uint8_t>) {},
+                [&](std::string& out) {
+                  if (handed_over == kMessages) return;
+                  ++handed_over;  // one message per write, each accounted on the line
+                  append_delimited(out, std::vector<std::uint8_t>(1000, 0x55));
+                },
+                [](std::error_code) {});
+  reader->start(
+      [&](std::span<const std::uint8_t>) { arrivals.push_back(std::chrono::steady_clock::now()); },
+      [](std::string&) {}, [](std::error_code) {});
+  const auto start = std::chrono::steady_clock::now();
+  ASSERT_TRUE(run_until(
+      io, [&] { return arrivals.size() == kMessages; }, 10s));
+  // The last message may leave once the nine before it are within 20 ms of sent: 9,000 bytes
+  // at 20,000 bytes/s is 450 ms of line. Unpaced, a pty takes all ten in well under that.
+  EXPECT_GE(arrivals.back() - start, 400ms);
+  // And the first went at once: pacing delays what follows a write, never the first write.
+  EXPECT_LT(arrivals.front() - start, 200ms);
+  writer->close();
+  reader->close();
+  io.run_for(20ms);
+}
+
 }  // namespace
 }  // namespace canbridge::backbone
