@@ -49,6 +49,12 @@ RawCanSocket::RawCanSocket(const std::string& interface, const std::vector<std::
     ::close(fd_);
     throw std::system_error(error, std::system_category(), "CAN_RAW_FILTER " + interface);
   }
+  // Room for a flood (a test that reads while cangen -g 0 writes falls behind): 8 MiB, forced
+  // where permitted (the rig runs as root), else as much as net.core.rmem_max allows.
+  const int receive_buffer = 8 << 20;
+  if (::setsockopt(fd_, SOL_SOCKET, SO_RCVBUFFORCE, &receive_buffer, sizeof receive_buffer) != 0) {
+    ::setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &receive_buffer, sizeof receive_buffer);
+  }
   sockaddr_can addr{};
   addr.can_family = AF_CAN;
   addr.can_ifindex = static_cast<int>(::if_nametoindex(interface.c_str()));
