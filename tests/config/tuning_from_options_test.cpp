@@ -1,7 +1,7 @@
 // make_tuning: what the backbone gets from a role's session settings, the derived write bound.
-#include <gtest/gtest.h>
-
 #include "app/tuning_from_options.hpp"
+
+#include <gtest/gtest.h>
 
 namespace canbridge::bridge {
 namespace {
