@@ -37,6 +37,17 @@ void BusWriter::stop() {
   wake_.cancel();
 }
 
+// Hands what fits now (out_) to the bus, wakes the writer coroutine for what waits, and reports a
+// change of backlog: the common end of write() and write_each().
+void BusWriter::finish_write(bool was_backlogged) {
+  send(out_);
+  if (!queue_.empty() && idle_) {
+    idle_ = false;
+    wake_.cancel();
+  }
+  after_change(was_backlogged);
+}
+
 bool BusWriter::write(const can::Frame& frame, BusWriteQueue::Lane lane) {
   return write(std::span<const can::Frame>(&frame, 1), lane);
 }
@@ -45,12 +56,7 @@ bool BusWriter::write(std::span<const can::Frame> unit, BusWriteQueue::Lane lane
   const bool was_backlogged = queue_.backlogged();
   out_.clear();
   const bool accepted = queue_.offer(unit, lane, bus_.send_room(), out_);
-  send(out_);
-  if (!queue_.empty() && idle_) {
-    idle_ = false;
-    wake_.cancel();
-  }
-  after_change(was_backlogged);
+  finish_write(was_backlogged);
   return accepted;
 }
 
@@ -69,12 +75,7 @@ std::size_t BusWriter::write_each(std::span<const can::Frame> frames,
       accepted->push_back(frame);
     }
   }
-  send(out_);
-  if (!queue_.empty() && idle_) {
-    idle_ = false;
-    wake_.cancel();
-  }
-  after_change(was_backlogged);
+  finish_write(was_backlogged);
   return dropped;
 }
 

@@ -81,6 +81,7 @@ class BusWriter {
  private:
   boost::asio::awaitable<void> run();
   void send(const std::vector<can::Frame>& frames);
+  void finish_write(bool was_backlogged);
   void after_change(bool was_backlogged);
 
   can::Bus& bus_;
