@@ -44,7 +44,8 @@
 #   sdo_x           32 KiB SDO block download (remote_sdo_probe master on vcan0, canbridge-sim node
 #                   2 on vcan1, object 2100h): can-gw's time / the tunnel's time (>= 0.8 wanted).
 #   sc_gw, sc_sf    TCP rows: system calls per forwarded frame of the gateway / the surface
-#                   (strace -c -f -p over a 20,000-frame burst, calls / frames delivered).
+#                   (strace -c -f -p over a 20,000-frame burst, calls / frames delivered); the
+#                   notes add the same over the 2,000 frames paced at 1,000 frames/s.
 # '-' marks a column a row does not measure. Ends with the medians over RUNS.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -300,6 +301,10 @@ fourbus() {
   "$pacer" --interfaces vcan1,vcan2,vcan3,vcan4 --id 181 --per-tick 8 --count $per_bus \
     >"$work/$name.4bus.send"
   g1=$(cpu_ticks "$gpid"); s1=$(cpu_ticks "$spid"); t1=$(date +%s.%N)
+  # Where the gateway's resident memory is: its heap and stacks (anonymous) against mapped files
+  # (code and data of the executable and its shared libraries, shared with other processes).
+  awk '/^(Rss|Anonymous|Pss_File|Pss_Anon):/ {printf "%s %.1f ", $1, $2 / 1024}' \
+    "/proc/$gpid/smaps_rollup" >"$work/$name.4bus.mem" 2>/dev/null || true
   local secs
   secs=$(awk -v a="$t0" -v b="$t1" 'BEGIN{print b - a}')
   echo "$(cpu_pct $((g1 - g0)) "$secs") $(rss_mb "$gpid") $(cpu_pct $((s1 - s0)) "$secs") $(rss_mb "$spid")" \
@@ -331,6 +336,20 @@ syscalls() {
       'BEGIN{if (c > 0 && d > 0) printf "%.1f ", c / d; else printf "- "}'
   done >"$work/$name.sc"
   [[ -s $work/$name.strace.gw ]] || echo "     $name: strace gave nothing: $(head -2 "$work/$name.strace.gw.err")"
+  # The same at 1,000 frames/s: what each frame costs when nothing batches (the latency path).
+  strace -c -f -p "$gpid" -o "$work/$name.strace1k.gw" 2>/dev/null &
+  st1=$!
+  strace -c -f -p "$spid" -o "$work/$name.strace1k.sf" 2>/dev/null &
+  st2=$!
+  sleep 1
+  measure "$name.strace1k" vcan1 vcan0 1a1 $paced paced1k
+  kill -INT $st1 $st2
+  wait $st1 $st2 || true
+  d=$(out "$name.strace1k" delivered)
+  for side in gw sf; do
+    awk -v c="$(strace_total "$work/$name.strace1k.$side")" -v d="${d:-0}" \
+      'BEGIN{if (c > 0 && d > 0) printf "%.1f ", c / d; else printf "- "}'
+  done >"$work/$name.sc1k"
 }
 
 table=$work/table
@@ -369,7 +388,7 @@ tunnel_row() {
     stop_bridge
     read -r -a fb <<<"$(tr '\n' ' ' <"$work/$name.4.4bus.res")"
     read -r -a sc <"$work/$name.4.sc" || true
-    notes="$notes; four-bus $(counters "$name.4")"
+    notes="$notes; four-bus $(counters "$name.4"); syscalls/frame at 1k gw sf: $(cat "$work/$name.4.sc1k"); gateway MB $(cat "$work/$name.4.4bus.mem")"
   fi
   if [[ -n $baud ]]; then
     x=$(awk -v a="$(out "$name" rate_fps)" -v b="$baud" 'BEGIN{printf "%.3f", a / (b / 80)}')
