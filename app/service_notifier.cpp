@@ -66,7 +66,10 @@ ServiceNotifier::~ServiceNotifier() {
 
 void ServiceNotifier::ready(std::string_view status) {
   send("READY=1\nSTATUS=" + std::string(status));
-  if (watchdog_period_.count() > 0) arm_watchdog();
+  if (watchdog_period_.count() > 0 && !petting_) {
+    petting_ = true;
+    arm_watchdog();
+  }
 }
 
 void ServiceNotifier::status(std::string_view text) {
@@ -74,6 +77,9 @@ void ServiceNotifier::status(std::string_view text) {
 }
 
 void ServiceNotifier::stopping() {
+  // The flag, not just cancel(): a keep-alive already due (its handler queued) would otherwise
+  // still go out after STOPPING=1 and arm the next one, keeping the draining loop busy.
+  petting_ = false;
   watchdog_.cancel();
   send("STOPPING=1\nSTATUS=stopping");
 }
@@ -82,7 +88,7 @@ void ServiceNotifier::arm_watchdog() {
   // From a timer on the role's loop: if the loop stalls, the keep-alives stop.
   watchdog_.expires_after(watchdog_period_);
   watchdog_.async_wait([this](boost::system::error_code ec) {
-    if (ec) return;
+    if (ec || !petting_) return;
     send("WATCHDOG=1");
     arm_watchdog();
   });

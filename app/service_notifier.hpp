@@ -54,6 +54,7 @@ class ServiceNotifier {
   std::chrono::microseconds watchdog_period_{0};
   int fd_ = -1;
   bool send_failure_logged_ = false;
+  bool petting_ = false;  // between ready() and stopping()
   boost::asio::steady_timer watchdog_;
 };
 

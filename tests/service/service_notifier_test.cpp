@@ -10,8 +10,11 @@
 #include <unistd.h>
 
 #include <boost/asio/io_context.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/steady_timer.hpp>
 #include <cstdlib>
 #include <random>
+#include <thread>
 
 #include "tests/support/notify_listener.hpp"
 
@@ -76,6 +79,23 @@ TEST(ServiceNotifier, PetsTheWatchdogAtHalfItsTimeoutFromTheLoop) {
   io.restart();
   io.run_for(100ms);
   EXPECT_TRUE(io.stopped());  // ran out of work: the timer was not armed again
+  EXPECT_EQ(listener.drain(), 0);
+}
+
+TEST(ServiceNotifier, AKeepAliveAlreadyDueIsNotSentAfterStopping) {
+  NotifyListener listener("@" + unique_name());
+  boost::asio::io_context io;
+  ServiceNotifier notifier(io.get_executor(), environment(listener.address(), 20ms));
+  notifier.ready("up");
+  ASSERT_EQ(listener.receive(2s), "READY=1\nSTATUS=up");
+  // Shutdown begins from a handler that runs in the same turn of the loop as the keep-alive
+  // falling due: both timers expired during the stall, the earlier one's handler runs first.
+  boost::asio::steady_timer shutdown(io, std::chrono::steady_clock::now() + 5ms);
+  shutdown.async_wait([&](boost::system::error_code) { notifier.stopping(); });
+  boost::asio::post(io, [] { std::this_thread::sleep_for(30ms); });
+  io.run_for(200ms);
+  EXPECT_TRUE(io.stopped());  // nothing re-armed
+  EXPECT_EQ(listener.receive(2s), "STOPPING=1\nSTATUS=stopping");
   EXPECT_EQ(listener.drain(), 0);
 }
 
