@@ -49,6 +49,32 @@ expect "$postinst" "install -d -m 0700 -o canbridge -g canbridge $config_dir/key
 expect "$postinst" "systemctl daemon-reload" postinst
 expect "$(cat "$scratch/control/prerm")" "systemctl stop canbridge-gateway.service canbridge-surface.service" prerm
 
+# Run against stubs that log their calls: a fresh install creates the user (systemd-sysusers
+# where present, else adduser) and the key directory; a second configure changes nothing.
+stubs=$scratch/stubs
+mkdir "$stubs"
+stub() {  # stub NAME EXIT-STATUS
+  printf '#!/bin/sh\necho "%s $*" >>"%s/calls"\nexit %s\n' "$1" "$scratch" "$2" >"$stubs/$1"
+  chmod +x "$stubs/$1"
+}
+run_postinst() { (PATH=$stubs && /bin/sh "$scratch/control/postinst" configure "$@"); }
+stub getent 2 && stub systemd-sysusers 0 && stub adduser 0 && stub install 0
+[[ -d $config_dir/keys ]] && keys_exist=1 || keys_exist=0
+run_postinst || fail "postinst configure"
+calls=$(cat "$scratch/calls")
+expect "$calls" "systemd-sysusers canbridge.conf" "postinst (sysusers)"
+[[ $calls != *adduser* ]] || fail "postinst ran adduser although systemd-sysusers is there"
+if ((!keys_exist)); then
+  expect "$calls" "install -d -m 0700 -o canbridge -g canbridge $config_dir/keys" "postinst keys"
+fi
+rm "$stubs/systemd-sysusers" "$scratch/calls"
+run_postinst || fail "postinst configure without systemd-sysusers"
+expect "$(cat "$scratch/calls")" "adduser --system --group" "postinst (adduser)"
+rm "$scratch/calls"
+stub getent 0  # the user exists now
+run_postinst 0.1.0 || fail "postinst configure (upgrade)"
+[[ ! -e $scratch/calls ]] || [[ $(cat "$scratch/calls") != *adduser* ]] || fail "user created twice"
+
 echo "--- dpkg-deb -c"
 tree=$(dpkg-deb -c "$deb" | awk '{print $6}')
 echo "$tree"
