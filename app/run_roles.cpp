@@ -11,6 +11,7 @@
 #include "app/periodic_stats.hpp"
 #include "app/plain_warning.hpp"
 #include "app/serial_authentication.hpp"
+#include "app/service_notifier.hpp"
 #include "app/tls_setup.hpp"
 #include "app/tuning_from_options.hpp"
 #include "backbone/serial_client.hpp"
@@ -168,7 +169,9 @@ int run_gateway(const config::GatewayOptions& options) {
   }
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return gateway.stats_line(); });
+  ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
   OrderedShutdown shutdown(io, [&] {
+    notifier.stopping();
     stats.stop();
     if (tcp) tcp->stop();
     if (serial) serial->stop();
@@ -183,6 +186,9 @@ int run_gateway(const config::GatewayOptions& options) {
                options.serial ? "serial " + options.serial->device + " at " +
                                     std::to_string(options.serial->baud) + " bit/s"
                               : "tcp " + options.connect.to_string());
+  // Ready: the module buses are open and the backbone client is connecting.
+  notifier.ready("gateway " + options.name + ": " + std::to_string(options.modules.size()) +
+                 " module(s) open, backbone connecting");
   shutdown.run();
   spdlog::info("{}", gateway.stats_line());
   if (!gateway.failure().empty()) {
@@ -233,7 +239,9 @@ int run_surface(const config::SurfaceOptions& options) {
   }
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return surface.stats_line(); });
+  ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
   OrderedShutdown shutdown(io, [&] {
+    notifier.stopping();
     stats.stop();
     // Operators first: no new request once the backbone goes.
     if (endpoint) endpoint->stop();
@@ -268,6 +276,9 @@ int run_surface(const config::SurfaceOptions& options) {
                      ? " and tcp " + e.tcp_address + ":" + std::to_string(endpoint->tcp_port())
                      : std::string());
   }
+  // Ready: the bus is open, the listener accepts, the serial lines and the endpoint are up.
+  notifier.ready("surface " + options.name + ": bus " + options.bus + " open, backbone " +
+                 (server ? "listening" : "on serial lines"));
   shutdown.run();
   spdlog::info("{}", surface.stats_line());
   if (!surface.failure().empty()) {

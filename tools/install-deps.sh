@@ -8,6 +8,7 @@ packages=(
   libgtest-dev libgmock-dev libyaml-cpp-dev libspdlog-dev libssl-dev liburing-dev
   can-utils iproute2 kmod user-mode-linux
   libcli11-dev tshark
+  dpkg-dev  # dpkg-shlibdeps: the .deb's library dependencies (cpack -G DEB, tests/package)
 )
 missing=()
 for p in "${packages[@]}"; do

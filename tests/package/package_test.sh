@@ -1,0 +1,143 @@
+#!/usr/bin/env bash
+# package.deb: builds the .deb with cpack, checks its control data (Depends, conffiles,
+# maintainer scripts) and file tree, extracts it into a scratch root and runs the installed
+# canbridge from there, verifies the installed units, and runs cmake --install twice into a
+# DESTDIR with an edited gateway.yaml in between: the edit survives, the new sample lands beside.
+set -euo pipefail
+build=$1 source=$2 version=$3 config_dir=$4 bin_dir=$5 unit_dir=$6 doc_dir=$7
+scratch=$(mktemp -d)
+trap 'rm -rf "$scratch"' EXIT
+fail() {
+  echo "package.deb: FAIL: $*" >&2
+  exit 1
+}
+expect() {  # expect TEXT NEEDLE WHAT
+  grep -qF -- "$2" <<<"$1" || fail "$3: no '$2' in:
+$1"
+}
+
+echo "--- cpack -G DEB"
+cpack --config "$build/CPackConfig.cmake" -G DEB -B "$scratch/deb" >"$scratch/cpack.log" 2>&1 ||
+  fail "cpack: $(cat "$scratch/cpack.log")"
+debs=("$scratch"/deb/canbridge_"$version"_*.deb)
+[[ ${#debs[@]} -eq 1 && -f ${debs[0]} ]] || fail "expected one canbridge_${version}_*.deb: ${debs[*]}"
+deb=${debs[0]}
+echo "$(basename "$deb"): $(stat -c %s "$deb") bytes"
+
+echo "--- dpkg-deb -I"
+info=$(dpkg-deb -I "$deb")
+expect "$info" "Package: canbridge" control
+expect "$info" "Version: $version" control
+depends=$(dpkg-deb -f "$deb" Depends)
+# adduser for postinst; the rest found by dpkg-shlibdeps from what the binaries link.
+for dep in adduser libc6 libstdc++6 libyaml-cpp0.7 libprotobuf32 libssl3 libspdlog1.10; do
+  expect "$depends" "$dep" Depends
+done
+conffiles=$(dpkg-deb -I "$deb" conffiles)
+[[ $conffiles == "$config_dir/gateway.yaml"$'\n'"$config_dir/surface.yaml" ]] ||
+  fail "conffiles: $conffiles"
+mkdir "$scratch/control"
+dpkg-deb -e "$deb" "$scratch/control"
+for script in postinst prerm postrm; do
+  [[ -x $scratch/control/$script ]] || fail "$script missing or not executable"
+  sh -n "$scratch/control/$script" || fail "$script: not POSIX sh"
+done
+postinst=$(cat "$scratch/control/postinst")
+expect "$postinst" "adduser --system --group" postinst
+expect "$postinst" "systemd-sysusers canbridge.conf" postinst
+expect "$postinst" "install -d -m 0700 -o canbridge -g canbridge $config_dir/keys" postinst
+expect "$postinst" "systemctl daemon-reload" postinst
+expect "$(cat "$scratch/control/prerm")" "systemctl stop canbridge-gateway.service canbridge-surface.service" prerm
+
+# Run against stubs that log their calls: a fresh install creates the user (systemd-sysusers
+# where present, else adduser) and the key directory; a second configure changes nothing.
+stubs=$scratch/stubs
+mkdir "$stubs"
+stub() {  # stub NAME EXIT-STATUS
+  printf '#!/bin/sh\necho "%s $*" >>"%s/calls"\nexit %s\n' "$1" "$scratch" "$2" >"$stubs/$1"
+  chmod +x "$stubs/$1"
+}
+run_postinst() { (PATH=$stubs && /bin/sh "$scratch/control/postinst" configure "$@"); }
+stub getent 2 && stub systemd-sysusers 0 && stub adduser 0 && stub install 0
+[[ -d $config_dir/keys ]] && keys_exist=1 || keys_exist=0
+run_postinst || fail "postinst configure"
+calls=$(cat "$scratch/calls")
+expect "$calls" "systemd-sysusers canbridge.conf" "postinst (sysusers)"
+[[ $calls != *adduser* ]] || fail "postinst ran adduser although systemd-sysusers is there"
+if ((!keys_exist)); then
+  expect "$calls" "install -d -m 0700 -o canbridge -g canbridge $config_dir/keys" "postinst keys"
+fi
+rm "$stubs/systemd-sysusers" "$scratch/calls"
+run_postinst || fail "postinst configure without systemd-sysusers"
+expect "$(cat "$scratch/calls")" "adduser --system --group" "postinst (adduser)"
+rm "$scratch/calls"
+stub getent 0  # the user exists now
+run_postinst 0.1.0 || fail "postinst configure (upgrade)"
+[[ ! -e $scratch/calls ]] || [[ $(cat "$scratch/calls") != *adduser* ]] || fail "user created twice"
+
+echo "--- dpkg-deb -c"
+tree=$(dpkg-deb -c "$deb" | awk '{print $6}')
+echo "$tree"
+for path in "$bin_dir/canbridge" "$bin_dir/canbridge-sim" "$bin_dir/canbridge-link-emulator" \
+  "$config_dir/gateway.yaml" "$config_dir/surface.yaml" \
+  "$unit_dir/canbridge-gateway.service" "$unit_dir/canbridge-surface.service" \
+  /usr/lib/sysusers.d/canbridge.conf /usr/share/canbridge/rigs/demo.yaml \
+  "$doc_dir/install.md" "$doc_dir/README.md"; do
+  expect "$tree" ".$path" "package tree"
+done
+# Nothing but the product: no tests, benches, fuzzers or flood tools, nothing staged elsewhere.
+executables=$(grep -F "./usr/bin/" <<<"$tree" | grep -v '/$' | sort | tr '\n' ' ')
+[[ $executables == "./usr/bin/canbridge ./usr/bin/canbridge-link-emulator ./usr/bin/canbridge-sim " ]] ||
+  fail "executables: $executables"
+stray=$(grep -vE '^\./(etc/canbridge/|usr/|lib/systemd/system/|etc/$|lib/$|lib/systemd/$|$)' <<<"$tree" || true)
+[[ -z $stray ]] || fail "files outside the install tree: $stray"
+
+echo "--- the installed binary, from a scratch root"
+root=$scratch/root
+dpkg-deb -x "$deb" "$root"
+[[ $("$root$bin_dir/canbridge" --version) == "canbridge $version" ]] || fail "canbridge --version"
+"$root$bin_dir/canbridge" demo >"$scratch/demo.log" 2>&1 || fail "canbridge demo: $(cat "$scratch/demo.log")"
+expect "$(cat "$scratch/demo.log")" "demo OK: every node answered through the tunnel" demo
+# Stripped: symbols would be most of the package.
+file_out=$(file "$root$bin_dir/canbridge" 2>/dev/null || echo "no file(1)")
+if [[ $file_out != "no file(1)" ]]; then expect "$file_out" ", stripped" strip; fi
+
+echo "--- the units"
+for unit in canbridge-gateway.service canbridge-surface.service; do
+  text=$(cat "$root$unit_dir/$unit")
+  for key in Type=notify NotifyAccess=main WatchdogSec= Restart=on-failure RestartSec= \
+    User=canbridge Group=canbridge RuntimeDirectory=canbridge ConfigurationDirectory=canbridge \
+    AmbientCapabilities=CAP_NET_ADMIN CapabilityBoundingSet=CAP_NET_ADMIN NoNewPrivileges=yes \
+    ProtectSystem=strict "RestrictAddressFamilies=AF_CAN AF_UNIX AF_INET AF_INET6 AF_NETLINK" \
+    "ExecStart=$bin_dir/canbridge ${unit#canbridge-}"; do
+    expect "$text" "${key%.service}" "$unit"
+  done
+  expect "$text" "--config $config_dir/$(sed 's/canbridge-\(.*\)\.service/\1/' <<<"$unit").yaml" "$unit"
+done
+if command -v systemd-analyze >/dev/null; then
+  # verify wants ExecStart's binary to exist: point it at the extracted one.
+  mkdir "$scratch/units"
+  for unit in canbridge-gateway.service canbridge-surface.service; do
+    sed "s|$bin_dir/canbridge|$root$bin_dir/canbridge|" "$root$unit_dir/$unit" >"$scratch/units/$unit"
+  done
+  systemd-analyze verify "$scratch"/units/*.service || fail "systemd-analyze verify"
+else
+  echo "systemd-analyze not installed: the units' keys were checked, not verified by systemd"
+fi
+
+echo "--- cmake --install twice, with an edited gateway.yaml in between"
+stage=$scratch/stage
+DESTDIR=$stage cmake --install "$build" >"$scratch/install1.log" || fail "cmake --install"
+cmp "$stage$config_dir/gateway.yaml" "$source/config/gateway.yaml" || fail "gateway.yaml installed"
+[[ -x $stage$bin_dir/canbridge && -f $stage$unit_dir/canbridge-gateway.service ]] ||
+  fail "cmake --install: no canbridge or unit"
+echo "backbone: {}  # edited by the operator" >>"$stage$config_dir/gateway.yaml"
+edited=$(cat "$stage$config_dir/gateway.yaml")
+DESTDIR=$stage cmake --install "$build" >"$scratch/install2.log" || fail "cmake --install again"
+[[ $(cat "$stage$config_dir/gateway.yaml") == "$edited" ]] || fail "the edited gateway.yaml was overwritten"
+cmp "$stage$config_dir/gateway.yaml.sample" "$source/config/gateway.yaml" || fail "no new sample beside it"
+expect "$(cat "$scratch/install2.log")" "Kept the edited $stage$config_dir/gateway.yaml" "install message"
+# The untouched one is simply up to date: no sample beside it.
+cmp "$stage$config_dir/surface.yaml" "$source/config/surface.yaml" || fail "surface.yaml"
+[[ ! -e $stage$config_dir/surface.yaml.sample ]] || fail "a sample beside an unedited surface.yaml"
+echo "package.deb: OK"
