@@ -8,6 +8,9 @@ packages=(
   libgtest-dev libgmock-dev libyaml-cpp-dev libspdlog-dev libssl-dev liburing-dev
   can-utils iproute2 kmod user-mode-linux
   libcli11-dev tshark
+  # The image smoke test (tests/container/): podman builds docker/Dockerfile on a debootstrap
+  # base; docker-compose only validates docker/compose.yaml (no daemon).
+  podman debootstrap docker-compose
 )
 missing=()
 for p in "${packages[@]}"; do
