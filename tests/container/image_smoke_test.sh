@@ -175,11 +175,11 @@ fi
 src=$(cd "${1:?usage: image_smoke_test.sh SOURCE_DIR}" && pwd)
 image=${CANBRIDGE_TEST_IMAGE:-localhost/canbridge:smoketest}
 skip() {
-  echo "SKIPPED: $* -- the image smoke test needs podman (tools/install-deps.sh installs it)"
+  echo "SKIPPED: the image smoke test cannot run podman here: $*"
   exit 77
 }
 [[ $(id -u) -eq 0 ]] || skip "not root (debootstrap, podman image mounts and chroot need root)"
-command -v podman >/dev/null || skip "podman is not installed"
+command -v podman >/dev/null || skip "podman is not installed (tools/install-deps.sh installs it)"
 podman info >/dev/null 2>&1 || skip "podman cannot run here: $(podman info 2>&1 | tail -n 1)"
 
 failures=0
