@@ -7,6 +7,8 @@
 # Environment: BASE_IMAGE (default localhost/debian-bookworm-base), IMAGE (default canbridge:dev),
 # MIRROR (default: the host's Debian mirror from /etc/apt), ISOLATION (default chroot).
 # Idempotent: an existing base is reused; podman's layer cache makes a repeated build quick.
+# The build stage's untagged image is removed after the build (no dangling image is left); the
+# layers it was made of stay cached. Each phase reports how long it took.
 # Needs root (debootstrap, podman import), podman and debootstrap (apt-get install podman
 # debootstrap).
 set -euo pipefail
@@ -21,7 +23,7 @@ while (($#)); do
   case $1 in
     --rebuild-base) rebuild_base=1 ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "build.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -71,9 +73,12 @@ make_base() {
   [[ $mirror == https:* ]] && include=(--include=ca-certificates)
 
   say "debootstrap --variant=minbase bookworm $dir $mirror  (a few minutes)"
+  local started=$SECONDS
   debootstrap --variant=minbase "${include[@]}" bookworm "$dir" "$mirror" >"$dir.log" 2>&1 ||
     { tail -20 "$dir.log" >&2; die "debootstrap failed (full log: $dir.log)"; }
   rm -f "$dir.log"
+  say "debootstrap took $((SECONDS - started)) s"
+  started=$SECONDS
 
   # Apt inside the build uses the host's mirror configuration: copy the host's Debian source
   # files (those whose keyrings exist in the new rootfs, or that name only Debian hosts) and any
@@ -131,6 +136,7 @@ make_base() {
       --message "debian bookworm minbase from $mirror (canbridge docker/build.sh)" \
       - "$base_image" >/dev/null
   rm -rf "$dir"
+  say "slimming and podman import took $((SECONDS - started)) s"
   trap - EXIT
 }
 
@@ -146,6 +152,14 @@ cd "$root"
 cmd=(podman build --isolation="$isolation" --ignorefile docker/Dockerfile.dockerignore
      --build-arg BASE="$base_image" -f docker/Dockerfile -t "$image" "${extra[@]}" .)
 say "in $root: ${cmd[*]}"
+started=$SECONDS
 "${cmd[@]}"
+say "podman build took $((SECONDS - started)) s"
+# Podman keeps the build stage's last image, untagged (dangling), after a multi-stage build; every
+# image of that stage carries this label (docker/Dockerfile), the runtime image does not. A
+# rebuild under the same tag also leaves the previous canbridge image untagged.
+for label in io.canbridge.stage=build org.opencontainers.image.title=canbridge; do
+  podman image prune --force --filter "label=$label" >/dev/null
+done
 say "built $image ($(podman image inspect --format '{{.Size}}' "$image" | numfmt --to=iec) uncompressed)"
-say "run: podman run --rm $image   |   see docs/containers.md"
+say "run: podman run --rm $image   |   the compose bench rig and the rest: docker/README.md"
