@@ -21,6 +21,7 @@
 #include "bridge/surface.hpp"
 #include "bridge/surface_remote.hpp"
 #include "can/socketcan_bus.hpp"
+#include "config/loader.hpp"
 
 namespace canbridge::bridge {
 
@@ -143,7 +144,7 @@ void check_socket_directory(const std::string& socket) {
 
 }  // namespace
 
-int run_gateway(const config::GatewayOptions& options) {
+int run_gateway(const config::GatewayOptions& options, const HangupReloadSource& reload_source) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
@@ -168,7 +169,14 @@ int run_gateway(const config::GatewayOptions& options) {
   }
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return gateway.stats_line(); });
+  ReloadOnHangup reload(
+      io.get_executor(), reload_source, options.log,
+      [](std::string_view text, const std::string& file) {
+        return config::parse_gateway(text, file).log;
+      },
+      [&](std::chrono::seconds interval) { stats.set_interval(interval); });
   OrderedShutdown shutdown(io, [&] {
+    reload.stop();
     stats.stop();
     if (tcp) tcp->stop();
     if (serial) serial->stop();
@@ -192,7 +200,7 @@ int run_gateway(const config::GatewayOptions& options) {
   return 0;
 }
 
-int run_surface(const config::SurfaceOptions& options) {
+int run_surface(const config::SurfaceOptions& options, const HangupReloadSource& reload_source) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
@@ -233,7 +241,14 @@ int run_surface(const config::SurfaceOptions& options) {
   }
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return surface.stats_line(); });
+  ReloadOnHangup reload(
+      io.get_executor(), reload_source, options.log,
+      [](std::string_view text, const std::string& file) {
+        return config::parse_surface(text, file).log;
+      },
+      [&](std::chrono::seconds interval) { stats.set_interval(interval); });
   OrderedShutdown shutdown(io, [&] {
+    reload.stop();
     stats.stop();
     // Operators first: no new request once the backbone goes.
     if (endpoint) endpoint->stop();
