@@ -8,17 +8,40 @@ namespace canbridge::bridge {
 
 namespace {
 
-// Each top-level key with its section in canonical form (yaml-cpp's emitter), in file order;
-// nullopt when the text is not a YAML map.
+// A node as text that ignores layout, comments, flow or block style and the order of map keys.
+std::string canonical(const YAML::Node& node) {
+  switch (node.Type()) {
+    case YAML::NodeType::Scalar:
+      return "'" + node.Scalar() + "'";
+    case YAML::NodeType::Sequence: {
+      std::string out = "[";
+      for (const auto& item : node) out += canonical(item) + ",";
+      return out + "]";
+    }
+    case YAML::NodeType::Map: {
+      std::vector<std::pair<std::string, std::string>> entries;
+      for (const auto& entry : node) {
+        entries.emplace_back(canonical(entry.first), canonical(entry.second));
+      }
+      std::sort(entries.begin(), entries.end());
+      std::string out = "{";
+      for (const auto& [key, value] : entries) out += key + ":" + value + ",";
+      return out + "}";
+    }
+    default:
+      return "~";
+  }
+}
+
+// Each top-level key with its section in canonical form, in file order; nullopt when the text is
+// not a YAML map.
 std::optional<std::vector<std::pair<std::string, std::string>>> sections(std::string_view text) {
   try {
     const YAML::Node root = YAML::Load(std::string(text));
     if (!root.IsMap()) return std::nullopt;
     std::vector<std::pair<std::string, std::string>> out;
     for (const auto& entry : root) {
-      YAML::Emitter emitter;
-      emitter << entry.second;
-      out.emplace_back(entry.first.as<std::string>(), emitter.c_str());
+      out.emplace_back(entry.first.as<std::string>(), canonical(entry.second));
     }
     return out;
   } catch (const YAML::Exception&) {
