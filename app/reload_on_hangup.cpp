@@ -7,8 +7,8 @@
 #include <iterator>
 #include <optional>
 
+#include "config/loader.hpp"  // config::ConfigError
 #include "logging/log_setup.hpp"
-#include "yaml/config_error.hpp"
 
 namespace canbridge::bridge {
 
