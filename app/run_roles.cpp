@@ -22,6 +22,7 @@
 #include "bridge/surface.hpp"
 #include "bridge/surface_remote.hpp"
 #include "can/socketcan_bus.hpp"
+#include "config/loader.hpp"
 
 namespace canbridge::bridge {
 
@@ -144,7 +145,7 @@ void check_socket_directory(const std::string& socket) {
 
 }  // namespace
 
-int run_gateway(const config::GatewayOptions& options) {
+int run_gateway(const config::GatewayOptions& options, const HangupReloadSource& reload_source) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
@@ -170,8 +171,15 @@ int run_gateway(const config::GatewayOptions& options) {
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return gateway.stats_line(); });
   ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
+  ReloadOnHangup reload(
+      io.get_executor(), reload_source, options.log,
+      [](std::string_view text, const std::string& file) {
+        return config::parse_gateway(text, file).log;
+      },
+      [&](std::chrono::seconds interval) { stats.set_interval(interval); });
   OrderedShutdown shutdown(io, [&] {
     notifier.stopping();
+    reload.stop();
     stats.stop();
     if (tcp) tcp->stop();
     if (serial) serial->stop();
@@ -198,7 +206,7 @@ int run_gateway(const config::GatewayOptions& options) {
   return 0;
 }
 
-int run_surface(const config::SurfaceOptions& options) {
+int run_surface(const config::SurfaceOptions& options, const HangupReloadSource& reload_source) {
   apply_log_level(options.log);
   warn_if_plain(options);
   asio::io_context io(1);
@@ -240,8 +248,15 @@ int run_surface(const config::SurfaceOptions& options) {
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
                       [&] { return surface.stats_line(); });
   ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
+  ReloadOnHangup reload(
+      io.get_executor(), reload_source, options.log,
+      [](std::string_view text, const std::string& file) {
+        return config::parse_surface(text, file).log;
+      },
+      [&](std::chrono::seconds interval) { stats.set_interval(interval); });
   OrderedShutdown shutdown(io, [&] {
     notifier.stopping();
+    reload.stop();
     stats.stop();
     // Operators first: no new request once the backbone goes.
     if (endpoint) endpoint->stop();

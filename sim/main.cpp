@@ -14,13 +14,14 @@
 #include <map>
 #include <memory>
 #include <optional>
-#include <set>
 #include <string>
 #include <vector>
 
 #include "can/socketcan_bus.hpp"
 #include "can/virtual_bus.hpp"
 #include "coro/spawn_owned.hpp"
+#include "logging/log_setup.hpp"
+#include "sim/command_line.hpp"
 #include "sim/node_runner.hpp"
 #include "sim/rig_file.hpp"
 
@@ -29,76 +30,11 @@ namespace {
 namespace asio = boost::asio;
 using namespace canbridge;
 
-constexpr const char* kUsage = R"(usage: canbridge-sim RIG.yaml [options]
-  Runs the simulated CANopen nodes of a rig file (see config/rigs/README.md).
-  --bus NAME             run only this bus (repeatable; default: every bus)
-  --interface BUS=IFACE  put bus BUS on SocketCAN interface IFACE instead of the file's
-  --virtual              every bus on an in-process virtual bus (no SocketCAN needed)
-  --stats-seconds N      log bus counters every N seconds (default 10, 0 = never)
-  --verbose              debug logging
-Prints "canbridge-sim: ready ..." once every node has booted; stops on SIGINT/SIGTERM.
-)";
-
-struct Options {
-  std::string rig_path;
-  std::set<std::string> buses;
-  std::map<std::string, std::string> interfaces;
-  bool all_virtual = false;
-  unsigned stats_seconds = 10;
-  bool verbose = false;
-};
+using Options = sim::SimOptions;
 
 int usage_error(const std::string& message) {
-  std::cerr << "canbridge-sim: " << message << "\n" << kUsage;
+  std::cerr << "canbridge-sim: " << message << "\n";
   return 2;
-}
-
-// Fills `options`; returns the exit status when the program should stop here (help: 0, bad
-// usage: 2 with the reason printed).
-std::optional<int> parse(int argc, char** argv, Options& options) {
-  std::vector<std::string> args(argv + 1, argv + argc);
-  for (std::size_t i = 0; i < args.size(); ++i) {
-    const std::string& a = args[i];
-    auto value = [&]() -> const std::string* {
-      if (i + 1 >= args.size()) return nullptr;
-      return &args[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      std::cout << kUsage;
-      return 0;
-    } else if (a == "--bus") {
-      const auto* v = value();
-      if (v == nullptr) return usage_error("--bus needs a name");
-      options.buses.insert(*v);
-    } else if (a == "--interface") {
-      const auto* v = value();
-      const auto eq = v == nullptr ? std::string::npos : v->find('=');
-      if (eq == std::string::npos || eq == 0 || eq + 1 == v->size()) {
-        return usage_error("--interface needs BUS=IFACE");
-      }
-      options.interfaces[v->substr(0, eq)] = v->substr(eq + 1);
-    } else if (a == "--virtual") {
-      options.all_virtual = true;
-    } else if (a == "--stats-seconds") {
-      const auto* v = value();
-      try {
-        if (v == nullptr) throw std::invalid_argument("missing");
-        options.stats_seconds = static_cast<unsigned>(std::stoul(*v));
-      } catch (const std::exception&) {
-        return usage_error("--stats-seconds needs a number");
-      }
-    } else if (a == "--verbose") {
-      options.verbose = true;
-    } else if (!a.empty() && a[0] == '-') {
-      return usage_error("unknown option " + a);
-    } else if (options.rig_path.empty()) {
-      options.rig_path = a;
-    } else {
-      return usage_error("more than one rig file given");
-    }
-  }
-  if (options.rig_path.empty()) return usage_error("no rig file given");
-  return std::nullopt;
 }
 
 struct RunningBus {
@@ -220,9 +156,17 @@ int run(asio::io_context& io, std::vector<RunningBus>& buses, std::size_t node_c
 }  // namespace
 
 int main(int argc, char** argv) {
-  Options options;
-  if (const auto exit_status = parse(argc, argv, options)) return *exit_status;
-  spdlog::set_level(options.verbose ? spdlog::level::debug : spdlog::level::info);
+  const sim::SimCommandLine command_line = sim::parse_sim_command_line(
+      std::vector<std::string>(argv + 1, argv + argc), CANBRIDGE_VERSION);
+  if (!command_line.options) {
+    std::cout << command_line.output;
+    std::cerr << command_line.error;
+    return command_line.exit_status;
+  }
+  const Options& options = *command_line.options;
+  logging::setup_logging(
+      options.log_format,
+      logging::parse_level(options.log_level.value_or("info")).value_or(spdlog::level::info));
   sim::RigSpec rig;
   if (const auto exit_status = load(options, rig)) return *exit_status;
 

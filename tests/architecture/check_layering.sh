@@ -21,6 +21,7 @@ links=$2
 # bridge/options is bridge/'s header-only option structs of remote access, which config/ fills.
 allowed_edges=(
   "coro:"
+  "logging:"
   "can: coro"
   "proto:"
   "backbone: proto/session coro"
@@ -28,9 +29,9 @@ allowed_edges=(
   "yaml:"
   "routing: can canopen"
   "config: yaml canopen routing backbone/auth bridge/options"
-  "sim: can canopen yaml coro"
+  "sim: can canopen yaml coro logging"
   "bridge: can backbone canopen routing proto/canbridge coro"
-  "app: can backbone canopen bridge config sim coro"
+  "app: can backbone canopen bridge config sim coro logging"
   "bench: * tools"
   "tools: *"
   "tests: * tools"

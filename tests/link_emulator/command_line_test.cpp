@@ -97,6 +97,38 @@ TEST(CommandLine, HelpIsNotAnError) {
   EXPECT_FALSE(parsed.options);
 }
 
+TEST(CommandLine, OptionsInAnyOrderAndEitherSpelling) {
+  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
+           {"--a", "pty:/tmp/a", "--b", "tcp-listen:127.0.0.1:0", "--baud", "9600", "--ber",
+            "1e-5"},
+           {"--ber=1e-5", "--b=tcp-listen:127.0.0.1:0", "--baud=9600", "--a=pty:/tmp/a"},
+           {"--baud", "9600", "--b", "tcp-listen:127.0.0.1:0", "--ber", "1e-5", "--a",
+            "pty:/tmp/a"},
+       }) {
+    const CommandLine parsed = parse(args);
+    ASSERT_TRUE(parsed.options) << parsed.error;
+    EXPECT_EQ(parsed.options->a.path, "/tmp/a");
+    EXPECT_EQ(parsed.options->b.kind, EndpointSpec::Kind::tcp_listen);
+    EXPECT_EQ(parsed.options->line.bandwidth_bps, 9600u);
+    EXPECT_DOUBLE_EQ(parsed.options->line.bit_error_rate, 1e-5);
+  }
+}
+
+TEST(CommandLine, VersionAndLogOptions) {
+  EXPECT_TRUE(parse({"--version"}).version);
+  EXPECT_TRUE(parse({"--a", "pty:/tmp/a", "--version"}).version);
+  const CommandLine plain = parse({"--a", "pty:/tmp/a", "--b", "pty:/tmp/b"});
+  EXPECT_FALSE(plain.log_level);
+  EXPECT_EQ(plain.log_format, logging::LogFormat::automatic);
+  const CommandLine verbose = parse({"-vv", "--a", "pty:/tmp/a", "--b", "pty:/tmp/b"});
+  EXPECT_EQ(verbose.log_level, "trace");
+  const CommandLine journal = parse(
+      {"--a", "pty:/tmp/a", "--b", "pty:/tmp/b", "--log-level=warn", "--log-format", "journal"});
+  ASSERT_TRUE(journal.options) << journal.error;
+  EXPECT_EQ(journal.log_level, "warn");
+  EXPECT_EQ(journal.log_format, logging::LogFormat::journal);
+}
+
 TEST(CommandLine, BadArgumentsSayWhatIsWrong) {
   const std::vector<std::string> ends{"--a", "pty:/tmp/a", "--b", "pty:/tmp/b"};
   const auto with = [&](std::vector<std::string> extra) {
@@ -117,7 +149,9 @@ TEST(CommandLine, BadArgumentsSayWhatIsWrong) {
   expect_error(with({"--ber", "2"}), "--ber");
   expect_error(with({"--loss", "-0.1"}), "--loss");
   expect_error(with({"--latency-ms", "x"}), "--latency-ms");
-  expect_error(with({"--frobnicate", "1"}), "unknown option");
+  expect_error(with({"--frobnicate", "1"}), "unexpected argument(s): --frobnicate 1");
+  expect_error(with({"--log-level", "loud"}), "--log-level");
+  expect_error(with({"-v", "--log-level", "info"}), "excludes");
   expect_error(with({"--cuts", "3"}), "--cut-ms");
   expect_error(with({"--cut-ms", "100"}), "--cuts");
   expect_error(with({"--cuts", "3", "--cut-ms", "100", "--cut-window-s", "5"}), "X:Y");

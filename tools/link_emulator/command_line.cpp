@@ -1,8 +1,10 @@
 #include "tools/link_emulator/command_line.hpp"
 
+#include <CLI/CLI.hpp>
 #include <charconv>
 #include <cmath>
 #include <limits>
+#include <map>
 #include <stdexcept>
 
 #include "tools/link_emulator/seeded_random.hpp"
@@ -34,7 +36,12 @@ cuts (the wire breaks: TCP connections close and are refused, pty bytes are disc
   --cut-at T+D            a cut at T s for D s (repeatable; not with --cuts)
 output:
   --stats-seconds N       a stats line every N s (default 0: only at exit)
-  --help
+  -v, --verbose           more log on stderr: -v debug, -vv trace (default info)
+  --log-level LEVEL       trace|debug|info|warn|error|off
+  --log-format FORMAT     auto|text|journal: journal = sd-daemon priority prefixes, no
+                          timestamps; auto picks journal when stderr is the journal
+  --help, --version
+options take their value as "--baud 9600" or "--baud=9600", in any order.
 prints "link-emulator: ready a=... b=..." once listening; SIGINT/SIGTERM print a final stats
 line and exit 0; bad arguments exit 2.
 )";
@@ -180,14 +187,63 @@ CommandLine parse_command_line(const std::vector<std::string>& args) {
   nanoseconds cut_gap{0};
   std::vector<Cut> explicit_cuts;
   try {
-    for (std::size_t i = 0; i < args.size(); ++i) {
-      const std::string& flag = args[i];
-      if (flag == "--help" || flag == "-h") {
-        result.help = true;
-        return result;
+    // CLI11 does the grammar (any order, --flag=value, unknown options, missing values); the
+    // values are checked below, in one place, with messages naming the option.
+    CLI::App app{"canbridge-link-emulator", "canbridge-link-emulator"};
+    app.set_help_flag("-h,--help");
+    std::map<std::string, std::string> values;
+    std::vector<std::string> cut_at;
+    for (const char* flag : {"--a", "--b", "--baud", "--bits-per-byte", "--latency-ms",
+                             "--jitter-ms", "--ber", "--loss", "--buffer-bytes", "--seed", "--cuts",
+                             "--cut-ms", "--cut-window-s", "--cut-gap-ms", "--stats-seconds"}) {
+      app.add_option(flag, values[flag]);
+    }
+    app.add_option("--cut-at", cut_at)
+        ->expected(1)
+        ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
+    auto* version = app.add_flag("--version");
+    int verbosity = 0;
+    std::string level;
+    std::string format = "auto";
+    auto* verbose = app.add_flag("-v,--verbose", verbosity);
+    app.add_option("--log-level", level)
+        ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
+        ->excludes(verbose);
+    app.add_option("--log-format", format)->check(CLI::IsMember({"auto", "text", "journal"}));
+    try {
+      app.parse(std::vector<std::string>(args.rbegin(), args.rend()));
+    } catch (const CLI::CallForHelp&) {
+      result.help = true;
+      return result;
+    } catch (const CLI::ParseError& e) {
+      std::string message = e.what();
+      if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr) {
+        // CLI11 lists them backwards (it parses a reversed vector): name them as given.
+        message = "unexpected argument(s):";
+        for (const std::string& extra : app.remaining()) message += " " + extra;
       }
-      if (i + 1 >= args.size()) throw BadArgument(flag + " needs a value");
-      const std::string_view value = args[++i];
+      // CLI11 says "--baud: 1 required TEXT missing": say what was expected.
+      if (dynamic_cast<const CLI::ArgumentMismatch*>(&e) != nullptr)
+        message += " (it needs a value)";
+      throw BadArgument(message);
+    }
+    if (version->count() > 0) {
+      result.version = true;
+      return result;
+    }
+    if (!level.empty()) {
+      result.log_level = level;
+    } else if (verbosity > 0) {
+      result.log_level = verbosity == 1 ? "debug" : "trace";
+    }
+    result.log_format = *logging::parse_log_format(format);  // checked by IsMember
+    std::vector<std::pair<std::string, std::string>> given;
+    for (const auto& [flag, value] : values) {
+      if (app.get_option(flag)->count() > 0) given.emplace_back(flag, value);
+    }
+    for (const std::string& value : cut_at) given.emplace_back("--cut-at", value);
+    for (const auto& [flag, text] : given) {
+      const std::string_view value = text;
       if (flag == "--a" || flag == "--b") {
         std::string error;
         auto spec = parse_endpoint(value, error);
@@ -237,8 +293,6 @@ CommandLine parse_command_line(const std::vector<std::string>& args) {
         explicit_cuts.push_back(Cut{parse_seconds(start, flag), parse_seconds(length, flag)});
       } else if (flag == "--stats-seconds") {
         options.stats_interval = std::chrono::seconds(parse_integer<unsigned>(value, flag));
-      } else {
-        throw BadArgument("unknown option '" + flag + "'");
       }
     }
     if (!a || !b) throw BadArgument("both --a SPEC and --b SPEC are required");

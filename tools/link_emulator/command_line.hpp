@@ -9,6 +9,7 @@
 #include <string_view>
 #include <vector>
 
+#include "logging/log_setup.hpp"
 #include "tools/link_emulator/cut_schedule.hpp"
 #include "tools/link_emulator/impairment.hpp"
 
@@ -45,7 +46,11 @@ struct EmulatorOptions {
 struct CommandLine {
   std::optional<EmulatorOptions> options;  // set when the arguments are valid
   bool help = false;                       // --help: print kUsage, exit 0
+  bool version = false;                    // --version: print the version, exit 0
   std::string error;                       // otherwise: what is wrong (exit 2)
+  // -v (debug), -vv (trace), --log-level; unset: info.
+  std::optional<std::string> log_level;
+  logging::LogFormat log_format = logging::LogFormat::automatic;
 };
 
 // argv without the program name.

@@ -1,5 +1,4 @@
 // canbridge-link-emulator: a slow, noisy, sometimes cut wireline between two backbone endpoints.
-#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include <exception>
@@ -7,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "logging/log_setup.hpp"
 #include "tools/link_emulator/command_line.hpp"
 #include "tools/link_emulator/link_shell.hpp"
 
@@ -17,14 +17,20 @@ int main(int argc, char** argv) {
     std::cout << canbridge::emulator::kUsage;
     return 0;
   }
+  if (command_line.version) {
+    std::cout << "canbridge-link-emulator " << CANBRIDGE_VERSION << "\n";
+    return 0;
+  }
   if (!command_line.options) {
-    std::cerr << "canbridge-link-emulator: " << command_line.error << "\n"
-              << canbridge::emulator::kUsage;
+    std::cerr << "canbridge-link-emulator: " << command_line.error
+              << "\nrun 'canbridge-link-emulator --help' for the usage\n";
     return 2;
   }
   // stdout is for the lines tests wait for (ready, cuts, stats); diagnostics go to stderr.
-  spdlog::set_default_logger(spdlog::stderr_color_st("link-emulator"));
-  spdlog::set_pattern("%Y-%m-%d %H:%M:%S.%e %^%l%$ link-emulator %v");
+  canbridge::logging::setup_logging(
+      command_line.log_format,
+      canbridge::logging::parse_level(command_line.log_level.value_or("info"))
+          .value_or(spdlog::level::info));
   try {
     return canbridge::emulator::run_link_emulator(*command_line.options);
   } catch (const std::exception& e) {
