@@ -27,7 +27,12 @@ rm -rf "$root/build"
 # debugs these binaries, and leaving -g out keeps the whole run well inside its time budget.
 # The unit tests ran above under the sanitizers; building them a second time here cost four of
 # the run's 25 minutes to repeat what the sanitizer build already checks.
+# The container image test (tests/container/, `ctest -L image`) is not part of this run yet: built
+# from source on a fresh machine the image takes 12-14 minutes of an idle 2-core machine (a
+# debootstrap base, apt in two stages, the product compiled a third time), which the run's
+# 25-minute budget does not hold. Run it on its own: cmake -DCANBRIDGE_IMAGE_TEST=ON, then
+# ctest --test-dir build -L image (docker/README.md).
 cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
-  -DCANBRIDGE_UNIT_TESTS=OFF >/dev/null
+  -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=OFF >/dev/null
 cmake --build "$root/build" -j "$jobs"
 ctest --test-dir "$root/build" -j "$jobs" --output-on-failure

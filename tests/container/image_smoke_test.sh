@@ -147,8 +147,8 @@ PY
   done <"$work/compose-services.txt"
   # Heartbeats of the nodes of config/rigs/lab_instrument.yaml (qd 1..6, CiA 301 20) on the
   # surface's bus: they crossed vcan1, the gateway, the backbone and the surface.
-  # Node 2 (magnet-supply) is left out: in this rig the gateway never discovers it on vcan1
-  # (seen while writing this test, not yet explained; the other six always arrive).
+  # Node 2 (magnet-supply) sends no heartbeat: the rig gives it `loader: {wait_for_command:
+  # true}`, so it waits in its loader until the host starts it (docs/sim-nodes.md).
   want="701 703 704 705 706 714"
   # A 30 s window holds several heartbeats of each node (periods 0.5..2 s). A plain file: FIFOs
   # and /dev/fd do not work across the guest's hostfs.
