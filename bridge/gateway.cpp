@@ -287,8 +287,8 @@ void Gateway::queue_node_events() {
     claims_changed_ = false;
   }
   for (const NodeEvent& e : node_events_) {
-    spdlog::info("gateway {}: {}", name_, to_string(e));
     const auto m = e.module_index;
+    spdlog::info("gateway {}: {}", name_, to_string(e, modules_[m].id));
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
     v1::NodeEvent& o = *out.add_events();
