@@ -22,8 +22,8 @@ namespace canbridge::cli {
 
 namespace {
 
-constexpr std::array<std::string_view, 7> kCommands = {"nodes", "sdo",  "nmt",    "set-node-id",
-                                                       "flash", "dump", "capture"};
+constexpr std::array<std::string_view, 8> kCommands = {"nodes", "sdo",  "nmt",     "set-node-id",
+                                                       "flash", "dump", "capture", "stats"};
 
 constexpr std::array<std::string_view, 19> kDatatypes = {
     "b",   "u8",  "u16", "u32", "u64", "i8", "i16", "i32", "i64", "x8",
@@ -120,6 +120,28 @@ int run_nodes(const Connect& connect, const CommonOptions& common, bool net_give
               });
   if (rc != exit_code::ok) return rc;
   print_node_table(s.io().out, rows);
+  return exit_code::ok;
+}
+
+// `stats`: the endpoint's one JSON line (a surface's command endpoint or a gateway's
+// stats_endpoint), printed as it came.
+int run_stats(const Connect& connect) {
+  int rc = exit_code::ok;
+  const auto session = connect(rc);
+  if (!session) return rc;
+  Session& s = *session;
+  std::string json, answer;
+  rc = s.call("stats", answer, [&](std::string_view rest) {
+    if (rest.empty() || rest.front() != '{') return false;
+    json = rest;
+    return true;
+  });
+  if (rc != exit_code::ok) return rc;
+  if (json.empty()) {
+    s.io().err << "canbridge: the endpoint answered stats without statistics: " << answer << "\n";
+    return exit_code::abort;
+  }
+  s.io().out << json << "\n";
   return exit_code::ok;
 }
 
@@ -272,6 +294,8 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
   app.fallthrough();  // common options also after the subcommand
 
   auto* nodes = app.add_subcommand("nodes", "the live node table");
+  auto* stats = app.add_subcommand(
+      "stats", "statistics as JSON (a surface's endpoint, or a gateway's stats_endpoint)");
 
   SdoArgs sdo_args;
   auto* sdo = app.add_subcommand("sdo", "read or write an object of a node");
@@ -331,6 +355,7 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
     const Io io{out, err, terminal};
     const Connect connect = [&](int& exit) { return Session::open(common, io, exit); };
     if (nodes->parsed()) return run_nodes(connect, common, net_option->count() > 0);
+    if (stats->parsed()) return run_stats(connect);
     if (sdo_read->parsed()) return run_sdo_read(connect, common, sdo_args);
     if (sdo_write->parsed()) return run_sdo_write(connect, common, sdo_args);
     if (nmt->parsed()) return run_nmt(connect, common, nmt_command, node_text);

@@ -19,6 +19,9 @@
 #include "backbone/tcp_server.hpp"
 #include "bridge/command_endpoint.hpp"
 #include "bridge/gateway.hpp"
+#include "bridge/metrics_endpoint.hpp"
+#include "bridge/statistics_service.hpp"
+#include "bridge/stats_endpoint.hpp"
 #include "bridge/surface.hpp"
 #include "bridge/surface_remote.hpp"
 #include "can/socketcan_bus.hpp"
@@ -131,16 +134,28 @@ std::shared_ptr<backbone::TcpServer> admitting_server(asio::any_io_executor ex,
 
 // The Unix socket's directory must be there before the endpoint binds: a clear start error
 // beats a bind error naming a path (systemd: RuntimeDirectory=canbridge makes /run/canbridge).
-void check_socket_directory(const std::string& socket) {
+void check_socket_directory(const std::string& socket,
+                            const std::string& key = "command_endpoint.unix_socket") {
   if (socket.empty()) return;
   const std::filesystem::path dir = std::filesystem::path(socket).parent_path();
   std::error_code ec;
   if (!std::filesystem::is_directory(dir, ec)) {
-    throw std::runtime_error("command_endpoint.unix_socket " + socket + ": directory " +
-                             dir.string() +
+    throw std::runtime_error(key + " " + socket + ": directory " + dir.string() +
                              " does not exist (create it, owned by the surface's user, or set "
                              "RuntimeDirectory=canbridge in the systemd unit)");
   }
+}
+
+// The optional Prometheus endpoint on the role's loop (`metrics:`); null when not configured.
+std::unique_ptr<MetricsEndpoint> metrics_endpoint(asio::any_io_executor ex,
+                                                  const std::optional<config::MetricsOptions>& o,
+                                                  StatisticsService& statistics) {
+  if (!o) return nullptr;
+  MetricsEndpointOptions options;
+  options.address = o->listen.host;
+  options.port = o->listen.port;
+  return std::make_unique<MetricsEndpoint>(std::move(ex), options,
+                                           [&statistics] { return statistics.prometheus(); });
 }
 
 }  // namespace
@@ -168,8 +183,17 @@ int run_gateway(const config::GatewayOptions& options, const HangupReloadSource&
   } else {
     tcp = tcp_client(io.get_executor(), options);
   }
+  StatisticsService statistics(io.get_executor(), [&] { return gateway.statistics(); });
+  std::unique_ptr<StatsEndpoint> stats_endpoint;
+  if (!options.stats_endpoint.empty()) {
+    check_socket_directory(options.stats_endpoint, "stats_endpoint");
+    stats_endpoint = std::make_unique<StatsEndpoint>(io.get_executor(),
+                                                     StatsEndpointOptions{options.stats_endpoint},
+                                                     [&statistics] { return statistics.json(); });
+  }
+  auto metrics = metrics_endpoint(io.get_executor(), options.metrics, statistics);
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
-                      [&] { return gateway.stats_line(); });
+                      [&] { return statistics.line(); });
   ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
   ReloadOnHangup reload(
       io.get_executor(), reload_source, options.log,
@@ -181,6 +205,9 @@ int run_gateway(const config::GatewayOptions& options, const HangupReloadSource&
     notifier.stopping();
     reload.stop();
     stats.stop();
+    statistics.stop();
+    if (stats_endpoint) stats_endpoint->stop();
+    if (metrics) metrics->stop();
     if (tcp) tcp->stop();
     if (serial) serial->stop();
     gateway.stop();
@@ -188,6 +215,9 @@ int run_gateway(const config::GatewayOptions& options, const HangupReloadSource&
   // A gateway that stopped itself (a loop ended or threw) takes the process down in order.
   gateway.on_failure([&](const std::string&) { shutdown.trigger(); });
   gateway.start();
+  statistics.start();
+  if (stats_endpoint) stats_endpoint->start();  // throws a start error (socket in use, ...)
+  if (metrics) metrics->start();                // throws a start error (port in use, ...)
   if (tcp) tcp->start(attach);
   if (serial) serial->start(attach);
   spdlog::info("gateway {}: {} module(s), backbone {}", options.name, options.modules.size(),
@@ -245,8 +275,11 @@ int run_surface(const config::SurfaceOptions& options, const HangupReloadSource&
     lines.push_back(
         backbone::SerialClient::create(io.get_executor(), serial_options(line, nullptr)));
   }
+  StatisticsService statistics(io.get_executor(), [&] { return surface.statistics(); });
+  if (endpoint) endpoint->serve_stats([&statistics] { return statistics.json(); });
+  auto metrics = metrics_endpoint(io.get_executor(), options.metrics, statistics);
   PeriodicStats stats(io.get_executor(), options.log.stats_interval,
-                      [&] { return surface.stats_line(); });
+                      [&] { return statistics.line(); });
   ServiceNotifier notifier(io.get_executor());  // systemd: Type=notify, WatchdogSec=
   ReloadOnHangup reload(
       io.get_executor(), reload_source, options.log,
@@ -258,6 +291,8 @@ int run_surface(const config::SurfaceOptions& options, const HangupReloadSource&
     notifier.stopping();
     reload.stop();
     stats.stop();
+    statistics.stop();
+    if (metrics) metrics->stop();
     // Operators first: no new request once the backbone goes.
     if (endpoint) endpoint->stop();
     if (server) server->stop();
@@ -269,6 +304,8 @@ int run_surface(const config::SurfaceOptions& options, const HangupReloadSource&
   // A surface that stopped itself (a loop ended or threw) takes the process down in order.
   surface.on_failure([&](const std::string&) { shutdown.trigger(); });
   surface.start();
+  statistics.start();
+  if (metrics) metrics->start();  // throws a start error (port in use, ...)
   if (server) {
     if (std::error_code ec = server->start(options.listen.host, options.listen.port, attach)) {
       throw std::runtime_error("cannot listen on " + options.listen.to_string() + ": " +

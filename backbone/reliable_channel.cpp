@@ -93,6 +93,12 @@ void ReliableSender::on_ack(std::uint64_t cumulative, TimePoint now) {
   }
   if (cumulative < send_base_) return;  // stale, duplicated or reordered
   const std::size_t released = static_cast<std::size_t>(cumulative - send_base_ + 1);
+  // The newest payload released was sent last: its send time gives the freshest sample.
+  const TimePoint sent = ring_[(head_ + released - 1) % ring_.size()].last_sent;
+  if (sent != TimePoint{} && now >= sent) {
+    const Duration sample = now - sent;
+    round_trip_ = round_trip_ ? *round_trip_ + (sample - *round_trip_) / 8 : sample;
+  }
   for (std::size_t i = 0; i < released; ++i) {
     Entry& done = ring_[(head_ + i) % ring_.size()];
     unacked_bytes_ -= done.payload.size();
@@ -160,6 +166,7 @@ ReliableSender::TimeoutAction ReliableSender::on_retransmit_timeout() {
 
 void ReliableSender::on_link_up() {
   link_up_ = true;
+  round_trip_.reset();  // a new link: a new path
   cursor_ = send_base_;
   scheduled_.clear();
 }

@@ -190,6 +190,9 @@ class ReliableSender {
   bool has_unsent() const { return link_up_ && (!scheduled_.empty() || cursor_ < next_seq_); }
   bool link_up() const { return link_up_; }
   const Counters& counters() const { return counters_; }
+  // Smoothed time from a payload's (last) send to the acknowledgement that released it, ack
+  // delay included (1/8 weight per sample, as TCP's SRTT); unset until measured on this link.
+  std::optional<Duration> round_trip() const { return round_trip_; }
 
  private:
   struct Entry {
@@ -228,6 +231,7 @@ class ReliableSender {
   TimePoint last_resend_{};
   std::optional<std::uint64_t> reported_gap_ack_;  // ack of the latest valid resend request
   std::uint64_t timeouts_without_progress_ = 0;
+  std::optional<Duration> round_trip_;
   Counters counters_;
 };
 

@@ -82,6 +82,7 @@ bool allowed_for_monitor(AsciiVerb verb) {
     case AsciiVerb::auth:
     case AsciiVerb::nodes:
     case AsciiVerb::monitor:
+    case AsciiVerb::stats:
       return true;
     case AsciiVerb::write:
     case AsciiVerb::nmt:
@@ -219,7 +220,8 @@ struct CommandEndpoint::Core : std::enable_shared_from_this<CommandEndpoint::Cor
   std::uint64_t next_session = 0;
   CommandEndpointCounters counters;
   std::uint16_t tcp_port = 0;
-  std::string socket_path;  // the socket file this endpoint made ("" : none)
+  std::function<std::string()> stats_json;  // `stats`; empty: not supported
+  std::string socket_path;                  // the socket file this endpoint made ("" : none)
   ino_t socket_inode = 0;
   bool started = false;
   bool stopped = false;
@@ -593,6 +595,12 @@ class Session : public std::enable_shared_from_this<Session> {
         return monitor(reply, cmd);
       case AsciiVerb::lss:
         return lss(reply, cmd);
+      case AsciiVerb::stats:
+        if (!core_->stats_json) {
+          return fail(reply, AsciiError::request_not_supported, "stats: not served here");
+        }
+        reply->lines.push_back(canopen::ascii_line(seq, core_->stats_json()));
+        return finish(reply, canopen::ascii_ok(seq));
     }
   }
 
@@ -900,6 +908,10 @@ CommandEndpoint::CommandEndpoint(asio::any_io_executor executor, CommandEndpoint
 
 CommandEndpoint::~CommandEndpoint() {
   core_->stop();
+}
+
+void CommandEndpoint::serve_stats(std::function<std::string()> json) {
+  core_->stats_json = std::move(json);
 }
 
 void CommandEndpoint::start() {

@@ -6,7 +6,9 @@
 #include <boost/asio/any_io_executor.hpp>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <string>
 
 #include "bridge/command_endpoint_options.hpp"
 #include "bridge/remote_access.hpp"
@@ -42,6 +44,10 @@ class CommandEndpoint {
   // Closes the listeners and every client (their pending requests are cancelled) at once; the
   // coroutines end on their next turn. Removes the socket file it made. Idempotent.
   void stop();
+
+  // Answers `stats` with `json()` as one line ("[seq] {...}", then "[seq] OK"); without it,
+  // `stats` is refused as not supported.
+  void serve_stats(std::function<std::string()> json);
 
   // The bound TCP port (0 without TCP).
   std::uint16_t tcp_port() const;

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 
+#include "bridge/bus_state_log.hpp"
 #include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
@@ -133,6 +134,8 @@ Gateway::~Gateway() = default;
 
 void Gateway::start() {
   for (std::size_t m = 0; m < modules_.size(); ++m) {
+    log_bus_state_changes(*modules_[m].bus, fmt::format("gateway {}: module {} bus {}", name_,
+                                                        modules_[m].id, modules_[m].bus->name()));
     coro::spawn_owned(executor_, read_bus(m), [this, m](const std::string& why) {
       on_task_end("reader of bus " + modules_[m].bus->name(), why);
     });
@@ -284,8 +287,8 @@ void Gateway::queue_node_events() {
     claims_changed_ = false;
   }
   for (const NodeEvent& e : node_events_) {
-    spdlog::info("gateway {}: {}", name_, to_string(e));
     const auto m = e.module_index;
+    spdlog::info("gateway {}: {}", name_, to_string(e, modules_[m].id));
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
     v1::NodeEvent& o = *out.add_events();
@@ -350,6 +353,10 @@ void Gateway::attach(std::shared_ptr<backbone::MessageLink> link) {
     link_->close();
     old_links_framing_ += link_->message_link()->counters().deframer;
     old_links_tx_bytes_ += link_->message_link()->counters().tx_bytes;
+    const backbone::LinkCounters old = link_->message_link()->counters();
+    old_links_.rx_bytes += old.rx_bytes;
+    old_links_.rx_messages += old.rx_messages;
+    old_links_.tx_writes += old.tx_writes;
   }
   link_ = backbone::SessionLink::create(std::move(link), identity_, tuning_.session, &stream_,
                                         nullptr, counters_.session, &session_log_);
@@ -602,6 +609,69 @@ GatewayCounters Gateway::counters() const {
     c.backbone_tx_bytes += link_->message_link()->counters().tx_bytes;
   }
   return c;
+}
+
+RoleStatistics Gateway::statistics() const {
+  const GatewayCounters c = counters();
+  RoleStatistics s;
+  s.role = "gateway";
+  s.name = name_;
+  for (const GatewayModule& m : modules_) {
+    s.buses.push_back({m.id, m.bus->name(), m.bus->counters(), m.bus->link_up()});
+  }
+  BackboneStatistics& b = s.backbone;
+  b.peers_up = connected() ? 1 : 0;
+  b.peers_known = 1;
+  b.links = c.session.links;
+  b.dead_links = c.session.dead_links;
+  b.tx_bytes = c.backbone_tx_bytes;
+  b.rx_bytes = old_links_.rx_bytes;
+  b.rx_messages = old_links_.rx_messages;
+  b.tx_writes = old_links_.tx_writes;
+  if (link_) {
+    const backbone::LinkCounters now = link_->message_link()->counters();
+    b.rx_bytes += now.rx_bytes;
+    b.rx_messages += now.rx_messages;
+    b.tx_writes += now.tx_writes;
+  }
+  b.frames_sent = c.outbox.frames_sent;
+  b.frames_received = c.frames_received;
+  b.batches_sent = c.outbox.batches_sent;
+  b.reliable_sent = c.session.reliable_sent;
+  b.reliable_resent = c.session.reliable_resent;
+  b.resend_requests = c.session.resend_requests;
+  b.unacked = stream_.sender().unacked_count();
+  if (connected()) {
+    if (auto rtt = stream_.sender().round_trip()) {
+      b.round_trip = std::chrono::duration_cast<std::chrono::microseconds>(*rtt);
+    }
+  }
+  for (std::size_t r = 0; r < kDropReasonCount; ++r) {
+    s.drops.push_back(
+        {std::string("untranslatable-") + to_string(static_cast<DropReason>(r)), c.translation[r]});
+  }
+  std::uint64_t bus_drops = 0;
+  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
+    s.drops.push_back({std::string("bus-write-") + to_string(static_cast<BusWriteQueue::Drop>(r)),
+                       c.bus_drops[r]});
+    bus_drops += c.bus_drops[r];
+  }
+  s.drops.push_back(
+      {"bus-write-refused", c.bus_refused > bus_drops ? c.bus_refused - bus_drops : 0});
+  s.drops.push_back({"conflated", c.outbox.conflated});
+  s.drops.push_back({"process-dropped", c.outbox.process_dropped});
+  s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});
+  s.drops.push_back(
+      {"reliable-too-old", c.outbox.reliable_too_old + c.session.reliable_dropped_too_old});
+  s.drops.push_back({"reliable-peer-restart",
+                     c.outbox.discarded_peer_restart + c.session.reliable_dropped_peer_restart});
+  s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
+  s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
+  s.drops.push_back({"unknown-module", c.unknown_module});
+  s.drops.push_back({"node-events-dropped", c.node_events_dropped});
+  const NodeCounts n = node_table_.counts();
+  s.nodes = {n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost};
+  return s;
 }
 
 std::string Gateway::stats_line() const {

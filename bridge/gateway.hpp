@@ -25,6 +25,7 @@
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/module_sdo_tracking.hpp"
+#include "bridge/role_statistics.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 #include "routing/cob_id_translator.hpp"
@@ -129,6 +130,8 @@ class Gateway {
   const backbone::PeerStream& stream() const { return stream_; }
   const NodeTable& node_table() const { return node_table_; }
   std::string stats_line() const;
+  // The typed snapshot behind `canbridge stats` and /metrics (bridge/role_statistics.hpp).
+  RoleStatistics statistics() const;
 
  private:
   backbone::PeerStream::Handlers stream_handlers();
@@ -220,6 +223,7 @@ class Gateway {
   std::shared_ptr<backbone::SessionLink> link_;     // the newest link, ready or not
   backbone::DeframerCounters old_links_framing_{};  // of the links before link_
   std::uint64_t old_links_tx_bytes_ = 0;
+  backbone::LinkCounters old_links_{};  // rx bytes and messages, writes: of the links before link_
   GatewayCounters counters_;
   v1::Payload inbound_;
   std::vector<can::Frame> decoded_;

@@ -6,6 +6,7 @@
 #include <bitset>
 #include <deque>
 
+#include "bridge/bus_state_log.hpp"
 #include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
@@ -103,6 +104,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
 Surface::~Surface() = default;
 
 void Surface::start() {
+  log_bus_state_changes(*bus_, fmt::format("surface {}: bus {}", name_, bus_->name()));
   coro::spawn_owned(executor_, read_bus(), [this](const std::string& why) {
     on_task_end("reader of bus " + bus_->name(), why);
   });
@@ -158,7 +160,12 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   if (stopped_) return link->close();
   std::erase_if(links_, [this](const auto& l) {
     if (l->message_link()->is_open()) return false;
-    closed_links_framing_ += l->message_link()->counters().deframer;
+    const backbone::LinkCounters closed = l->message_link()->counters();
+    closed_links_framing_ += closed.deframer;
+    closed_links_.rx_bytes += closed.rx_bytes;
+    closed_links_.rx_messages += closed.rx_messages;
+    closed_links_.tx_bytes += closed.tx_bytes;
+    closed_links_.tx_writes += closed.tx_writes;
     return true;
   });
   auto session = backbone::SessionLink::create(
@@ -653,6 +660,71 @@ SurfaceCounters Surface::counters() const {
     }
   }
   return c;
+}
+
+RoleStatistics Surface::statistics() const {
+  const SurfaceCounters c = counters();
+  RoleStatistics s;
+  s.role = "surface";
+  s.name = name_;
+  s.buses.push_back({0, bus_->name(), bus_->counters(), bus_->link_up()});
+  BackboneStatistics& b = s.backbone;
+  b.peers_up = static_cast<std::uint32_t>(gateways_ready());
+  b.peers_known = static_cast<std::uint32_t>(by_id_.size());
+  b.links = c.session.links;
+  b.dead_links = c.session.dead_links;
+  b.tx_bytes = closed_links_.tx_bytes;
+  b.rx_bytes = closed_links_.rx_bytes;
+  b.rx_messages = closed_links_.rx_messages;
+  b.tx_writes = closed_links_.tx_writes;
+  for (const auto& l : links_) {
+    const backbone::LinkCounters now = l->message_link()->counters();
+    b.tx_bytes += now.tx_bytes;
+    b.rx_bytes += now.rx_bytes;
+    b.rx_messages += now.rx_messages;
+    b.tx_writes += now.tx_writes;
+  }
+  b.frames_sent = c.outbox.frames_sent;
+  b.frames_received = c.frames_received;
+  b.batches_sent = c.outbox.batches_sent;
+  b.reliable_sent = c.session.reliable_sent;
+  b.reliable_resent = c.session.reliable_resent;
+  b.resend_requests = c.session.resend_requests;
+  // The slowest gateway's round trip: the one an operator has to worry about.
+  for (const auto& [name, g] : gateways_) {
+    b.unacked += g->stream.sender().unacked_count();
+    if (!g->stream.up()) continue;
+    if (auto rtt = g->stream.sender().round_trip()) {
+      const auto us = std::chrono::duration_cast<std::chrono::microseconds>(*rtt);
+      if (!b.round_trip || us > *b.round_trip) b.round_trip = us;
+    }
+  }
+  std::uint64_t bus_drops = 0;
+  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
+    s.drops.push_back({std::string("bus-write-") + to_string(static_cast<BusWriteQueue::Drop>(r)),
+                       c.bus_drops[r]});
+    bus_drops += c.bus_drops[r];
+  }
+  s.drops.push_back(
+      {"bus-write-refused", c.bus_refused > bus_drops ? c.bus_refused - bus_drops : 0});
+  s.drops.push_back({"no-gateway", c.dropped_no_gateway});
+  s.drops.push_back({"unclaimed", c.dropped_unclaimed});
+  for (std::size_t r = 0; r < kNotItsOwnReasons; ++r) {
+    s.drops.push_back(
+        {std::string("not-its-own-") + to_string(static_cast<NotItsOwn>(r)), c.not_its_own[r]});
+  }
+  s.drops.push_back({"conflated", c.outbox.conflated});
+  s.drops.push_back({"process-dropped", c.outbox.process_dropped});
+  s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});
+  s.drops.push_back({"reliable-too-old", c.reliable_dropped_too_old});
+  s.drops.push_back({"reliable-peer-restart", c.reliable_dropped_gateway_restart});
+  s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
+  s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
+  s.drops.push_back({"unknown-module", c.unknown_module});
+  s.drops.push_back({"pdop-malformed", c.pdop_malformed});
+  s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
+  // The node summary from the gateway table's view is the surface's; not counted here.
+  return s;
 }
 
 std::string Surface::stats_line() const {

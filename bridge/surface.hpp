@@ -22,6 +22,7 @@
 #include "bridge/frame_outbox.hpp"
 #include "bridge/gateway_table.hpp"
 #include "bridge/loop_guard.hpp"
+#include "bridge/role_statistics.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -138,6 +139,8 @@ class Surface {
   std::size_t gateways_ready() const;
   can::Bus& bus() { return *bus_; }
   std::string stats_line() const;
+  // The typed snapshot behind `canbridge stats` and /metrics (bridge/role_statistics.hpp).
+  RoleStatistics statistics() const;
   // Every TPDOP packet, whole, as it arrives (also put on the bus as fragments). One observer.
   void on_pdop_packet(std::function<void(const SurfacePdopPacket&)> observer) {
     pdop_observer_ = std::move(observer);
@@ -239,6 +242,7 @@ class Surface {
   std::vector<can::Frame> forward_;  // the surface frames of one batch that go to gateways
   std::vector<std::shared_ptr<backbone::SessionLink>> links_;  // links not known closed
   backbone::DeframerCounters closed_links_framing_{};          // of links dropped from links_
+  backbone::LinkCounters closed_links_{};  // bytes, messages, writes of links dropped from links_
   backbone::SessionLogMemory session_log_;
   SurfaceCounters counters_;
   v1::Payload inbound_;

@@ -87,6 +87,12 @@ class Bus {
   // Called on every fault-confinement state change (from error frames); optional.
   virtual void on_state_change(std::function<void(BusState)> handler) = 0;
 
+  // False while the interface is down or gone (a bus that reopens it says so); true for a bus
+  // without an interface of its own.
+  virtual bool link_up() const { return true; }
+  // Called when the interface is lost (false) and when the bus has it again (true); optional.
+  virtual void on_link_change(std::function<void(bool up)> handler) { (void)handler; }
+
   // Stops both directions; a pending receive_batch completes with operation_aborted.
   virtual void close() = 0;
 };

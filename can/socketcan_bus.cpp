@@ -23,6 +23,7 @@
 #include <ctime>
 #include <system_error>
 
+#include "can/link_watch.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::can {
@@ -144,6 +145,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         room_wake(ex),
         writer_backoff(ex),
         reopen_timer(ex),
+        link_watch(ex),
         tx_queue(options.transmit_queue_frames),
         rx_msgs(options.batch_size),
         rx_iov(options.batch_size),
@@ -244,6 +246,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
       count_frames_left_behind();
       boost::system::error_code ignored;
       socket.close(ignored);
+      if (link_handler && !closed) link_handler(false);
     }
     if (closed || reopening) return;
     reopening = true;
@@ -289,11 +292,39 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     }
   }
 
+  // While the bus reopens: the kernel's link notifications end the backoff wait as soon as the
+  // interface is running again. Without netlink (not permitted, not built) the backoff alone.
+  void start_link_watch() {
+    std::error_code ec;
+    if (!link_watch.open(ec)) {
+      spdlog::debug("bus {}: no rtnetlink link watch ({}); reopening on a timer", options.interface,
+                    ec.message());
+      return;
+    }
+    coro::spawn_owned(executor, watch_link(shared_from_this()), [](const std::string&) {});
+  }
+
+  static asio::awaitable<void> watch_link(std::shared_ptr<Impl> self) {
+    std::vector<LinkEvent> events;
+    while (!self->closed && self->link_watch.is_open()) {
+      if (co_await self->link_watch.next(events)) break;
+      // The index is looked up per event: an interface removed and created again has a new one.
+      const unsigned index = ::if_nametoindex(self->options.interface.c_str());
+      for (const LinkEvent& e : events) {
+        if (e.up && e.ifindex == index) {
+          self->link_came_up = true;
+          self->reopen_timer.cancel();
+        }
+      }
+    }
+  }
+
   static asio::awaitable<void> reopen(std::shared_ptr<Impl> self) {
+    self->start_link_watch();
     // First attempt at once: a quick down/up flap may already be over.
     auto delay = std::chrono::milliseconds(0);
     while (!self->closed) {
-      if (delay.count() != 0) {
+      if (delay.count() != 0 && !self->link_came_up) {
         self->reopen_timer.expires_after(delay);
         co_await self->reopen_timer.async_wait(asio::as_tuple(asio::use_awaitable));
         if (self->closed) break;
@@ -305,10 +336,14 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
         self->loss_pending = true;
         self->reader_wake.cancel();
         self->writer_wake.cancel();
+        if (self->link_handler) self->link_handler(true);
         break;
       }
+      self->link_came_up = false;
       delay = std::clamp(delay * 2, kReopenBackoffMin, kReopenBackoffMax);
     }
+    self->link_came_up = false;
+    self->link_watch.close();
     self->reopening = false;
   }
 
@@ -558,6 +593,7 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
     room_wake.cancel();
     writer_backoff.cancel();
     reopen_timer.cancel();
+    link_watch.close();
   }
 
   asio::any_io_executor executor;
@@ -568,10 +604,13 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
   asio::steady_timer room_wake;           // notified when room_wanted slots are free, and close
   asio::steady_timer writer_backoff;
   asio::steady_timer reopen_timer;
+  LinkWatch link_watch;       // open while reopening
+  bool link_came_up = false;  // the watch saw the interface running: retry without waiting
   FrameRing tx_queue;
   std::size_t tx_capacity() const { return options.transmit_queue_frames; }
   BusCounters counters;
   std::function<void(BusState)> state_handler;
+  std::function<void(bool)> link_handler;
   std::uint32_t last_overflow = 0;
   bool loss_pending = false;  // frames were lost: flag the next frame delivered
   bool closed = false;
@@ -661,6 +700,10 @@ BusCounters SocketCanBus::counters() const {
 
 void SocketCanBus::on_state_change(std::function<void(BusState)> handler) {
   impl_->state_handler = std::move(handler);
+}
+
+void SocketCanBus::on_link_change(std::function<void(bool up)> handler) {
+  impl_->link_handler = std::move(handler);
 }
 
 void SocketCanBus::close() {

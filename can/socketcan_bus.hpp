@@ -67,6 +67,10 @@ class SocketCanBus final : public Bus {
   boost::asio::awaitable<std::error_code> wait_send_room(std::size_t frames) override;
   BusCounters counters() const override;
   void on_state_change(std::function<void(BusState)> handler) override;
+  bool link_up() const override { return interface_up(); }
+  // Down: the first read or send that meets ENETDOWN/ENODEV; up: the reopen that succeeds
+  // (at once when the rtnetlink watch reports the interface running, else on its backoff).
+  void on_link_change(std::function<void(bool up)> handler) override;
   void close() override;
 
   // Frames accepted by send() and not yet handed to the kernel.

@@ -160,6 +160,11 @@ class Parser {
       if (auto f = net_only(numbers)) return f;
       return end();
     }
+    if (word == "stats") {
+      cmd.verb = AsciiVerb::stats;
+      if (!numbers.empty()) return syntax("stats takes no net or node");
+      return end();
+    }
     if (word == "flash") return flash(numbers);
     if (word == "monitor") return monitor(numbers);
     if (word.rfind("lss_", 0) == 0 || word.rfind("_lss_", 0) == 0) return lss(numbers, word);
@@ -463,6 +468,7 @@ std::vector<std::string> ascii_help(std::string_view topic) {
       "[[<net>] <node>] flash <path>            # Firmware download of a file on the surface.",
       "[[<net>] <node>] set node_id <new>       # Rename a node (fpga set-node-id).",
       "monitor [module=<m>]                     # Live frames until the client closes.",
+      "stats                                    # Statistics: one JSON line, then OK.",
       "Net 0 is the surface's network (surface node ids); a module's network has its own",
       "number (default module id + 1) and local node ids. Responses end with CR LF.",
   };

@@ -49,6 +49,7 @@ enum class AsciiVerb : std::uint8_t {
   flash,
   set_node_id,
   monitor,
+  stats,  // the role's statistics as one JSON line (docs/operations.md)
 };
 
 enum class AsciiNmt : std::uint8_t { start, stop, preoperational, reset_node, reset_communication };

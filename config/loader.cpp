@@ -22,6 +22,8 @@ namespace canbridge::config {
 
 namespace {
 
+constexpr std::size_t kMaxStatsSocketPath = 107;  // sun_path less its terminating NUL
+
 // The shared reader plus the value kinds only role configs have.
 class Reader : public YamlReader {
  public:
@@ -214,6 +216,29 @@ class Reader : public YamlReader {
     if (auto v = integer(can, "transmit_queue_frames", "can", 16, 1 << 20, false)) {
       out.transmit_queue_frames = static_cast<std::size_t>(*v);
     }
+  }
+
+  // `metrics: {listen: HOST:PORT}`: the Prometheus endpoint, on loopback only (it has no
+  // authentication; reach it from elsewhere through a scraper on the machine or ssh).
+  void metrics_options(const YAML::Node& root, std::optional<MetricsOptions>& out) {
+    const YAML::Node block = root["metrics"];
+    if (!block) return;
+    if (!block.IsMap())
+      return problem(block, "metrics", "must be a mapping, e.g. {listen: 127.0.0.1:9464}");
+    only_keys(block, "metrics", {"listen"});
+    auto ep = endpoint(block, "listen", "metrics", true);
+    if (!ep) return;
+    if (!is_loopback_host(ep->host)) {
+      return problem(block["listen"], "metrics.listen",
+                     "'" + ep->host +
+                         "' is not a loopback address (127.0.0.0/8, ::1, localhost): the metrics "
+                         "endpoint has no authentication");
+    }
+    if (ep->host == "localhost") ep->host = "127.0.0.1";
+    if (ep->host.size() > 2 && ep->host.front() == '[' && ep->host.back() == ']') {
+      ep->host = ep->host.substr(1, ep->host.size() - 2);  // [::1]:9464
+    }
+    out = MetricsOptions{*ep};
   }
 
   void log_options(const YAML::Node& root, LogOptions& out) {
@@ -666,7 +691,8 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "gateway");
   Reader in(file);
   in.only_keys(root, "",
-               {"role", "name", "backbone", "modules", "lss_module", "remote", "can", "log"});
+               {"role", "name", "backbone", "modules", "lss_module", "remote", "can", "log",
+                "stats_endpoint", "metrics"});
   GatewayOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   read_gateway_backbone(in, root, out);
@@ -677,6 +703,19 @@ GatewayOptions parse_gateway(std::string_view yaml, const std::string& file) {
   read_gateway_remote(in, root, out.remote);
   in.can_options(root, out.can);
   in.log_options(root, out.log);
+  if (auto socket = in.string(root, "stats_endpoint", "", false)) {
+    if (socket->empty() || socket->front() != '/') {
+      in.problem(root["stats_endpoint"], "stats_endpoint",
+                 "'" + *socket + "' must be an absolute path (a Unix socket)");
+    } else if (socket->size() > kMaxStatsSocketPath) {
+      in.problem(root["stats_endpoint"], "stats_endpoint",
+                 "longer than a Unix socket path may be (" + std::to_string(kMaxStatsSocketPath) +
+                     " bytes)");
+    } else {
+      out.stats_endpoint = *socket;
+    }
+  }
+  in.metrics_options(root, out.metrics);
   in.finish();
   return out;
 }
@@ -686,7 +725,7 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   Reader in(file);
   in.only_keys(root, "",
                {"role", "name", "backbone", "gateways", "bus", "pdop", "command_endpoint",
-                "networks", "can", "log"});
+                "networks", "can", "log", "metrics"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
@@ -706,6 +745,7 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   }
   in.can_options(root, out.can);
   in.log_options(root, out.log);
+  in.metrics_options(root, out.metrics);
   in.finish();
   return out;
 }

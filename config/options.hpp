@@ -136,6 +136,11 @@ struct SessionTuning {
   bool tcp_crc_framing = false;
 };
 
+// The optional Prometheus endpoint (`metrics: {listen: 127.0.0.1:9464}`): loopback only.
+struct MetricsOptions {
+  Endpoint listen;
+};
+
 struct LogOptions {
   std::string level = "info";
   std::chrono::seconds stats_interval{10};  // periodic counter line; 0 disables
@@ -158,6 +163,10 @@ struct GatewayOptions {
   bridge::GatewayRemoteOptions remote;
   CanOptions can;
   LogOptions log;
+  // `stats_endpoint: /run/canbridge/gateway.sock`: a Unix socket answering `stats` (canbridge
+  // stats --endpoint); empty: none.
+  std::string stats_endpoint;
+  std::optional<MetricsOptions> metrics;  // unset: no metrics endpoint
 };
 
 struct SurfaceOptions {
@@ -182,6 +191,7 @@ struct SurfaceOptions {
   bridge::SurfaceRemoteOptions remote;
   CanOptions can;
   LogOptions log;
+  std::optional<MetricsOptions> metrics;  // unset: no metrics endpoint
 };
 
 }  // namespace canbridge::config

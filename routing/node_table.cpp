@@ -57,6 +57,12 @@ const char* to_string(LoaderState loader) {
   return "?";
 }
 
+std::string to_string(const NodeEvent& e, std::uint32_t module_id) {
+  NodeEvent named = e;
+  named.module_index = module_id;
+  return to_string(named);
+}
+
 std::string to_string(const NodeEvent& e) {
   std::string s = "module " + std::to_string(e.module_index) + " node " + std::to_string(e.local);
   const std::string boot = "boot " + std::to_string(e.boot_count);

@@ -95,6 +95,9 @@ const char* to_string(NodeEvent::Kind kind);
 const char* to_string(LoaderState loader);
 // e.g. "module 1 node 9 renamed from 5 (boot 2)": one line for the gateway's log.
 std::string to_string(const NodeEvent& event);
+// The same with the module's configured id in place of its index: what log lines show, so a
+// module carries one number in every line of both roles.
+std::string to_string(const NodeEvent& event, std::uint32_t module_id);
 
 // For the periodic stats line. Each known node counts once: lost, else in loader, else by state.
 struct NodeCounts {
