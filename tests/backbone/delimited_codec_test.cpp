@@ -3,6 +3,7 @@
 #include <google/protobuf/wrappers.pb.h>
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <vector>
 
 #include "tests/backbone/test_support.hpp"
@@ -184,7 +185,9 @@ TEST(DelimitedCodec, SixByteVarintIsMalformedAndPoisonsTheDecoder) {
 }
 
 TEST(DelimitedCodec, LengthWiderThan32BitsIsMalformed) {
-  DelimitedDecoder decoder(std::size_t{1} << 40);  // the limit cannot make a 33-bit length valid
+  // No limit at all (the largest size_t; 1 << 40 does not fit a 32-bit size_t): only the
+  // prefix's width can make a 33-bit length malformed.
+  DelimitedDecoder decoder(std::numeric_limits<std::size_t>::max());
   std::error_code ec;
   EXPECT_TRUE(decode_all(decoder, std::string("\xFF\xFF\xFF\xFF\x10", 5), &ec).empty());
   EXPECT_EQ(ec, errc::malformed_length);
