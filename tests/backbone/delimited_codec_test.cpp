@@ -1,11 +1,11 @@
 #include "backbone/delimited_codec.hpp"
 
-#include <google/protobuf/wrappers.pb.h>
 #include <gtest/gtest.h>
 
 #include <limits>
 #include <vector>
 
+#include "session.pb.h"
 #include "tests/backbone/test_support.hpp"
 
 namespace canbridge::backbone {
@@ -63,8 +63,9 @@ TEST(DelimitedCodec, VarintSizesMatchProtobuf) {
 TEST(DelimitedCodec, AppendMessageWritesTheDelimitedSerialization) {
   for (std::size_t size : {std::size_t{0}, std::size_t{1}, std::size_t{126}, std::size_t{16384}}) {
     SCOPED_TRACE(size);
-    google::protobuf::BytesValue message;
-    message.set_value(payload(size, 7));
+    // A message of the backbone's own (lite) schema with one bytes field of the given size.
+    canbridge::v1::AuthStep message;
+    message.set_challenge(payload(size, 7));
     std::string stream = "prefix";
     append_message(stream, message);
     const std::string serialized = message.SerializeAsString();
@@ -75,15 +76,15 @@ TEST(DelimitedCodec, AppendMessageWritesTheDelimitedSerialization) {
     DelimitedDecoder decoder;
     const auto decoded = decode_all(decoder, stream.substr(6));
     ASSERT_EQ(decoded.size(), 1u);
-    google::protobuf::BytesValue parsed;
+    canbridge::v1::AuthStep parsed;
     ASSERT_TRUE(parsed.ParseFromString(decoded[0]));
-    EXPECT_EQ(parsed.value(), message.value());
+    EXPECT_EQ(parsed.challenge(), message.challenge());
   }
 }
 
 TEST(DelimitedCodec, EmptyProtobufIsAZeroLengthMessage) {
   std::string stream;
-  append_message(stream, google::protobuf::BytesValue{});
+  append_message(stream, canbridge::v1::AuthStep{});
   EXPECT_EQ(stream, std::string(1, '\0'));
   DelimitedDecoder decoder;
   const auto decoded = decode_all(decoder, stream + stream);
