@@ -9,6 +9,7 @@
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
+#include "bridge/role_statistics_fill.hpp"
 #include "canopen/sdo_abort.hpp"
 #include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
@@ -622,24 +623,14 @@ RoleStatistics Gateway::statistics() const {
   BackboneStatistics& b = s.backbone;
   b.peers_up = connected() ? 1 : 0;
   b.peers_known = 1;
-  b.links = c.session.links;
-  b.dead_links = c.session.dead_links;
+  copy_stream_counters(c, b);
   b.tx_bytes = c.backbone_tx_bytes;
   b.rx_bytes = old_links_.rx_bytes;
   b.rx_messages = old_links_.rx_messages;
   b.tx_writes = old_links_.tx_writes;
   if (link_) {
-    const backbone::LinkCounters now = link_->message_link()->counters();
-    b.rx_bytes += now.rx_bytes;
-    b.rx_messages += now.rx_messages;
-    b.tx_writes += now.tx_writes;
+    add_link_reads_and_writes(link_->message_link()->counters(), b);
   }
-  b.frames_sent = c.outbox.frames_sent;
-  b.frames_received = c.frames_received;
-  b.batches_sent = c.outbox.batches_sent;
-  b.reliable_sent = c.session.reliable_sent;
-  b.reliable_resent = c.session.reliable_resent;
-  b.resend_requests = c.session.resend_requests;
   b.unacked = stream_.sender().unacked_count();
   if (connected()) {
     if (auto rtt = stream_.sender().round_trip()) {
@@ -650,14 +641,7 @@ RoleStatistics Gateway::statistics() const {
     s.drops.push_back(
         {std::string("untranslatable-") + to_string(static_cast<DropReason>(r)), c.translation[r]});
   }
-  std::uint64_t bus_drops = 0;
-  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
-    s.drops.push_back({std::string("bus-write-") + to_string(static_cast<BusWriteQueue::Drop>(r)),
-                       c.bus_drops[r]});
-    bus_drops += c.bus_drops[r];
-  }
-  s.drops.push_back(
-      {"bus-write-refused", c.bus_refused > bus_drops ? c.bus_refused - bus_drops : 0});
+  add_bus_write_drops(c, s.drops);
   s.drops.push_back({"conflated", c.outbox.conflated});
   s.drops.push_back({"process-dropped", c.outbox.process_dropped});
   s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});

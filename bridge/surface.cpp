@@ -12,6 +12,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
+#include "bridge/role_statistics_fill.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -671,8 +672,6 @@ RoleStatistics Surface::statistics() const {
   BackboneStatistics& b = s.backbone;
   b.peers_up = static_cast<std::uint32_t>(gateways_ready());
   b.peers_known = static_cast<std::uint32_t>(by_id_.size());
-  b.links = c.session.links;
-  b.dead_links = c.session.dead_links;
   b.tx_bytes = closed_links_.tx_bytes;
   b.rx_bytes = closed_links_.rx_bytes;
   b.rx_messages = closed_links_.rx_messages;
@@ -680,16 +679,9 @@ RoleStatistics Surface::statistics() const {
   for (const auto& l : links_) {
     const backbone::LinkCounters now = l->message_link()->counters();
     b.tx_bytes += now.tx_bytes;
-    b.rx_bytes += now.rx_bytes;
-    b.rx_messages += now.rx_messages;
-    b.tx_writes += now.tx_writes;
+    add_link_reads_and_writes(now, b);
   }
-  b.frames_sent = c.outbox.frames_sent;
-  b.frames_received = c.frames_received;
-  b.batches_sent = c.outbox.batches_sent;
-  b.reliable_sent = c.session.reliable_sent;
-  b.reliable_resent = c.session.reliable_resent;
-  b.resend_requests = c.session.resend_requests;
+  copy_stream_counters(c, b);
   // The slowest gateway's round trip: the one an operator has to worry about.
   for (const auto& [name, g] : gateways_) {
     b.unacked += g->stream.sender().unacked_count();
@@ -699,14 +691,7 @@ RoleStatistics Surface::statistics() const {
       if (!b.round_trip || us > *b.round_trip) b.round_trip = us;
     }
   }
-  std::uint64_t bus_drops = 0;
-  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
-    s.drops.push_back({std::string("bus-write-") + to_string(static_cast<BusWriteQueue::Drop>(r)),
-                       c.bus_drops[r]});
-    bus_drops += c.bus_drops[r];
-  }
-  s.drops.push_back(
-      {"bus-write-refused", c.bus_refused > bus_drops ? c.bus_refused - bus_drops : 0});
+  add_bus_write_drops(c, s.drops);
   s.drops.push_back({"no-gateway", c.dropped_no_gateway});
   s.drops.push_back({"unclaimed", c.dropped_unclaimed});
   for (std::size_t r = 0; r < kNotItsOwnReasons; ++r) {

@@ -30,7 +30,7 @@ expect "$info" "Package: canbridge" control
 expect "$info" "Version: $version" control
 depends=$(dpkg-deb -f "$deb" Depends)
 # adduser for postinst; the rest found by dpkg-shlibdeps from what the binaries link.
-for dep in adduser libc6 libstdc++6 libyaml-cpp0.7 libprotobuf32 libssl3 libspdlog1.10; do
+for dep in adduser libc6 libstdc++6 libyaml-cpp0.7 libprotobuf-lite32 libssl3 libspdlog1.10; do
   expect "$depends" "$dep" Depends
 done
 conffiles=$(dpkg-deb -I "$deb" conffiles)

@@ -61,7 +61,7 @@ TEST_F(Reload, SighupAppliesLogLevelAndStatsIntervalAndKeepsRunningOnAnInvalidFi
   ASSERT_TRUE(surface_->wait_for_line("config reload: gateways changed: restart to apply", kStep));
   // The new interval runs: counter lines now come, once a second.
   ASSERT_TRUE(
-      surface_->wait_for_line("surface reload-surface: 0/0 gateway(s) up; bus vcan0", kStep));
+      surface_->wait_for_line("surface reload-surface: 0/1 gateway(s) up; bus vcan0", kStep));
   EXPECT_FALSE(surface_->finished());
 
   // An invalid file: every problem logged, the running settings stay (the counters go on).
@@ -71,7 +71,7 @@ TEST_F(Reload, SighupAppliesLogLevelAndStatsIntervalAndKeepsRunningOnAnInvalidFi
       "config reload from " + path_ + " failed, keeping the running settings", kStep));
   ASSERT_TRUE(surface_->wait_for_line("log.level: 'loud' is not one of", kStep));
   ASSERT_TRUE(
-      surface_->wait_for_line("surface reload-surface: 0/0 gateway(s) up; bus vcan0", kStep));
+      surface_->wait_for_line("surface reload-surface: 0/1 gateway(s) up; bus vcan0", kStep));
   EXPECT_FALSE(surface_->finished());
 
   EXPECT_EQ(surface_->stop(), 0);
