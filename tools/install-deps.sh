@@ -9,9 +9,6 @@ packages=(
   can-utils iproute2 kmod user-mode-linux
   libcli11-dev tshark
   dpkg-dev  # dpkg-shlibdeps: the .deb's library dependencies (cpack -G DEB, tests/package)
-  # The image smoke test (tests/container/): podman builds docker/Dockerfile on a debootstrap
-  # base; docker-compose only validates docker/compose.yaml (no daemon).
-  podman debootstrap docker-compose
 )
 missing=()
 for p in "${packages[@]}"; do
