@@ -13,7 +13,8 @@ echo "=== sanitizer build (ASan+UBSan): unit tests"
 rm -rf "$root/build-asan"
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
-  -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF >/dev/null
+  -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
+  -DCANBRIDGE_TEST_EACH_CASE=OFF >/dev/null
 cmake --build "$root/build-asan" -j "$jobs"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
 
