@@ -301,7 +301,15 @@ struct SocketCanBus::Impl : std::enable_shared_from_this<Impl> {
                     ec.message());
       return;
     }
-    coro::spawn_owned(executor, watch_link(shared_from_this()), [](const std::string&) {});
+    // Its end is never fatal (the backoff still reopens), but an operator should see why the
+    // quick reopen stopped working.
+    coro::spawn_owned(executor, watch_link(shared_from_this()),
+                      [name = options.interface](const std::string& why) {
+                        if (!why.empty()) {
+                          spdlog::warn("bus {}: link watch ended ({}); reopening on a timer", name,
+                                       why);
+                        }
+                      });
   }
 
   static asio::awaitable<void> watch_link(std::shared_ptr<Impl> self) {
