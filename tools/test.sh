@@ -6,23 +6,31 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 jobs=$(nproc)
+# Each phase's wall time, so that the run's budget (25 minutes in CI) is spent where it is seen.
+started=$SECONDS
+phase_started=$SECONDS
+phase() {
+  echo "=== $1 (previous phase $((SECONDS - phase_started)) s, $((SECONDS - started)) s so far)"
+  phase_started=$SECONDS
+}
 "$root/tools/install-deps.sh"
 "$root/tools/format.sh" --check
 
-echo "=== sanitizer build (ASan+UBSan): unit tests"
+phase "sanitizer build (ASan+UBSan): unit tests"
 rm -rf "$root/build-asan"
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
   -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
   -DCANBRIDGE_TEST_EACH_CASE=OFF >/dev/null
 cmake --build "$root/build-asan" -j "$jobs"
+phase "unit tests under the sanitizers"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
 
-echo "=== fuzzing (clang, libFuzzer): a short run of every target (docs/fuzzing.md for long runs)"
+phase "fuzzing (clang, libFuzzer): a short run of every target (docs/fuzzing.md for long runs)"
 rm -rf "$root/build-fuzz"
 "$root/tools/fuzz.sh" --seconds 5 "$root/build-fuzz"
 
-echo "=== build: the product, system tests in the rig"
+phase "build: the product, system tests in the rig"
 rm -rf "$root/build"
 # The product's optimisation (-O2, as the default RelWithDebInfo) without debug info: nobody
 # debugs these binaries, and leaving -g out keeps the whole run well inside its time budget.
@@ -37,4 +45,6 @@ rm -rf "$root/build"
 cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
   -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=OFF -DCANBRIDGE_BENCH_TOOLS=OFF >/dev/null
 cmake --build "$root/build" -j "$jobs"
+phase "system tests and the other checks of the plain build"
 ctest --test-dir "$root/build" -j "$jobs" --output-on-failure
+phase "done"
