@@ -3,7 +3,7 @@
 // against the same frames seen on a source interface.
 //
 //   can_counter --source vcan1 --sink vcan0 --id 181 [--sink-id 1a1] --count 100000
-//               [--idle-ms 3000]
+//               [--idle-ms 3000] [--trace FILE]
 //
 // --sink-id: the id the frames carry on the sink (default --id), for a bridge that translates
 // COB-IDs (module 1's node 1 TPDO 0x181 is the surface's 0x1A1).
@@ -11,6 +11,8 @@
 // results: delivered, lost, reordered, duplicates, kernel_drops, rate_fps (delivered frames per
 // second from the first frame on the source to the last on the sink), latency_us_p50/p99/max
 // (sink time minus source time of the same frame).
+// --trace FILE: one line per delivered frame, "seq source_ns latency_ns", to see when in a run
+// the slow frames were (periodic stalls show a timer, clusters show a batch or a preemption).
 #include <linux/can.h>
 #include <linux/can/raw.h>
 #include <net/if.h>
@@ -36,6 +38,7 @@ struct Options {
   std::uint32_t sink_id = 0xFFFFFFFF;  // unset: the same as id
   std::size_t count = 100000;
   int idle_ms = 3000;
+  std::string trace;
 };
 
 int open_socket(const std::string& name, std::uint32_t id) {
@@ -125,6 +128,8 @@ int main(int argc, char** argv) {
       o.count = std::strtoul(v, nullptr, 10);
     else if (k == "--idle-ms")
       o.idle_ms = std::atoi(v);
+    else if (k == "--trace")
+      o.trace = v;
     else {
       std::fprintf(stderr, "unknown option %s\n", k.c_str());
       return 2;
@@ -158,6 +163,8 @@ int main(int argc, char** argv) {
   for (const Rx& rx : at_source) sent_at.emplace(rx.seq, rx.ns);
   std::vector<bool> seen(o.count + 2, false);
   std::vector<std::int64_t> latency;
+  FILE* trace = o.trace.empty() ? nullptr : std::fopen(o.trace.c_str(), "w");
+  if (!o.trace.empty() && trace == nullptr) std::perror(o.trace.c_str());
   std::uint64_t prev = 0;
   bool first = true;
   for (const Rx& rx : at_sink) {
@@ -168,8 +175,15 @@ int main(int argc, char** argv) {
       if (seen[rx.seq]) ++duplicates;
       seen[rx.seq] = true;
     }
-    if (auto it = sent_at.find(rx.seq); it != sent_at.end()) latency.push_back(rx.ns - it->second);
+    if (auto it = sent_at.find(rx.seq); it != sent_at.end()) {
+      latency.push_back(rx.ns - it->second);
+      if (trace != nullptr) {
+        std::fprintf(trace, "%llu %lld %lld\n", static_cast<unsigned long long>(rx.seq),
+                     static_cast<long long>(it->second), static_cast<long long>(latency.back()));
+      }
+    }
   }
+  if (trace != nullptr) std::fclose(trace);
   const std::size_t delivered = at_sink.size() - duplicates;
   const std::int64_t t0 = at_source.empty() ? 0 : at_source.front().ns;
   const std::int64_t t1 = at_sink.empty() ? 0 : at_sink.back().ns;
