@@ -37,8 +37,13 @@ struct Surface::Gateway {
                      surface.table_.set_connected(id, true);
                    },
                    [this, &surface] { surface.on_gateway_down(*this); },
-                   // A new gateway process: nothing queued for the old one goes.
-                   [this](const v1::Hello&) { outbox.discard_queued(); },
+                   // A new gateway process: nothing queued for the old one goes, and the
+                   // nodes the old one reported are its no more (the new one reports them
+                   // again as it hears them).
+                   [this, &surface](const v1::Hello&) {
+                     outbox.discard_queued();
+                     surface.node_states_.forget(id);
+                   },
                    [&surface](const std::string& payload, backbone::ReliableDrop why) {
                      surface.on_payload_dropped(payload, why);
                    }}) {
@@ -421,6 +426,10 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
   }
   for (const v1::NodeEvent& e : events.events()) {
     ++counters_.node_events;
+    // Only its announced modules: what the surface keeps per gateway stays bounded.
+    if (std::find(from.modules.begin(), from.modules.end(), e.module_id()) != from.modules.end()) {
+      node_states_.apply(from.id, e);
+    }
     if (e.surface_node() != 0 && e.surface_node() <= canopen::kMaxNodeId &&
         table_.speaks_for(from.id, static_cast<canopen::NodeId>(e.surface_node()))) {
       guard_.note_owner(from.id, static_cast<canopen::NodeId>(e.surface_node()));
@@ -708,7 +717,11 @@ RoleStatistics Surface::statistics() const {
   s.drops.push_back({"unknown-module", c.unknown_module});
   s.drops.push_back({"pdop-malformed", c.pdop_malformed});
   s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
-  // The node summary from the gateway table's view is the surface's; not counted here.
+  // A gateway whose link is down counts its nodes lost (SurfaceNodeStates): the master cannot
+  // reach them.
+  s.nodes = node_states_.summary([this](SurfaceNodeStates::GatewayId g) {
+    return g < by_id_.size() && by_id_[g] != nullptr && by_id_[g]->stream.up();
+  });
   return s;
 }
 

@@ -24,6 +24,7 @@
 #include "bridge/loop_guard.hpp"
 #include "bridge/role_statistics.hpp"
 #include "bridge/sdo_link_guard.hpp"
+#include "bridge/surface_node_states.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
 #include "routing/rpdop_relay.hpp"
@@ -223,6 +224,8 @@ class Surface {
   std::vector<Gateway*> by_id_;
   GatewayTable table_;  // who may bind, who owns which surface ids
   SdoLinkGuard guard_;
+  // Every gateway's nodes by their events: the node summary of statistics().
+  SurfaceNodeStates node_states_;
   RpdopRelay relay_;
   RpdopRelay::Output relay_out_;
   // One timer for every core with deadlines (today the RPDOP relay).

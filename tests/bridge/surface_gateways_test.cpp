@@ -1,8 +1,8 @@
 // One surface and several real gateways in process, over loopback TCP: each gateway is bound by
 // the name in its hello, traffic is routed by module both ways, a gateway announcing a module
 // another one serves is refused without disturbing the others, a restarted gateway comes back,
-// reliable frames cross link cuts exactly once and in order, and each sender's frames reach the
-// far bus in the order it sent them.
+// reliable frames cross link cuts exactly once and in order, each sender's frames reach the far
+// bus in the order it sent them, and the surface's statistics count the gateways' nodes.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <spdlog/sinks/ostream_sink.h>
@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <map>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -351,6 +352,45 @@ TEST_F(SurfaceGateways, NodeTableEventsBootedAndLostReachTheSurface) {
   EXPECT_TRUE(a->gateway->node_table().node(0, kLocal)->lost);
   EXPECT_EQ(a->gateway->counters().node_events, 2u);
   EXPECT_EQ(surface.counters().node_events, 2u);
+}
+
+// The surface's statistics count every gateway's nodes from their events; the nodes of a gateway
+// whose link is down count as lost, those of a restarted gateway are forgotten until the new
+// process reports them. The nodes keep beating (each check sends a heartbeat), so none is lost
+// by the gateways' 150 ms rule.
+TEST_F(SurfaceGateways, SurfaceStatisticsCountTheGatewaysNodesByTheirEvents) {
+  start_a_and_b();
+  GatewayRig* gateway_a = a;
+  std::optional<std::uint8_t> a_beats = 0x05;  // A's node's heartbeat state; nullopt: silent
+  const auto nodes_are = [&](std::uint64_t op, std::uint64_t pre_op, std::uint64_t stopped,
+                             std::uint64_t lost) {
+    if (a_beats) {
+      EXPECT_TRUE(gateway_a->node().send(can::Frame::standard(0x700 + kLocal, {*a_beats})));
+    }
+    EXPECT_TRUE(b->node().send(can::Frame::standard(0x700 + kLocal, {0x7F})));
+    const NodeSummary n = surface.statistics().nodes;
+    return n.operational == op && n.pre_operational == pre_op && n.stopped == stopped &&
+           n.lost == lost && n.in_loader == 0;
+  };
+  EXPECT_EQ(surface.statistics().nodes.total(), 0u);
+  ASSERT_TRUE(run_until(io, [&] { return nodes_are(1, 1, 0, 0); }))
+      << surface.statistics().nodes.total();
+
+  a->client->stop();  // A's link is lost and stays lost; its node still beats on its bus
+  ASSERT_TRUE(run_until(io, [&] { return nodes_are(0, 1, 0, 1); }));
+  EXPECT_FALSE(a->connected());
+
+  a->stop();  // A's process exits; a new one takes its place
+  a_beats.reset();
+  ASSERT_TRUE(run_until(io, [&] { return a->stopped(); }));
+  gateway_a = &add_gateway("gw-a", {1});
+  ASSERT_TRUE(run_until(io, [&] {
+    return surface.counters().session.peer_restarts == 1 && surface.gateways_ready() == 2;
+  }));
+  // Up again, but the old process's node is not the new one's: not counted until it is heard.
+  EXPECT_TRUE(nodes_are(0, 1, 0, 0));
+  a_beats = 0x04;
+  ASSERT_TRUE(run_until(io, [&] { return nodes_are(0, 1, 1, 0); }));
 }
 
 TEST_F(SurfaceGateways, ReliableFramesCrossCutsExactlyOnceInOrder) {
