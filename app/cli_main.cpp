@@ -17,6 +17,7 @@
 #include "app/cli_reply.hpp"
 #include "app/cli_session.hpp"
 #include "canopen/ascii_value.hpp"
+#include "logging/command_line_common.hpp"
 
 namespace canbridge::cli {
 
@@ -272,17 +273,9 @@ int run_flash(const Connect& connect, const CommonOptions& common, const std::st
   return rc;
 }
 
-}  // namespace
-
-bool is_client_command(std::string_view name) {
-  return std::find(kCommands.begin(), kCommands.end(), name) != kCommands.end();
-}
-
-int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
-               bool terminal) {
-  CLI::App app{"canbridge: operator commands against a surface's command endpoint", "canbridge"};
-  app.require_subcommand(1, 1);
-  CommonOptions common;
+// The options of every operator command, before or after its name; returns --net's (whether it
+// was given changes what `nodes` asks).
+CLI::Option* add_common_options(CLI::App& app, CommonOptions& common) {
   app.add_option("--endpoint", common.endpoint,
                  "Unix socket PATH or HOST:PORT (default: -c's command_endpoint.unix_socket, "
                  "else /run/canbridge/surface.sock)");
@@ -292,6 +285,29 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
   app.add_option("--timeout", common.timeout_s, "seconds to wait for an answer")
       ->check(CLI::PositiveNumber);
   app.fallthrough();  // common options also after the subcommand
+  return net_option;
+}
+
+}  // namespace
+
+bool is_client_command(std::string_view name) {
+  return std::find(kCommands.begin(), kCommands.end(), name) != kCommands.end();
+}
+
+bool is_client_option_with_value(std::string_view option) {
+  CLI::App app;
+  CommonOptions common;
+  add_common_options(app, common);
+  const CLI::Option* found = app.get_option_no_throw(std::string(option));
+  return found != nullptr && found->get_type_size_min() > 0 && found->get_expected_min() > 0;
+}
+
+int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
+               bool terminal) {
+  CLI::App app{"canbridge: operator commands against a surface's command endpoint", "canbridge"};
+  app.require_subcommand(1, 1);
+  CommonOptions common;
+  auto* net_option = add_common_options(app, common);
 
   auto* nodes = app.add_subcommand("nodes", "the live node table");
   auto* stats = app.add_subcommand(
@@ -348,7 +364,7 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
     out << app.help();
     return exit_code::ok;
   } catch (const CLI::ParseError& e) {
-    err << "canbridge: " << e.what() << "\n" << app.help();
+    err << "canbridge: " << logging::usage_message(app, e) << "\n" << app.help();
     return exit_code::usage;
   }
   try {

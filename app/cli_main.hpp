@@ -11,9 +11,13 @@ namespace canbridge::cli {
 
 // True for the names run_client handles (main.cpp dispatches on it).
 bool is_client_command(std::string_view name);
+// True for the options all operator commands share that take a value (--endpoint, -c, ...):
+// they may stand before the command's name, and the word after them is their value.
+bool is_client_option_with_value(std::string_view option);
 
-// Runs one subcommand; `args` start with its name (argv without the program). Returns the exit
-// code (cli_reply.hpp's exit_code). `terminal`: `out` is a terminal (progress bar, not lines).
+// Runs one subcommand; `args`: argv without the program (the common options may come first).
+// Returns the exit code (cli_reply.hpp's exit_code). `terminal`: `out` is a terminal (progress bar,
+// not lines).
 int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
                bool terminal);
 

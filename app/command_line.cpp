@@ -5,6 +5,7 @@
 #include <filesystem>
 
 #include "app/cli_main.hpp"
+#include "logging/command_line_common.hpp"
 
 namespace canbridge::bridge {
 
@@ -20,25 +21,56 @@ constexpr std::string_view kRoles =
     "gateway, surface, demo or an operator command (nodes, sdo, "
     "nmt, set-node-id, flash, dump, capture)";
 
-// The log options every role shares: -v, --log-level, --log-format.
-struct LogArguments {
-  int verbosity = 0;
-  std::string level;
-  std::string format = "auto";
-};
+constexpr std::string_view kOrder =
+    "Options may stand before or after the command name: 'canbridge -c F gateway' is "
+    "'canbridge gateway -c F'. An option that takes one value may be given once (before or "
+    "after, not both); -v counts wherever it stands.";
 
-void add_log_options(CLI::App& role, LogArguments& log) {
-  auto* verbose = role.add_flag("-v,--verbose", log.verbosity,
-                                "more log: -v debug, -vv trace (overrides the file's log.level)");
-  role.add_option("--log-level", log.level,
-                  "trace|debug|info|warn|error|off (overrides the file's log.level, also on "
-                  "SIGHUP)")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
-      ->excludes(verbose);
-  role.add_option("--log-format", log.format,
-                  "auto|text|journal: journal = sd-daemon priority prefixes, no timestamps; auto "
-                  "picks journal when stderr is the journal (default auto)")
-      ->check(CLI::IsMember({"auto", "text", "journal"}));
+constexpr std::string_view kRoleLogNote = " (overrides the file's log.level, also on SIGHUP)";
+
+// The role parsers' option of this name ("-c", "--config"), or null.
+const CLI::Option* role_option(const std::vector<const CLI::App*>& roles, const std::string& name) {
+  for (const CLI::App* role : roles) {
+    if (const CLI::Option* option = role->get_option_no_throw(name)) return option;
+  }
+  return nullptr;
+}
+
+// Where the command name stands in `args` (args.size() when there is none): the first word that
+// is neither an option nor the value of one. Whether an option takes a value is asked of the
+// parsers that define it, so that "-c gateway.yaml" is not taken for a command.
+std::size_t command_position(const std::vector<std::string>& args,
+                             const std::vector<const CLI::App*>& roles) {
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    const std::string& word = args[i];
+    if (word == "--") return args.size();
+    if (word.size() < 2 || word.front() != '-') return i;
+    if (word.find('=') != std::string::npos) continue;  // --config=F carries its value
+    const CLI::Option* option = role_option(roles, word);
+    const bool takes_value =
+        (option != nullptr && option->get_type_size_min() > 0 && option->get_expected_min() > 0) ||
+        cli::is_client_option_with_value(word);
+    if (takes_value) ++i;
+  }
+  return args.size();
+}
+
+// " (--lss-module is an option of gateway only)" for the unexpected options that another role
+// has, so that a refusal says where the option belongs.
+std::string whose_options(const std::vector<std::string>& extras, const CLI::App& refused,
+                          const std::vector<const CLI::App*>& roles) {
+  std::string note;
+  for (const std::string& extra : extras) {
+    if (extra.size() < 2 || extra.front() != '-') continue;
+    const std::string name = extra.substr(0, extra.find('='));
+    std::string owners;
+    for (const CLI::App* role : roles) {
+      if (role == &refused || role->get_option_no_throw(name) == nullptr) continue;
+      owners += (owners.empty() ? "" : ", ") + role->get_name();
+    }
+    if (!owners.empty()) note += " (" + name + " is an option of " + owners + " only)";
+  }
+  return note;
 }
 
 CommandLine finished(int status, std::string output, std::string error) {
@@ -77,31 +109,15 @@ std::optional<std::string> missing_default_config(const CommandLine& command_lin
 CommandLine parse_command_line(const std::vector<std::string>& args, std::string_view config_dir,
                                std::string_view version) {
   const std::string version_line = "canbridge " + std::string(version) + "\n";
-  // The operator subcommands have their own parser (cli_main); --version is the one option
-  // they share with every other command.
-  if (!args.empty() && cli::is_client_command(args.front())) {
-    if (std::find(args.begin(), args.end(), "--version") != args.end()) {
-      return finished(0, version_line, {});
-    }
-    CommandLine result;
-    result.command = Command::client;
-    result.client_args = args;
-    return result;
-  }
-  if (!args.empty() && !args.front().empty() && args.front().front() != '-' &&
-      args.front() != "gateway" && args.front() != "surface" && args.front() != "demo") {
-    return usage_error("unknown command '" + args.front() + "': expected " + std::string(kRoles),
-                       "canbridge");
-  }
 
   CLI::App app{"canbridge: CANopen buses tunnelled over a TCP or serial backbone", "canbridge"};
   app.set_version_flag("--version", version_line.substr(0, version_line.size() - 1),
                        "print the version and exit");
   app.require_subcommand(1, 1);
-  app.footer(std::string(kOperatorCommands));
+  app.footer(std::string(kOrder) + "\n\n" + std::string(kOperatorCommands));
 
   CommandLine result;
-  LogArguments log;
+  logging::LogArguments log;
   std::uint32_t lss_module = 0;
 
   const std::string gateway_default = default_config_path(config_dir, Command::gateway);
@@ -116,10 +132,11 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
                                "route LSS to this module only (a module id of the file; "
                                "overrides its lss_module)")
                   ->type_name("ID");
-  add_log_options(*gateway, log);
+  logging::add_log_options(*gateway, log, kRoleLogNote);
   gateway->footer(
       "SIGHUP re-reads the file: log.level and log.stats_interval_s apply at once, "
-      "the log names any other change that needs a restart.");
+      "the log names any other change that needs a restart.\n" +
+      std::string(kOrder));
   gateway->fallthrough();  // --version after the subcommand
 
   const std::string surface_default = default_config_path(config_dir, Command::surface);
@@ -129,7 +146,7 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
                              ->add_option("-c,--config", result.config_path,
                                           "the surface's file (default " + surface_default + ")")
                              ->type_name("FILE");
-  add_log_options(*surface, log);
+  logging::add_log_options(*surface, log, kRoleLogNote);
   surface->footer(gateway->get_footer());
   surface->fallthrough();
 
@@ -141,10 +158,42 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
       ->check(CLI::Range(1, 4));
   demo->add_option("--nodes", result.demo.nodes_per_module, "simulated nodes per module (1..31)")
       ->check(CLI::Range(1, 31));
+  demo->footer(
+      "Options may stand before or after the command name: 'canbridge --nodes 8 demo' is "
+      "'canbridge demo --nodes 8'. Each may be given once.");
   demo->fallthrough();
 
+  const std::vector<const CLI::App*> roles = {gateway, surface, demo};
+  const std::size_t at = command_position(args, roles);
+  if (at < args.size() && cli::is_client_command(args[at])) {
+    // The operator commands have their own parser (cli_main), which takes its common options
+    // before the name too; --version is the one option they share with every other command.
+    if (std::find(args.begin(), args.end(), "--version") != args.end()) {
+      return finished(0, version_line, {});
+    }
+    result.command = Command::client;
+    result.client_args = args;
+    return result;
+  }
+  const bool is_role = at < args.size() && std::any_of(roles.begin(), roles.end(), [&](auto* r) {
+                         return r->check_name(args[at]);
+                       });
+  if (at < args.size() && !is_role) {
+    return usage_error("unknown command '" + args[at] + "': expected " + std::string(kRoles),
+                       "canbridge");
+  }
+  // The options before the command name are the command's: CLI11 reads a subcommand's options
+  // after its name, so they move there, ahead of the ones given after it. (CLI11 takes the
+  // arguments as a reversed vector: it pops them from the back.)
+  std::vector<std::string> ordered;
+  ordered.reserve(args.size());
+  if (at < args.size()) ordered.push_back(args[at]);
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    if (i != at) ordered.push_back(args[i]);
+  }
+
   try {
-    app.parse(std::vector<std::string>(args.rbegin(), args.rend()));
+    app.parse(std::vector<std::string>(ordered.rbegin(), ordered.rend()));
   } catch (const CLI::CallForHelp&) {
     return finished(0, app.help(), {});
   } catch (const CLI::CallForVersion& e) {
@@ -152,19 +201,15 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
   } catch (const CLI::ParseError& e) {
     std::string command = "canbridge";
     for (const CLI::App* sub : app.get_subcommands()) command += " " + sub->get_name();
-    std::string message = e.what();
-    if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr) {
-      // CLI11 lists them backwards (it parses a reversed vector): name them as given.
-      message = "unexpected argument(s):";
-      for (const std::string& extra : app.remaining()) message += " " + extra;
+    std::string message = logging::usage_message(app, e);
+    if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr && !app.get_subcommands().empty()) {
+      message += whose_options(app.remaining(), *app.get_subcommands().front(), roles);
     }
-    if (dynamic_cast<const CLI::ConversionError*>(&e) != nullptr) message += ": expected a number";
     if (app.get_subcommands().empty() && message.find("subcommand") != std::string::npos) {
       message = "no command given: expected " + std::string(kRoles);
     }
     return usage_error(message, command);
   }
-
   if (gateway->parsed()) {
     result.command = Command::gateway;
   } else if (surface->parsed()) {
@@ -176,12 +221,8 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
   result.config_given = gateway_config->count() + surface_config->count() > 0;
   if (!result.config_given) result.config_path = default_config_path(config_dir, result.command);
   if (lss->count() > 0) result.lss_module = lss_module;
-  if (!log.level.empty()) {
-    result.log_level = log.level;
-  } else if (log.verbosity > 0) {
-    result.log_level = log.verbosity == 1 ? "debug" : "trace";
-  }
-  result.log_format = *logging::parse_log_format(log.format);  // checked by IsMember
+  result.log_level = log.log_level();
+  result.log_format = log.log_format();
   return result;
 }
 

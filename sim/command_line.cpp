@@ -2,6 +2,8 @@
 
 #include <CLI/CLI.hpp>
 
+#include "logging/command_line_common.hpp"
+
 namespace canbridge::sim {
 
 SimCommandLine parse_sim_command_line(const std::vector<std::string>& args,
@@ -16,9 +18,7 @@ SimCommandLine parse_sim_command_line(const std::vector<std::string>& args,
   SimOptions options;
   std::vector<std::string> buses;
   std::vector<std::string> interfaces;
-  int verbosity = 0;
-  std::string level;
-  std::string format = "auto";
+  logging::LogArguments log;
   app.add_option("RIG", options.rig_path, "the rig file (YAML)")->required()->type_name("FILE");
   app.add_option("--bus", buses, "run only this bus (repeatable; default: every bus)")
       ->type_name("NAME")
@@ -43,14 +43,7 @@ SimCommandLine parse_sim_command_line(const std::vector<std::string>& args,
   app.add_option("--stats-seconds", options.stats_seconds,
                  "log bus counters every N seconds (default 10, 0 = never)")
       ->type_name("N");
-  auto* verbose = app.add_flag("-v,--verbose", verbosity, "more log: -v debug, -vv trace");
-  app.add_option("--log-level", level, "trace|debug|info|warn|error|off (default info)")
-      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
-      ->excludes(verbose);
-  app.add_option("--log-format", format,
-                 "auto|text|journal: journal = sd-daemon priority prefixes, no timestamps; auto "
-                 "picks journal when stderr is the journal (default auto)")
-      ->check(CLI::IsMember({"auto", "text", "journal"}));
+  logging::add_log_options(app, log, " (default info)");
 
   SimCommandLine result;
   try {
@@ -62,13 +55,7 @@ SimCommandLine parse_sim_command_line(const std::vector<std::string>& args,
     result.output = std::string(e.what()) + "\n";
     return result;
   } catch (const CLI::ParseError& e) {
-    std::string message = e.what();
-    if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr) {
-      // CLI11 lists them backwards (it parses a reversed vector): name them as given.
-      message = "unexpected argument(s):";
-      for (const std::string& extra : app.remaining()) message += " " + extra;
-    }
-    if (dynamic_cast<const CLI::ConversionError*>(&e) != nullptr) message += ": expected a number";
+    const std::string message = logging::usage_message(app, e);
     result.exit_status = 2;
     result.error = "canbridge-sim: " + message + "\nrun 'canbridge-sim --help' for the usage\n";
     return result;
@@ -78,12 +65,8 @@ SimCommandLine parse_sim_command_line(const std::vector<std::string>& args,
     const auto eq = pair.find('=');
     options.interfaces[pair.substr(0, eq)] = pair.substr(eq + 1);
   }
-  if (!level.empty()) {
-    options.log_level = level;
-  } else if (verbosity > 0) {
-    options.log_level = verbosity == 1 ? "debug" : "trace";
-  }
-  options.log_format = *logging::parse_log_format(format);  // checked by IsMember
+  options.log_level = log.log_level();
+  options.log_format = log.log_format();
   result.options = std::move(options);
   return result;
 }

@@ -3,7 +3,10 @@
 
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
+#include "app/cli_main.hpp"
+#include "app/cli_reply.hpp"
 #include "app/command_line.hpp"
 
 namespace canbridge::bridge {
@@ -96,6 +99,165 @@ TEST(CanbridgeCommandLine, GoodCommandLinesInAnyOrderAndSpelling) {
     EXPECT_EQ(parsed.log_level, row.log_level);
     EXPECT_EQ(parsed.log_format, row.log_format);
   }
+}
+
+// The role's options may stand before its name, with the same meaning as after it.
+TEST(CanbridgeCommandLine, OptionsBeforeTheCommandNameMeanTheSame) {
+  using logging::LogFormat;
+  struct Row {
+    std::vector<std::string> before;
+    std::vector<std::string> after;  // the same options after the name
+    Good expected;
+  };
+  const std::vector<Row> table = {
+      {{"-v", "gateway", "-c", "F"},
+       {"gateway", "-c", "F", "-v"},
+       {{}, Command::gateway, "F", true, {}, "debug"}},
+      {{"--log-level", "debug", "surface", "--config=F"},
+       {"surface", "--config=F", "--log-level", "debug"},
+       {{}, Command::surface, "F", true, {}, "debug"}},
+      {{"-c", "F", "gateway"}, {"gateway", "-c", "F"}, {{}, Command::gateway, "F", true, {}, {}}},
+      {{"--log-format", "journal", "gateway", "-c", "F"},
+       {"gateway", "-c", "F", "--log-format", "journal"},
+       {{}, Command::gateway, "F", true, {}, {}, LogFormat::journal}},
+      {{"--lss-module", "2", "-vv", "gateway"},
+       {"gateway", "--lss-module", "2", "-vv"},
+       {{}, Command::gateway, "/etc/canbridge/gateway.yaml", false, 2, "trace"}},
+      {{"--config", "s.yaml", "--log-format=text", "surface", "--log-level=warn"},
+       {"surface", "--config", "s.yaml", "--log-format=text", "--log-level=warn"},
+       {{}, Command::surface, "s.yaml", true, {}, "warn", LogFormat::text}},
+      // The value of -c is not taken for the command, even when it is spelled like one.
+      {{"-c", "surface", "gateway"},
+       {"gateway", "-c", "surface"},
+       {{}, Command::gateway, "surface", true, {}, {}}},
+      // -v counts wherever it stands.
+      {{"-v", "surface", "-v"},
+       {"surface", "-vv"},
+       {{}, Command::surface, "/etc/canbridge/surface.yaml", false, {}, "trace"}},
+  };
+  for (const Row& row : table) {
+    for (const auto& args : {row.before, row.after}) {
+      SCOPED_TRACE(joined(args));
+      const CommandLine parsed = parse(args);
+      ASSERT_EQ(parsed.command, row.expected.command) << parsed.error;
+      EXPECT_EQ(parsed.config_path, row.expected.config_path);
+      EXPECT_EQ(parsed.config_given, row.expected.config_given);
+      EXPECT_EQ(parsed.lss_module, row.expected.lss_module);
+      EXPECT_EQ(parsed.log_level, row.expected.log_level);
+      EXPECT_EQ(parsed.log_format, row.expected.log_format);
+    }
+  }
+  const CommandLine demo = parse({"--modules", "3", "demo", "--nodes=5"});
+  ASSERT_EQ(demo.command, Command::demo) << demo.error;
+  EXPECT_EQ(demo.demo.modules, 3u);
+  EXPECT_EQ(demo.demo.nodes_per_module, 5u);
+}
+
+// An option that takes one value is refused when given twice, before or after the name alike,
+// and an option of another command is refused naming the command it belongs to.
+TEST(CanbridgeCommandLine, OptionsBeforeTheNameAreRefusedLikeAfterIt) {
+  struct Row {
+    std::vector<std::string> args;
+    std::string error;  // exactly
+  };
+  const std::string usage_gateway = "\nrun 'canbridge gateway --help' for the usage\n";
+  const std::string usage_surface = "\nrun 'canbridge surface --help' for the usage\n";
+  const std::string usage_demo = "\nrun 'canbridge demo --help' for the usage\n";
+  const std::string usage = "\nrun 'canbridge --help' for the usage\n";
+  const std::string roles =
+      "expected gateway, surface, demo or an operator command (nodes, sdo, nmt, set-node-id, "
+      "flash, dump, capture)";
+  const std::vector<Row> table = {
+      {{"-c", "a.yaml", "gateway", "-c", "b.yaml"},
+       "canbridge: --config: given 2 times, expected once" + usage_gateway},
+      {{"gateway", "-c", "a.yaml", "--config=b.yaml"},
+       "canbridge: --config: given 2 times, expected once" + usage_gateway},
+      {{"--log-level", "info", "surface", "--log-level", "warn"},
+       "canbridge: --log-level: given 2 times, expected once" + usage_surface},
+      {{"-v", "gateway", "--log-level", "info"},
+       "canbridge: --verbose excludes --log-level" + usage_gateway},
+      {{"--lss-module", "1", "surface"},
+       "canbridge: unexpected argument(s): --lss-module 1 (--lss-module is an option of gateway "
+       "only)" +
+           usage_surface},
+      {{"--lss-module=1", "demo"},
+       "canbridge: unexpected argument(s): --lss-module=1 (--lss-module is an option of gateway "
+       "only)" +
+           usage_demo},
+      {{"-c", "F", "demo"},
+       "canbridge: unexpected argument(s): -c F (-c is an option of gateway, surface only)" +
+           usage_demo},
+      {{"--log-level", "debug", "demo"},
+       "canbridge: unexpected argument(s): --log-level debug (--log-level is an option of "
+       "gateway, surface only)" +
+           usage_demo},
+      {{"--frobnicate", "gateway"},
+       "canbridge: unexpected argument(s): --frobnicate" + usage_gateway},
+      {{"-v", "frobnicate"}, "canbridge: unknown command 'frobnicate': " + roles + usage},
+      {{"-c", "F"}, "canbridge: no command given: " + roles + usage},
+  };
+  for (const Row& row : table) {
+    SCOPED_TRACE(joined(row.args));
+    const CommandLine parsed = parse(row.args);
+    ASSERT_EQ(parsed.command, Command::done);
+    EXPECT_EQ(parsed.exit_status, 2);
+    EXPECT_EQ(parsed.output, "");
+    EXPECT_EQ(parsed.error, row.error);
+  }
+}
+
+TEST(CanbridgeCommandLine, HelpAndVersionAfterOptionsBeforeTheName) {
+  const std::string gateway_help = parse({"gateway", "--help"}).output;
+  EXPECT_NE(gateway_help.find("--lss-module"), std::string::npos) << gateway_help;
+  EXPECT_EQ(parse({"-v", "gateway", "--help"}).output, gateway_help);
+  EXPECT_EQ(parse({"-c", "F", "gateway", "-h"}).output, gateway_help);
+  const std::string demo_help = parse({"demo", "--help"}).output;
+  EXPECT_NE(demo_help.find("--modules"), std::string::npos) << demo_help;
+  // Help wins over an option demo does not have, as it does after the name.
+  EXPECT_EQ(parse({"--log-level", "debug", "demo", "--help"}).output, demo_help);
+  // Every help says where options may stand and what a repeated one does.
+  for (const auto& args : std::vector<std::vector<std::string>>{
+           {"--help"}, {"gateway", "--help"}, {"surface", "--help"}, {"demo", "--help"}}) {
+    SCOPED_TRACE(joined(args));
+    const std::string help = parse(args).output;
+    EXPECT_NE(help.find("Options may stand before or after the command name"), std::string::npos)
+        << help;
+    EXPECT_NE(help.find("may be given once"), std::string::npos) << help;
+  }
+  for (const auto& args :
+       std::vector<std::vector<std::string>>{{"-v", "gateway", "--version"},
+                                             {"-c", "F", "surface", "--version"},
+                                             {"--endpoint", "S", "nodes", "--version"}}) {
+    SCOPED_TRACE(joined(args));
+    const CommandLine parsed = parse(args);
+    ASSERT_EQ(parsed.command, Command::done);
+    EXPECT_EQ(parsed.output, "canbridge 9.8.7\n");
+  }
+}
+
+// The operator commands' common options may stand before the name: the whole line goes to their
+// parser, which reads them there.
+TEST(CanbridgeCommandLine, OperatorCommandsTakeTheirCommonOptionsFirst) {
+  for (const std::vector<std::string>& args : std::vector<std::vector<std::string>>{
+           {"--endpoint", "/run/x.sock", "stats"},
+           {"-c", "s.yaml", "--net", "2", "nodes"},
+           {"--timeout=5", "sdo", "read", "5", "1018", "1"},
+       }) {
+    SCOPED_TRACE(joined(args));
+    const CommandLine parsed = parse(args);
+    ASSERT_EQ(parsed.command, Command::client) << parsed.error;
+    EXPECT_EQ(parsed.client_args, args);
+  }
+  // Their parser refuses before connecting: a bad value of a common option before the name...
+  std::ostringstream out;
+  std::ostringstream err;
+  EXPECT_EQ(cli::run_client({"--timeout", "0", "stats"}, out, err, false), cli::exit_code::usage);
+  EXPECT_EQ(err.str().rfind("canbridge: --timeout: Value 0 not in range", 0), 0u) << err.str();
+  // ... and an unknown one, named as given.
+  err.str("");
+  EXPECT_EQ(cli::run_client({"--frobnicate", "stats"}, out, err, false), cli::exit_code::usage);
+  EXPECT_EQ(err.str().rfind("canbridge: unexpected argument(s): --frobnicate\n", 0), 0u)
+      << err.str();
 }
 
 TEST(CanbridgeCommandLine, DemoTakesItsSizes) {

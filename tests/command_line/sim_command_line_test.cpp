@@ -78,6 +78,9 @@ TEST(SimCommandLine, BadCommandLinesExit2SayingWhatWasExpected) {
       {{"rig.yaml", "--interface", "=vcan0"}, "is not BUS=IFACE"},
       {{"rig.yaml", "--stats-seconds", "often"}, "expected a number"},
       {{"rig.yaml", "--bus"}, "--bus"},
+      {{"rig.yaml", "--stats-seconds", "1", "--stats-seconds=2"},
+       "--stats-seconds: given 2 times, expected once"},
+      {{"--virtual", "a.yaml", "b.yaml", "c.yaml"}, "unexpected argument(s): b.yaml c.yaml"},
       {{"rig.yaml", "--frobnicate"}, "unexpected argument(s): --frobnicate"},
       {{"rig.yaml", "--log-level", "loud"}, "--log-level"},
   };

@@ -7,6 +7,7 @@
 #include <map>
 #include <stdexcept>
 
+#include "logging/command_line_common.hpp"
 #include "tools/link_emulator/seeded_random.hpp"
 
 namespace canbridge::emulator {
@@ -202,41 +203,23 @@ CommandLine parse_command_line(const std::vector<std::string>& args) {
         ->expected(1)
         ->multi_option_policy(CLI::MultiOptionPolicy::TakeAll);
     auto* version = app.add_flag("--version");
-    int verbosity = 0;
-    std::string level;
-    std::string format = "auto";
-    auto* verbose = app.add_flag("-v,--verbose", verbosity);
-    app.add_option("--log-level", level)
-        ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}))
-        ->excludes(verbose);
-    app.add_option("--log-format", format)->check(CLI::IsMember({"auto", "text", "journal"}));
+    logging::LogArguments log;
+    // The help is kUsage's, so the notes of the options are not printed.
+    logging::add_log_options(app, log, "");
     try {
       app.parse(std::vector<std::string>(args.rbegin(), args.rend()));
     } catch (const CLI::CallForHelp&) {
       result.help = true;
       return result;
     } catch (const CLI::ParseError& e) {
-      std::string message = e.what();
-      if (dynamic_cast<const CLI::ExtrasError*>(&e) != nullptr) {
-        // CLI11 lists them backwards (it parses a reversed vector): name them as given.
-        message = "unexpected argument(s):";
-        for (const std::string& extra : app.remaining()) message += " " + extra;
-      }
-      // CLI11 says "--baud: 1 required TEXT missing": say what was expected.
-      if (dynamic_cast<const CLI::ArgumentMismatch*>(&e) != nullptr)
-        message += " (it needs a value)";
-      throw BadArgument(message);
+      throw BadArgument(logging::usage_message(app, e));
     }
     if (version->count() > 0) {
       result.version = true;
       return result;
     }
-    if (!level.empty()) {
-      result.log_level = level;
-    } else if (verbosity > 0) {
-      result.log_level = verbosity == 1 ? "debug" : "trace";
-    }
-    result.log_format = *logging::parse_log_format(format);  // checked by IsMember
+    result.log_level = log.log_level();
+    result.log_format = log.log_format();
     std::vector<std::pair<std::string, std::string>> given;
     for (const auto& [flag, value] : values) {
       if (app.get_option(flag)->count() > 0) given.emplace_back(flag, value);
