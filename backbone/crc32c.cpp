@@ -3,6 +3,8 @@
 #include <array>
 #include <cstddef>
 
+#include "backbone/little_endian.hpp"
+
 namespace canbridge::backbone {
 
 namespace {
@@ -34,13 +36,6 @@ constexpr SlicingTables kTables = make_slicing_tables();
 
 // The byte-at-a-time step, also the definition the slicing tables are derived from.
 static_assert(kTables[0][1] == 0xF26B8303u, "CRC-32C table does not match the polynomial");
-
-// Assembled byte by byte so the result does not depend on the host's byte order or alignment;
-// compilers turn this into a single load on little-endian targets.
-std::uint32_t load_le32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
 
 }  // namespace
 

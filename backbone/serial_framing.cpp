@@ -4,17 +4,13 @@
 #include <array>
 
 #include "backbone/crc32c.hpp"
+#include "backbone/little_endian.hpp"
 
 namespace canbridge::backbone {
 
 namespace {
 
-constexpr std::uint8_t kFullBlockCode = 0xFF;  // COBS: 254 data bytes and no implied zero
-
-std::uint32_t load_le32(const std::uint8_t* p) {
-  return std::uint32_t{p[0]} | (std::uint32_t{p[1]} << 8) | (std::uint32_t{p[2]} << 16) |
-         (std::uint32_t{p[3]} << 24);
-}
+constexpr std::uint8_t kCobsFullBlockCode = 0xFF;  // COBS: 254 data bytes and no implied zero
 
 }  // namespace
 
@@ -81,7 +77,7 @@ std::optional<std::span<const std::uint8_t>> SerialDeframer::next(
     if (block_remaining_ == 0) {
       // A code byte. The previous frame's payload may still be in use until this point.
       if (frame_bytes_ == 0) decoded_.clear();
-      const bool zero_between_blocks = frame_bytes_ != 0 && block_code_ != kFullBlockCode;
+      const bool zero_between_blocks = frame_bytes_ != 0 && block_code_ != kCobsFullBlockCode;
       if (decoded_.size() + (zero_between_blocks ? 1 : 0) > max_decoded_ ||
           frame_bytes_ + 1 > max_encoded_) {
         oversize_ = true;

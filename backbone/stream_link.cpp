@@ -17,6 +17,7 @@
 #include <cerrno>
 #include <exception>
 
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
@@ -26,7 +27,7 @@ using asio::ip::tcp;
 
 namespace {
 
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 
 // Past this, the write buffer is released after use so one burst does not pin memory forever.
 constexpr std::size_t kRetainedWriteCapacity = std::size_t{1} << 20;

@@ -9,6 +9,7 @@
 #include <boost/asio/connect.hpp>
 #include <boost/asio/use_awaitable.hpp>
 
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
@@ -17,7 +18,7 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 
 namespace {
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 }
 
 std::shared_ptr<TcpClient> TcpClient::create(asio::any_io_executor executor, std::string host,

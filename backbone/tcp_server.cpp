@@ -9,6 +9,7 @@
 #include <exception>
 #include <tuple>
 
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
@@ -17,7 +18,7 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 
 namespace {
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 using Clock = AdmissionControl::Clock;
 // Connections taken from the kernel's queue per wake-up; then the loop yields to other work.
 constexpr int kAcceptBatch = 256;

@@ -18,6 +18,7 @@
 
 #include "backbone/peer_authenticator.hpp"
 #include "backbone/tls_identity.hpp"
+#include "coro/no_error.hpp"
 
 namespace canbridge::backbone {
 
@@ -46,7 +47,7 @@ struct TlsUpgrade::Handshake {
 
 namespace {
 
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 constexpr const char* kCipherSuites = "TLS_AES_128_GCM_SHA256:TLS_CHACHA20_POLY1305_SHA256";
 // Far more than any PEM private key; a bigger file is not one.
 constexpr std::size_t kMaxPrivateKeyFileSize = 64 * 1024;

@@ -32,6 +32,7 @@
 #include "canopen/cob_id.hpp"
 #include "canopen/little_endian.hpp"
 #include "canopen/sdo_abort.hpp"
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -44,7 +45,7 @@ using Socket = asio::generic::stream_protocol::socket;
 
 namespace {
 
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 // Commands of one client whose answers are not yet written: beyond, the endpoint stops reading
 // from it until answers go out, so a pipelining client cannot grow memory without bound.
 constexpr std::size_t kMaxPipelined = 64;

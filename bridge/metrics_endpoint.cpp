@@ -15,13 +15,15 @@
 #include <boost/beast/http/write.hpp>
 #include <list>
 
+#include "coro/no_error.hpp"
+
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 namespace beast = boost::beast;
 namespace http = beast::http;
 using tcp = asio::ip::tcp;
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 constexpr std::size_t kMaxRequestBytes = 8192;  // a GET and its headers; anything larger: closed
 
 struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Core> {

@@ -19,12 +19,13 @@
 
 #include "canopen/ascii_command.hpp"
 #include "canopen/ascii_response.hpp"
+#include "coro/no_error.hpp"
 
 namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 using Local = asio::local::stream_protocol;
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using coro::kNoError;
 constexpr std::size_t kMaxLine = 256;  // `[<seq>] stats` and a comment fit many times over
 
 struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {

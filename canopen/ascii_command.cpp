@@ -14,7 +14,7 @@ constexpr std::size_t kMaxAuthToken = 4096;
 constexpr std::uint32_t kMaxNet = 0xFFFF;  // as CANopenNode's gateway
 constexpr std::uint32_t kMaxNode = 127;
 
-bool is_space(char c) {
+bool is_separator(char c) {
   return c == ' ' || c == '\t';
 }
 
@@ -50,7 +50,7 @@ class Tokens {
   std::string_view next() {
     skip_spaces();
     const std::size_t start = pos_;
-    while (pos_ < text_.size() && !is_space(text_[pos_])) ++pos_;
+    while (pos_ < text_.size() && !is_separator(text_[pos_])) ++pos_;
     return text_.substr(start, pos_ - start);
   }
   std::string_view peek() {
@@ -62,7 +62,7 @@ class Tokens {
   std::string_view rest() {
     skip_spaces();
     auto out = text_.substr(pos_);
-    while (!out.empty() && is_space(out.back())) out.remove_suffix(1);
+    while (!out.empty() && is_separator(out.back())) out.remove_suffix(1);
     pos_ = text_.size();
     return out;
   }
@@ -73,7 +73,7 @@ class Tokens {
 
  private:
   void skip_spaces() {
-    while (pos_ < text_.size() && is_space(text_[pos_])) ++pos_;
+    while (pos_ < text_.size() && is_separator(text_[pos_])) ++pos_;
   }
   std::string_view text_;
   std::size_t pos_ = 0;

@@ -3,6 +3,12 @@
 add_library(canbridge_warnings INTERFACE)
 target_compile_options(canbridge_warnings INTERFACE -Wall -Wextra -Werror -Wpedantic -Wshadow
                                                      -Wnon-virtual-dtor -Wold-style-cast)
+# In a unity batch every source but the first is an included file, and GCC then reports the
+# coroutine frames of functions using a type from an anonymous namespace (-Wsubobject-linkage),
+# which is harmless when the batch is the only translation unit that sees the type.
+if(CANBRIDGE_UNITY_BUILD)
+  target_compile_options(canbridge_warnings INTERFACE -Wno-subobject-linkage)
+endif()
 
 add_library(canbridge_sanitizers INTERFACE)
 if(CANBRIDGE_SANITIZE)

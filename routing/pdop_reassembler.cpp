@@ -11,9 +11,9 @@ namespace pdop = canopen::pdop;
 namespace {
 
 constexpr std::size_t kFragmentBytes = pdop::kFragmentBytes;
-constexpr std::uint32_t kToggleBit = 0x40;     // docs/pdop.md section 1
-constexpr std::uint32_t kContinuedBit = 0x20;  // docs/pdop.md section 1
-constexpr std::uint32_t kNodeBits = 0x1F;
+constexpr std::uint32_t kPdopToggleBit = 0x40;     // docs/pdop.md section 1
+constexpr std::uint32_t kPdopContinuedBit = 0x20;  // docs/pdop.md section 1
+constexpr std::uint32_t kPdopNodeBits = 0x1F;
 
 std::size_t stream_index(PdopReassembler::NodeId node, unsigned tpdo) {
   return (std::size_t{node} - 1) * PdopReassembler::kTpdoCount + (tpdo - 1);
@@ -60,11 +60,11 @@ bool PdopReassembler::on_frame(const can::Frame& frame, TimePoint now, Sink& sin
   const std::uint32_t function_code = id >> 7;  // 0..15 for an 11-bit id
   // TPDO1..4: function codes 3, 5, 7, 9.
   if (function_code < 3 || function_code > 9 || (function_code & 1u) == 0) return false;
-  const auto node = static_cast<NodeId>(id & kNodeBits);
+  const auto node = static_cast<NodeId>(id & kPdopNodeBits);
   if (node == 0) return false;
   const unsigned tpdo = (function_code - 1) / 2;
   ++counters_.frames;
-  on_fragment(stream_index(node, tpdo), (id & kToggleBit) != 0, (id & kContinuedBit) != 0,
+  on_fragment(stream_index(node, tpdo), (id & kPdopToggleBit) != 0, (id & kPdopContinuedBit) != 0,
               frame.payload(), now, sink);
   return true;
 }

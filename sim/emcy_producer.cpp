@@ -11,10 +11,10 @@ using canopen::SdoAbort;
 
 namespace {
 
-constexpr std::uint32_t kCobIdInvalid = 0x80000000;
-constexpr std::uint32_t kCanIdMask = 0x7FF;
+constexpr std::uint32_t kEmcyCobIdInvalid = 0x80000000;
+constexpr std::uint32_t kEmcyCanIdMask = 0x7FF;
 // Bits 11..30: 29-bit identifiers (bit 29) are not simulated, bit 30 is reserved.
-constexpr std::uint32_t kUnsupportedCobIdBits = 0x7FFFF800;
+constexpr std::uint32_t kUnsupportedEmcyCobIdBits = 0x7FFFF800;
 
 std::uint32_t default_cob_id(canopen::NodeId node) {
   return canopen::cob::emcy + node;
@@ -55,8 +55,9 @@ void EmcyProducer::set_node_id(canopen::NodeId node) {
   if (entry == nullptr) return;
   const std::uint32_t old_default = default_cob_id(node_);
   const auto follow = [&](std::uint32_t cob_id) {
-    return (cob_id & kCanIdMask) == old_default ? (cob_id & ~kCanIdMask) | default_cob_id(node)
-                                                : cob_id;
+    return (cob_id & kEmcyCanIdMask) == old_default
+               ? (cob_id & ~kEmcyCanIdMask) | default_cob_id(node)
+               : cob_id;
   };
   const std::uint32_t current = follow(canopen::load_le32(entry->value));
   const std::uint32_t initial = follow(canopen::load_le32(entry->initial));
@@ -142,9 +143,9 @@ void EmcyProducer::emit(can::Frame frame, TimePoint now, std::vector<can::Frame>
 
 void EmcyProducer::transmit(can::Frame frame, TimePoint now, std::vector<can::Frame>& out) {
   // 1014h is read at sending time: a queued EMCY follows a COB-ID change made meanwhile.
-  const std::uint32_t cob_id = od_.get_unsigned(kCobId, 0).value_or(kCobIdInvalid);
-  if ((cob_id & kCobIdInvalid) != 0) return;
-  frame.id = cob_id & kCanIdMask;
+  const std::uint32_t cob_id = od_.get_unsigned(kCobId, 0).value_or(kEmcyCobIdInvalid);
+  if ((cob_id & kEmcyCobIdInvalid) != 0) return;
+  frame.id = cob_id & kEmcyCanIdMask;
   out.push_back(frame);
   ++counters_.sent;
   const auto inhibit_100us = od_.get_unsigned(kInhibitTime, 0).value_or(0);
@@ -173,11 +174,11 @@ std::error_code EmcyProducer::check_write(const OdEntry& entry,
   if (entry.index == kCobId && entry.sub == 0) {
     const std::uint32_t current = canopen::load_le32(entry.value);
     if (value == current) return {};
-    if ((value & kUnsupportedCobIdBits) != 0) return SdoAbort::value_range;
-    const bool valid_now = (current & kCobIdInvalid) == 0;
-    const bool valid_after = (value & kCobIdInvalid) == 0;
+    if ((value & kUnsupportedEmcyCobIdBits) != 0) return SdoAbort::value_range;
+    const bool valid_now = (current & kEmcyCobIdInvalid) == 0;
+    const bool valid_after = (value & kEmcyCobIdInvalid) == 0;
     // CiA 301: bits 0..29 must not change while the EMCY object exists.
-    if (valid_now && valid_after && (value & kCanIdMask) != (current & kCanIdMask)) {
+    if (valid_now && valid_after && (value & kEmcyCanIdMask) != (current & kEmcyCanIdMask)) {
       return SdoAbort::value_range;
     }
   }

@@ -39,6 +39,7 @@
 
 #include "backbone/delimited_codec.hpp"
 #include "backbone/tls_upgrade.hpp"
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 #include "session.pb.h"
 
@@ -47,7 +48,7 @@ namespace {
 namespace asio = boost::asio;
 using asio::ip::tcp;
 using Clock = std::chrono::steady_clock;
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using canbridge::coro::kNoError;
 using namespace asio::experimental::awaitable_operators;
 
 struct Options {

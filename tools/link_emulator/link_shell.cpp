@@ -19,6 +19,7 @@
 #include <tuple>
 #include <vector>
 
+#include "coro/no_error.hpp"
 #include "tools/link_emulator/impairment.hpp"
 #include "tools/link_emulator/pty_endpoint.hpp"
 
@@ -30,7 +31,7 @@ namespace asio = boost::asio;
 using asio::ip::tcp;
 using namespace std::chrono_literals;
 
-constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
+using canbridge::coro::kNoError;
 // Pause before a connect side that nothing drives (its peer is a pty or connects itself) tries
 // again, and after an unexpected error, so that failures do not spin.
 constexpr auto kReconnectDelay = 250ms;
