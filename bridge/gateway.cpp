@@ -115,6 +115,8 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
             outbox_.set_head_runs(peer.protocol_minor() >= kHeadRunsMinor);
             // The surface may be a new process: it learns the pdop nodes on every link.
             pdop_.announce_nodes();
+            // A mere reconnect resumes the reliable stream; a new process learns the nodes.
+            if (peer.session_id() != snapshot_surface_) queue_node_snapshot(peer);
           },
           [this] { on_link_dead(); },
           // A new surface process: what was queued for the old one is not replayed.
@@ -309,15 +311,66 @@ void Gateway::queue_node_events() {
   const std::size_t events = node_events_.size();
   counters_.node_events += events;
   node_events_.clear();
-  // Bounded: a link down for hours must not grow the queue without end. The oldest go first;
-  // the surface learns the current state from the next events and from the heartbeats.
-  if (!events_out_.empty() && events_out_.size() >= tuning_.outbox.max_node_event_payloads) {
-    counters_.node_events_dropped += events_out_.front().events;
-    events_out_.pop_front();
-    warn_.warn(Warn::kEventsDropped,
-               "gateway: node events dropped: the backbone link is down too long (counted)");
-  }
+  bound_node_events();
   events_out_.push_back({payload.SerializeAsString(), events});
+  stream_.wake();
+}
+
+void Gateway::bound_node_events() {
+  // Bounded: a link down for hours must not grow the queue without end. The oldest go first;
+  // the surface learns the current state from the next events and from the heartbeats. A
+  // snapshot stays (a node that keeps its state sends nothing more): the queue may exceed the
+  // bound by the snapshot's payloads, one per module.
+  if (events_out_.size() < std::max<std::size_t>(tuning_.outbox.max_node_event_payloads, 1)) {
+    return;
+  }
+  const auto oldest = std::find_if(events_out_.begin(), events_out_.end(),
+                                   [](const QueuedEvents& q) { return !q.snapshot; });
+  if (oldest == events_out_.end()) return;
+  counters_.node_events_dropped += oldest->events;
+  events_out_.erase(oldest);
+  warn_.warn(Warn::kEventsDropped,
+             "gateway: node events dropped: the backbone link is down too long (counted)");
+}
+
+void Gateway::queue_node_snapshot(const v1::Hello& surface) {
+  snapshot_surface_ = surface.session_id();
+  // A snapshot still queued was for a surface process that never got it: this one supersedes it.
+  std::erase_if(events_out_, [](const QueuedEvents& q) { return q.snapshot; });
+  std::size_t nodes = 0;
+  std::size_t lost = 0;
+  // One payload per module: each stays far below one write (at most 2 x 127 small events).
+  for (std::size_t m = 0; m < modules_.size(); ++m) {
+    v1::Payload payload;
+    v1::NodeEvents& out = *payload.mutable_node_events();
+    node_table_.for_each_known(m, [&](NodeId local, const NodeRecord& record) {
+      // What the discovery of the node in its present state says; a lost node is then lost, as
+      // the surface counts a LOST after it (the last state kept, as in the table).
+      v1::NodeEvent& o = *out.add_events();
+      o.set_kind(v1::NodeEvent::DISCOVERED);
+      o.set_module_id(modules_[m].id);
+      o.set_local_node(local);
+      o.set_surface_node(map_.surface_of(m, local));
+      o.set_nmt_state(static_cast<std::uint32_t>(record.state));
+      o.set_boot_count(record.boot_count);
+      o.set_in_loader(record.loader == LoaderState::in_loader);
+      ++nodes;
+      if (record.lost) {
+        v1::NodeEvent& l = *out.add_events();
+        l = o;
+        l.set_kind(v1::NodeEvent::LOST);
+        ++lost;
+      }
+    });
+    if (out.events_size() == 0) continue;
+    const auto events = static_cast<std::size_t>(out.events_size());
+    counters_.node_events += events;
+    bound_node_events();
+    events_out_.push_back({payload.SerializeAsString(), events, true});
+  }
+  spdlog::info(
+      "gateway {}: surface {} has not heard from this gateway: its {} node(s) sent ({} lost)",
+      name_, backbone::describe_peer(surface), nodes, lost);
   stream_.wake();
 }
 

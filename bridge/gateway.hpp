@@ -172,6 +172,11 @@ class Gateway {
   // RENAME_UNCONFIRMED event of the commanded node (when the map has it).
   void report_refused_rename();
   void queue_node_events();
+  // A surface process the gateway has not reported to (the first ever, a restarted one) learns
+  // every node the table knows, in their states now, from these events: behind what is queued.
+  void queue_node_snapshot(const v1::Hello& surface);
+  // The bound on queued node event payloads: the oldest goes first, a snapshot never.
+  void bound_node_events();
   void produce(backbone::PayloadSink& sink);
 
   // Hands the PDOP work's fragments to their modules' BusWriters, each batch whole.
@@ -211,8 +216,13 @@ class Gateway {
   struct QueuedEvents {
     std::string payload;  // a serialized NodeEvents payload
     std::size_t events;
+    // Part of a node table snapshot: never dropped by the bound, since no later event repeats
+    // the state of a node that stays in it.
+    bool snapshot = false;
   };
   std::deque<QueuedEvents> events_out_;  // oldest first
+  // The surface process (its hello's session id) the node table was last sent to; 0: none yet.
+  std::uint64_t snapshot_surface_ = 0;
   GatewayPdopWork pdop_;
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;

@@ -24,9 +24,9 @@ namespace canbridge::bridge {
 // process resumes its reliable stream (with the events it queued meanwhile) when the link
 // returns, so their states come back without a new event. A new gateway process (a restart)
 // knows none of them: forget() drops them all, and its node table reports each node again as it
-// hears it (discovered or booted). The other way round is not covered: a gateway does not
-// report its node table again to a new surface process, so a restarted surface counts a node
-// only from its next event (state change, loss, boot-up).
+// hears it (discovered or booted). The other way round, a gateway sends a new surface process
+// (a restarted surface) its whole node table: a DISCOVERED of each node in its present state,
+// followed by a LOST for one the table counts lost, behind the events already queued.
 class SurfaceNodeStates {
  public:
   using GatewayId = std::uint32_t;  // GatewayTable's id
