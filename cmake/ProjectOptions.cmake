@@ -6,7 +6,7 @@ target_compile_options(canbridge_warnings INTERFACE -Wall -Wextra -Werror -Wpeda
 # In a unity batch every source but the first is an included file, and GCC then reports the
 # coroutine frames of functions using a type from an anonymous namespace (-Wsubobject-linkage),
 # which is harmless when the batch is the only translation unit that sees the type.
-if(CANBRIDGE_UNITY_BUILD)
+if(CANBRIDGE_UNITY_BUILD AND CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
   target_compile_options(canbridge_warnings INTERFACE -Wno-subobject-linkage)
 endif()
 

@@ -18,10 +18,12 @@ phase() {
 
 phase "sanitizer build (ASan+UBSan): unit tests"
 rm -rf "$root/build-asan"
+# Both trees compile in unity batches (CANBRIDGE_UNITY_BUILD): ~40 % less compiler time from
+# scratch, which is all this script ever builds.
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
   -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
-  -DCANBRIDGE_TEST_EACH_CASE=OFF >/dev/null
+  -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON >/dev/null
 cmake --build "$root/build-asan" -j "$jobs"
 phase "unit tests under the sanitizers"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
@@ -43,7 +45,8 @@ rm -rf "$root/build"
 # ctest --test-dir build -L image (docker/README.md). bench/ is left out too (the benches run in
 # their own sittings, bench/README.md; `cmake --build build` of a developer tree builds them).
 cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
-  -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=OFF -DCANBRIDGE_BENCH_TOOLS=OFF >/dev/null
+  -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
+  -DCANBRIDGE_UNITY_BUILD=ON >/dev/null
 cmake --build "$root/build" -j "$jobs"
 phase "system tests and the other checks of the plain build"
 ctest --test-dir "$root/build" -j "$jobs" --output-on-failure
