@@ -13,13 +13,13 @@ namespace {
 
 constexpr std::string_view kOperatorCommands =
     "Operator commands against a running surface's command endpoint (each has --help):\n"
-    "  nodes, sdo, nmt, set-node-id, flash, dump, capture\n"
+    "  nodes, sdo, nmt, set-node-id, flash, dump, capture, stats\n"
     "  canbridge SUBCOMMAND [--endpoint PATH|HOST:PORT] [--token-file F] [-c surface.yaml] "
     "[--net N] ...\n";
 
 constexpr std::string_view kRoles =
     "gateway, surface, demo or an operator command (nodes, sdo, "
-    "nmt, set-node-id, flash, dump, capture)";
+    "nmt, set-node-id, flash, dump, capture, stats)";
 
 constexpr std::string_view kOrder =
     "Options may stand before or after the command name: 'canbridge -c F gateway' is "

@@ -166,7 +166,7 @@ TEST(CanbridgeCommandLine, OptionsBeforeTheNameAreRefusedLikeAfterIt) {
   const std::string usage = "\nrun 'canbridge --help' for the usage\n";
   const std::string roles =
       "expected gateway, surface, demo or an operator command (nodes, sdo, nmt, set-node-id, "
-      "flash, dump, capture)";
+      "flash, dump, capture, stats)";
   const std::vector<Row> table = {
       {{"-c", "a.yaml", "gateway", "-c", "b.yaml"},
        "canbridge: --config: given 2 times, expected once" + usage_gateway},
