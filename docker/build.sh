@@ -51,6 +51,16 @@ die() { echo "build.sh: error: $*" >&2; exit 1; }
 ((base_only)) && [[ -n $prebuilt || ${#extra[@]} -gt 0 ]] &&
   { echo "build.sh: --base-only builds no image: no --prebuilt or podman arguments" >&2; exit 2; }
 
+# --prebuilt's input is checked before minutes of debootstrap, not after.
+prebuilt_executables=(canbridge canbridge-sim canbridge-link-emulator)
+if [[ -n $prebuilt ]]; then
+  [[ -d $prebuilt ]] || die "--prebuilt $prebuilt: not a directory"
+  for exe in "${prebuilt_executables[@]}"; do
+    [[ -f $prebuilt/$exe && -x $prebuilt/$exe ]] || die "--prebuilt: no executable $prebuilt/$exe"
+  done
+  command -v strip >/dev/null || die "--prebuilt needs strip (binutils) to strip the executables"
+fi
+
 # Temporary directories this run made (the base's rootfs, the stripped executables), removed on
 # any exit.
 temp_dirs=()
@@ -204,14 +214,11 @@ fi
 # trees stay out of the main context: Dockerfile.dockerignore).
 target=()
 if [[ -n $prebuilt ]]; then
-  [[ -d $prebuilt ]] || die "--prebuilt $prebuilt: not a directory"
   bin_dir=$(mktemp -d /tmp/canbridge-prebuilt.XXXXXX)
   temp_dirs+=("$bin_dir")
-  for exe in canbridge canbridge-sim canbridge-link-emulator; do
-    [[ -f $prebuilt/$exe && -x $prebuilt/$exe ]] || die "--prebuilt: no executable $prebuilt/$exe"
+  for exe in "${prebuilt_executables[@]}"; do
     cp "$prebuilt/$exe" "$bin_dir/$exe"
   done
-  command -v strip >/dev/null || die "--prebuilt needs strip (binutils) to strip the executables"
   strip "$bin_dir"/*
   chmod 755 "$bin_dir"/*
   target=(--target prebuilt --build-context "executables=$bin_dir")
