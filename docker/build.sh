@@ -2,7 +2,18 @@
 # Builds the canbridge image with podman, without any registry: makes a local Debian 12 base with
 # debootstrap when it is missing, then builds docker/Dockerfile from the repository root.
 #
-#   docker/build.sh [--rebuild-base] [-- EXTRA PODMAN BUILD ARGS...]
+#   docker/build.sh [--rebuild-base] [--prebuilt DIR] [-- EXTRA PODMAN BUILD ARGS...]
+#   docker/build.sh --base-only [--rebuild-base]
+#
+# Default: the image's final stage `runtime`, the executables compiled from source in the build
+# stage (what `docker build` does). --prebuilt DIR: the Dockerfile's `prebuilt` target instead, the
+# same runtime content with the executables canbridge, canbridge-sim and canbridge-link-emulator
+# taken from DIR (e.g. a build tree's freshly built ones, for the test suite; stripped copies go
+# into the image, DIR is not changed); the build stage does not run. The executables must have
+# been built against Debian 12's libraries (the smoke test checks each resolves in the image).
+# --base-only: only make the base when it is missing (CI starts it early, in the background,
+# while it compiles). Callers serialize on a lock while one makes the base, so a second one waits
+# for it and then finds the base there instead of running debootstrap again.
 #
 # Environment: BASE_IMAGE (default localhost/debian-bookworm-base), IMAGE (default canbridge:dev),
 # MIRROR (default: the host's Debian mirror from /etc/apt), ISOLATION (default chroot).
@@ -18,12 +29,18 @@ base_image=${BASE_IMAGE:-localhost/debian-bookworm-base}
 image=${IMAGE:-canbridge:dev}
 isolation=${ISOLATION:-chroot}
 rebuild_base=0
+base_only=0
+prebuilt=""
 extra=()
 while (($#)); do
   case $1 in
     --rebuild-base) rebuild_base=1 ;;
+    --base-only) base_only=1 ;;
+    --prebuilt)
+      [[ $# -ge 2 && -n $2 ]] || { echo "build.sh: --prebuilt needs a directory" >&2; exit 2; }
+      prebuilt=$2; shift ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d' | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "build.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
   shift
@@ -31,6 +48,24 @@ done
 
 say() { echo "build.sh: $*"; }
 die() { echo "build.sh: error: $*" >&2; exit 1; }
+((base_only)) && [[ -n $prebuilt || ${#extra[@]} -gt 0 ]] &&
+  { echo "build.sh: --base-only builds no image: no --prebuilt or podman arguments" >&2; exit 2; }
+
+# --prebuilt's input is checked before minutes of debootstrap, not after.
+prebuilt_executables=(canbridge canbridge-sim canbridge-link-emulator)
+if [[ -n $prebuilt ]]; then
+  [[ -d $prebuilt ]] || die "--prebuilt $prebuilt: not a directory"
+  for exe in "${prebuilt_executables[@]}"; do
+    [[ -f $prebuilt/$exe && -x $prebuilt/$exe ]] || die "--prebuilt: no executable $prebuilt/$exe"
+  done
+  command -v strip >/dev/null || die "--prebuilt needs strip (binutils) to strip the executables"
+fi
+
+# Temporary directories this run made (the base's rootfs, the stripped executables), removed on
+# any exit.
+temp_dirs=()
+remove_temp_dirs() { ((${#temp_dirs[@]} == 0)) || rm -rf "${temp_dirs[@]}"; }
+trap remove_temp_dirs EXIT
 
 command -v podman >/dev/null || die "podman not found (apt-get install podman)"
 
@@ -68,7 +103,7 @@ make_base() {
   local mirror=${MIRROR:-$(host_mirror)}
   local mirror_host=${mirror#*://}; mirror_host=${mirror_host%%/*}
   local dir; dir=$(mktemp -d /tmp/canbridge-base.XXXXXX)
-  trap "rm -rf '$dir'" EXIT
+  temp_dirs+=("$dir")
   local include=()
   [[ $mirror == https:* ]] && include=(--include=ca-certificates)
 
@@ -137,20 +172,62 @@ make_base() {
       - "$base_image" >/dev/null
   rm -rf "$dir"
   say "slimming and podman import took $((SECONDS - started)) s"
-  trap - EXIT
 }
 
-if ((rebuild_base)) || ! podman image exists "$base_image"; then
-  ((rebuild_base)) && say "--rebuild-base: replacing $base_image"
-  ((rebuild_base)) || say "base image $base_image is missing: creating it"
-  make_base
-else
-  say "base image $base_image exists: reusing it (--rebuild-base to recreate)"
+# One base maker at a time: a caller that finds the base missing takes this lock, and one that
+# finds it held (CI's background --base-only) waits, then sees the base made and reuses it. A
+# lock in /run/lock (root's, as making the base needs root) rather than /tmp, where others write.
+lock_dir=/run/lock
+[[ -d $lock_dir && -w $lock_dir ]] || lock_dir=/tmp
+base_lock=$lock_dir/canbridge-base-${base_image//[^A-Za-z0-9._-]/_}.lock
+ensure_base() {
+  if ((!rebuild_base)) && podman image exists "$base_image"; then
+    say "base image $base_image exists: reusing it (--rebuild-base to recreate)"
+    return
+  fi
+  local fd started=$SECONDS
+  exec {fd}>>"$base_lock" || die "cannot open the lock $base_lock"
+  if ! flock --nonblock "$fd"; then
+    say "another docker/build.sh is making the base ($base_lock): waiting for it"
+    flock "$fd"
+    say "waited $((SECONDS - started)) s for the other base maker"
+  fi
+  if ((rebuild_base)); then
+    say "--rebuild-base: replacing $base_image"
+    make_base
+  elif podman image exists "$base_image"; then
+    say "base image $base_image exists: reusing it"
+  else
+    say "base image $base_image is missing: creating it"
+    make_base
+  fi
+  exec {fd}>&-
+}
+ensure_base
+if ((base_only)); then
+  say "--base-only: $base_image is ready"
+  exit 0
+fi
+
+# --prebuilt: stripped copies of the three executables in a directory of our own, the extra
+# build context `executables` of the Dockerfile's `prebuilt` target (the repository's build
+# trees stay out of the main context: Dockerfile.dockerignore).
+target=()
+if [[ -n $prebuilt ]]; then
+  bin_dir=$(mktemp -d /tmp/canbridge-prebuilt.XXXXXX)
+  temp_dirs+=("$bin_dir")
+  for exe in "${prebuilt_executables[@]}"; do
+    cp "$prebuilt/$exe" "$bin_dir/$exe"
+  done
+  strip "$bin_dir"/*
+  chmod 755 "$bin_dir"/*
+  target=(--target prebuilt --build-context "executables=$bin_dir")
+  say "prebuilt executables from $prebuilt (stripped copies in $bin_dir)"
 fi
 
 cd "$root"
 cmd=(podman build --isolation="$isolation" --ignorefile docker/Dockerfile.dockerignore
-     --build-arg BASE="$base_image" -f docker/Dockerfile -t "$image" "${extra[@]}" .)
+     --build-arg BASE="$base_image" -f docker/Dockerfile "${target[@]}" -t "$image" "${extra[@]}" .)
 say "in $root: ${cmd[*]}"
 started=$SECONDS
 "${cmd[@]}"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The image smoke test: builds the canbridge image from source with docker/build.sh (a debootstrap
-# base and `podman build --isolation=chroot`) and checks it from its root filesystem, because no
+# The image smoke test: builds the canbridge image with docker/build.sh (a debootstrap base and
+# `podman build --isolation=chroot`) and checks it from its root filesystem, because no
 # container can be started on the build machines: the three executables answer --version (or
 # --help), `canbridge demo` runs to completion as the image's non-root user, the sample configs
 # load as far as their missing keys (exit 2 naming the key file), every reference rig runs in
@@ -8,7 +8,14 @@
 # modules, gateway, surface) carry the nodes' heartbeats from vcan1 to vcan0 in the vcan rig,
 # the image runs as uid 10001 and holds no compiler, and the build left no dangling image.
 #
-#   tests/container/image_smoke_test.sh SOURCE_DIR
+#   tests/container/image_smoke_test.sh SOURCE_DIR [CANBRIDGE CANBRIDGE_SIM LINK_EMULATOR]
+#
+# Without executables the image compiles them from source (the Dockerfile's default `runtime`
+# stage). Given the three (ctest passes its build tree's own, CANBRIDGE_IMAGE_TEST_PREBUILT), it
+# builds the `prebuilt` target with them (docker/build.sh --prebuilt), which skips the compile,
+# and checks also that the image holds exactly their stripped copies. Every other check is the
+# same for both. A base image that another docker/build.sh is making (CI's --base-only in the
+# background) is waited for, not made twice.
 #
 # Exit 77 (ctest: skipped) only where podman cannot run at all; needs root (debootstrap, mounting
 # the image, chroot). Environment: CANBRIDGE_TEST_IMAGE (default localhost/canbridge:smoketest);
@@ -172,7 +179,16 @@ PY
   exit $((failures == 0 ? 0 : 1))
 fi
 
-src=$(cd "${1:?usage: image_smoke_test.sh SOURCE_DIR}" && pwd)
+src=$(cd "${1:?usage: image_smoke_test.sh SOURCE_DIR [CANBRIDGE CANBRIDGE_SIM LINK_EMULATOR]}" && pwd)
+shift
+executables=("$@")
+case ${#executables[@]} in
+  0 | 3) ;;
+  *) echo "usage: image_smoke_test.sh SOURCE_DIR [CANBRIDGE CANBRIDGE_SIM LINK_EMULATOR]" >&2; exit 2 ;;
+esac
+for exe in "${executables[@]}"; do
+  [[ -f $exe && -x $exe ]] || { echo "FAIL: no executable $exe (build it first)" >&2; exit 1; }
+done
 image=${CANBRIDGE_TEST_IMAGE:-localhost/canbridge:smoketest}
 skip() {
   echo "SKIPPED: the image smoke test cannot run podman here: $*"
@@ -210,14 +226,24 @@ if [[ ${CANBRIDGE_TEST_IMAGE_PREBUILT:-0} == 1 ]]; then
   echo "--- CANBRIDGE_TEST_IMAGE_PREBUILT=1: checking $image as built before"
   podman image exists "$image" || { echo "FAIL: no image $image" >&2; exit 1; }
 else
-  echo "--- docker/build.sh (IMAGE=$image), $(uptime)"
+  build_args=()
+  if ((${#executables[@]})); then
+    # docker/build.sh --prebuilt takes a directory holding the three by their installed names.
+    mkdir "$work/bin"
+    names=(canbridge canbridge-sim canbridge-link-emulator)
+    for i in 0 1 2; do
+      ln -s "$(realpath "${executables[i]}")" "$work/bin/${names[i]}"
+    done
+    build_args=(--prebuilt "$work/bin")
+  fi
+  echo "--- docker/build.sh ${build_args[*]} (IMAGE=$image), $(uptime)"
   started=$SECONDS
-  if ! IMAGE=$image "$src/docker/build.sh" >"$work/build.log" 2>&1; then
+  if ! IMAGE=$image "$src/docker/build.sh" "${build_args[@]}" >"$work/build.log" 2>&1; then
     tail -n 40 "$work/build.log" >&2
     echo "FAIL: docker/build.sh failed (log above)" >&2
     exit 1
   fi
-  grep -E "took|built" "$work/build.log"
+  grep -E "took|built|wait" "$work/build.log"
   echo "build: $((SECONDS - started)) s in all, $(uptime)"
 fi
 
@@ -233,6 +259,14 @@ entrypoint=$(podman image inspect --format '{{.Config.Entrypoint}}' "$image")
 echo "user '$user', entrypoint $entrypoint, $(podman image inspect --format '{{.Size}}' "$image" | numfmt --to=iec)B"
 [[ $user == canbridge || $user == 10001 ]] || fail "image user is '$user', not canbridge (10001)"
 [[ $entrypoint == *canbridge* ]] || fail "image entrypoint is $entrypoint, not canbridge"
+# Which stage made it: `runtime` (compiled in the image) says source, `prebuilt` says prebuilt.
+origin=$(podman image inspect --format '{{index .Config.Labels "io.canbridge.executables"}}' "$image")
+echo "executables: $origin"
+if ((${#executables[@]})); then
+  [[ $origin == prebuilt ]] || fail "image label io.canbridge.executables is '$origin', not prebuilt"
+elif [[ ${CANBRIDGE_TEST_IMAGE_PREBUILT:-0} != 1 ]]; then
+  [[ $origin == source ]] || fail "image label io.canbridge.executables is '$origin', not source"
+fi
 
 # A container's root filesystem (podman create + mount) is writable, unlike an image mount: the
 # surface makes its command endpoint socket in /run/canbridge. Nothing starts the container.
@@ -266,6 +300,19 @@ for exe in canbridge canbridge-sim canbridge-link-emulator; do
       fail "$exe: neither --version nor --help exits 0 (--help: $status)"
   fi
 done
+# The prebuilt image holds exactly the executables it was given, stripped (a stale layer cache
+# or a wrong build context would put others there).
+if ((${#executables[@]})); then
+  names=(canbridge canbridge-sim canbridge-link-emulator)
+  for i in 0 1 2; do
+    strip -o "$work/expected-${names[i]}" "${executables[i]}"
+    if cmp -s "$work/expected-${names[i]}" "$rootfs/usr/local/bin/${names[i]}"; then
+      echo "${names[i]}: the stripped ${executables[i]}"
+    else
+      fail "/usr/local/bin/${names[i]} is not the stripped ${executables[i]}"
+    fi
+  done
+fi
 for f in gateway.yaml surface.yaml bench/gateway.yaml bench/surface.yaml \
   rigs/demo.yaml rigs/lab_instrument.yaml rigs/tool_string.yaml; do
   [[ -f $rootfs/etc/canbridge/$f ]] || fail "/etc/canbridge/$f is missing"
