@@ -68,7 +68,7 @@ TEST(EnvelopeCodec, PayloadEnvelopesParseAsWritten) {
     std::string payload(size, '\0');
     for (std::size_t i = 0; i < size; ++i) payload[i] = static_cast<char>(i * 13 + 1);
     for (const EnvelopeHeader& h : headers) {
-      SCOPED_TRACE(testing::Message() << "size " << size << " seq " << h.seq << " ack " << h.ack);
+      SCOPED_TRACE(::testing::Message() << "size " << size << " seq " << h.seq << " ack " << h.ack);
       std::string out = "x";  // appends: what was there stays
       append_payload_envelope(out, h, bytes_of(payload));
       ASSERT_EQ(out.front(), 'x');

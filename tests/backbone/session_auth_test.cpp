@@ -15,6 +15,7 @@
 #include "backbone/delimited_codec.hpp"
 #include "backbone/envelope_codec.hpp"
 #include "backbone/session_core.hpp"
+#include "tests/backbone/session_core_payloads.hpp"
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
 
@@ -23,6 +24,10 @@ namespace {
 
 using namespace std::chrono_literals;
 using TimePoint = SessionCore::TimePoint;
+using testing::bytes_of;
+using testing::number;
+using testing::range;
+using testing::split;
 
 PreSharedKey test_key(std::uint8_t seed) {
   std::array<std::uint8_t, kPreSharedKeySize> b{};
@@ -30,27 +35,8 @@ PreSharedKey test_key(std::uint8_t seed) {
   return PreSharedKey(b);
 }
 
-std::string number(std::uint64_t n) {
-  std::string s(8, '\0');
-  std::memcpy(s.data(), &n, 8);
-  return s;
-}
-
-std::span<const std::uint8_t> bytes_of(const std::string& s) {
-  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
-}
-
-std::vector<std::string> split(const std::string& delimited) {
-  std::vector<std::string> messages;
-  DelimitedDecoder decoder;
-  decoder.feed(bytes_of(delimited), [&](std::span<const std::uint8_t> m) {
-    messages.emplace_back(reinterpret_cast<const char*>(m.data()), m.size());
-  });
-  return messages;
-}
-
 // Records what the core asks of its link; counts binds (an unproven peer must never get one).
-class FakeShell final : public SessionShell {
+class BindCountingShell final : public SessionShell {
  public:
   void wake_writer() override {}
   void close_link(std::error_code reason) override {
@@ -75,8 +61,8 @@ struct AuthKeys {
   std::string peer;
 };
 
-struct End {
-  End(std::string name, v1::Hello::Role role) : stream(options, handlers()) {
+struct AuthEnd {
+  AuthEnd(std::string name, v1::Hello::Role role) : stream(options, handlers()) {
     options.keepalive_interval = 100ms;
     options.dead_after = 1000ms;
     options.retransmit_timeout = 400ms;
@@ -120,7 +106,7 @@ struct End {
 
   void open_link(TimePoint now, bool crc_framed) {
     if (core) core->on_link_closed(core->ready(), "replaced");
-    shell = FakeShell{};
+    shell = BindCountingShell{};
     shell.bind_to = &stream;
     const bool gateway = identity.role == v1::Hello::ROLE_GATEWAY;
     core.emplace(identity, options, gateway ? &stream : nullptr, counters, log, shell,
@@ -135,7 +121,7 @@ struct End {
   SessionIdentity identity;
   SessionCounters counters;
   SessionLogMemory log;
-  FakeShell shell;
+  BindCountingShell shell;
   PeerStream stream;
   std::optional<SessionCore> core;
   std::deque<std::uint64_t> to_send;
@@ -153,7 +139,7 @@ class SessionAuthTest : public ::testing::Test {
     surface.authenticate({{test_key(1)}, "surface", "gw"});
   }
 
-  bool transfer(End& from, End& to, const Wire& wire) {
+  bool transfer(AuthEnd& from, AuthEnd& to, const Wire& wire) {
     if (from.shell.closed || to.shell.closed) return false;
     std::string out;
     from.core->fill(out, now);
@@ -179,8 +165,8 @@ class SessionAuthTest : public ::testing::Test {
   void advance(std::chrono::steady_clock::duration d) {
     const TimePoint end = now + d;
     for (;;) {
-      End* due = nullptr;
-      for (End* e : {&gateway, &surface}) {
+      AuthEnd* due = nullptr;
+      for (AuthEnd* e : {&gateway, &surface}) {
         if (e->shell.closed) continue;
         if (!due || e->core->next_deadline() < due->core->next_deadline()) due = e;
       }
@@ -212,19 +198,13 @@ class SessionAuthTest : public ::testing::Test {
   static bool is_sealed(const std::string& m) { return m.size() > 20 && m[0] == 0; }
 
   TimePoint now = TimePoint{} + 1h;
-  End gateway{"gw", v1::Hello::ROLE_GATEWAY};
-  End surface{"surface", v1::Hello::ROLE_SURFACE};
+  AuthEnd gateway{"gw", v1::Hello::ROLE_GATEWAY};
+  AuthEnd surface{"surface", v1::Hello::ROLE_SURFACE};
   Wire to_surface;
   Wire to_gateway;
   std::vector<std::string> sent_by_gateway;
   std::vector<std::string> sent_by_surface;
 };
-
-std::vector<std::uint64_t> range(std::uint64_t first, std::uint64_t last) {
-  std::vector<std::uint64_t> v(last - first + 1);
-  std::iota(v.begin(), v.end(), first);
-  return v;
-}
 
 // ------------------------------------------------------------------------------------ handshake
 

@@ -15,12 +15,17 @@
 #include <vector>
 
 #include "backbone/delimited_codec.hpp"
+#include "tests/backbone/session_core_payloads.hpp"
 
 namespace canbridge::backbone {
 namespace {
 
 using namespace std::chrono_literals;
 using TimePoint = SessionCore::TimePoint;
+using testing::bytes_of;
+using testing::number;
+using testing::range;
+using testing::split;
 
 SessionOptions test_options() {
   SessionOptions o;
@@ -30,27 +35,6 @@ SessionOptions test_options() {
   o.resend_buffer_messages = 256;
   o.resend_buffer_bytes = 64 * 1024;
   return o;
-}
-
-std::string number(std::uint64_t n) {
-  std::string s(8, '\0');
-  std::memcpy(s.data(), &n, 8);
-  return s;
-}
-
-// Splits what a core wrote into its envelopes' bytes.
-std::vector<std::string> split(const std::string& delimited) {
-  std::vector<std::string> messages;
-  DelimitedDecoder decoder;
-  decoder.feed({reinterpret_cast<const std::uint8_t*>(delimited.data()), delimited.size()},
-               [&](std::span<const std::uint8_t> m) {
-                 messages.emplace_back(reinterpret_cast<const char*>(m.data()), m.size());
-               });
-  return messages;
-}
-
-std::span<const std::uint8_t> bytes_of(const std::string& s) {
-  return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
 }
 
 // Records what the core asks of its link; binds every accepted hello to `bind_to`.
@@ -237,12 +221,6 @@ class SessionCoreTest : public ::testing::Test {
   End* busy = nullptr;    // handles input and writes, but is never ticked (one long read)
   std::vector<std::vector<std::uint8_t>> held;
 };
-
-std::vector<std::uint64_t> range(std::uint64_t first, std::uint64_t last) {
-  std::vector<std::uint64_t> v;
-  for (std::uint64_t n = first; n <= last; ++n) v.push_back(n);
-  return v;
-}
 
 // ------------------------------------------------------------------------------------ handshake
 

@@ -1,11 +1,8 @@
 #include "backbone/stream_link.hpp"
 
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <netinet/tcp.h>
 #include <spdlog/sinks/ostream_sink.h>
 #include <spdlog/spdlog.h>
-#include <sys/socket.h>
 
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
@@ -30,14 +27,8 @@ using testing::Inbox;
 using testing::numbered;
 using testing::Outbox;
 using testing::run_until;
+using testing::tcp_nodelay;
 using testing::to_string;
-
-int tcp_nodelay(int fd) {
-  int value = 0;
-  socklen_t length = sizeof value;
-  EXPECT_EQ(::getsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &value, &length), 0);
-  return value;
-}
 
 class StreamLinkTest : public ::testing::Test {
  protected:

@@ -1,7 +1,4 @@
 #include <gtest/gtest.h>
-#include <netinet/in.h>
-#include <netinet/tcp.h>
-#include <sys/socket.h>
 
 #include "backbone/tcp_client.hpp"
 #include "backbone/tcp_server.hpp"
@@ -14,14 +11,8 @@ namespace asio = boost::asio;
 using namespace std::chrono_literals;
 using testing::bytes;
 using testing::run_until;
+using testing::tcp_nodelay;
 using testing::to_string;
-
-int tcp_nodelay(int fd) {
-  int value = 0;
-  socklen_t length = sizeof value;
-  EXPECT_EQ(::getsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &value, &length), 0);
-  return value;
-}
 
 ClientOptions fast_client() {
   ClientOptions options;

@@ -1,5 +1,11 @@
-// Helpers for backbone tests: drive one io_context until a condition holds, never by sleeping.
+// Helpers for backbone tests: drive one io_context until a condition holds, never by sleeping,
+// and look at the sockets it made.
 #pragma once
+
+#include <gtest/gtest.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sys/socket.h>
 
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -14,15 +20,8 @@ namespace canbridge::backbone::testing {
 
 using namespace std::chrono_literals;
 
+using canbridge::test::drains_within;
 using canbridge::test::run_until;
-
-// Runs the io_context until it has no work left; true if that happened within `timeout`, i.e.
-// nothing was left pending.
-inline bool drains_within(boost::asio::io_context& io, std::chrono::milliseconds timeout) {
-  io.restart();
-  io.run_for(timeout);
-  return io.stopped();
-}
 
 inline std::span<const std::uint8_t> bytes(const std::string& s) {
   return {reinterpret_cast<const std::uint8_t*>(s.data()), s.size()};
@@ -52,6 +51,14 @@ inline std::uint16_t unused_port(boost::asio::io_context& io) {
   using boost::asio::ip::tcp;
   tcp::acceptor acceptor(io, tcp::endpoint(boost::asio::ip::address_v4::loopback(), 0));
   return acceptor.local_endpoint().port();
+}
+
+// The TCP_NODELAY option of socket `fd` (nonzero: set).
+inline int tcp_nodelay(int fd) {
+  int value = 0;
+  socklen_t length = sizeof value;
+  EXPECT_EQ(::getsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &value, &length), 0);
+  return value;
 }
 
 }  // namespace canbridge::backbone::testing

@@ -33,6 +33,7 @@ using asio::ip::tcp;
 using namespace std::chrono_literals;
 
 using test::BusRecorder;
+using test::drains_within;
 using test::run_until;
 
 // Raw peers never send keepalives: a generous dead-link timeout keeps the role under test from
@@ -148,13 +149,6 @@ v1::Envelope data(std::uint64_t seq, const std::string& payload) {
   return e;
 }
 
-// Runs the loop until it has no work left: proves the roles left nothing pending after stop().
-bool drains(asio::io_context& io) {
-  io.restart();
-  io.run_for(2s);
-  return io.stopped();
-}
-
 // A surface on a virtual bus with a TcpServer; raw sockets connect to it as gateways.
 class SurfaceBadInput : public ::testing::Test {
  protected:
@@ -167,7 +161,7 @@ class SurfaceBadInput : public ::testing::Test {
     surface.stop();
     observer.close();
     EXPECT_TRUE(run_until(io, [&] { return observer.done(); }));
-    EXPECT_TRUE(drains(io));
+    EXPECT_TRUE(drains_within(io, 2s));
   }
   RawPeer connect() {
     tcp::socket s(io);
@@ -446,7 +440,7 @@ TEST(GatewayBadInput, GarbageFromTheSurfaceDropsTheLinkAndTheGatewayReconnects) 
   node.close();
   EXPECT_TRUE(run_until(io, [&] { return node.done(); }));
   acceptor.close();
-  EXPECT_TRUE(drains(io));
+  EXPECT_TRUE(drains_within(io, 2s));
 }
 
 // Protocol 2.6 sends FrameBatch.head_runs only to a peer that says it decodes them: a raw surface
@@ -534,7 +528,7 @@ void gateway_talks_to_a_surface_at_minor(std::uint32_t minor) {
   node.close();
   EXPECT_TRUE(run_until(io, [&] { return node.done(); }));
   acceptor.close();
-  EXPECT_TRUE(drains(io));
+  EXPECT_TRUE(drains_within(io, 2s));
 }
 
 TEST(GatewayHeadRuns, ASurfaceAtProtocol2_5GetsThePlainFormAndIsStillDecoded) {

@@ -12,7 +12,7 @@
 namespace canbridge::bridge {
 namespace {
 
-using Lane = BusWriteQueue::Lane;
+using QueueLane = BusWriteQueue::Lane;
 using Drop = BusWriteQueue::Drop;
 
 can::Frame sdo(std::uint32_t seq) {
@@ -31,7 +31,7 @@ std::uint64_t dropped(const BusWriteQueue& q, Drop reason) {
 TEST(BusWriteQueue, WritesAtOnceWhileNothingWaitsAndTheBusHasRoom) {
   BusWriteQueue q({});
   std::vector<can::Frame> now;
-  EXPECT_TRUE(q.offer(std::vector{sdo(1)}, Lane::reliable, 1, now));
+  EXPECT_TRUE(q.offer(std::vector{sdo(1)}, QueueLane::reliable, 1, now));
   ASSERT_EQ(now.size(), 1u);
   EXPECT_EQ(now[0], sdo(1));
   EXPECT_TRUE(q.empty());
@@ -42,10 +42,10 @@ TEST(BusWriteQueue, WritesAtOnceWhileNothingWaitsAndTheBusHasRoom) {
 TEST(BusWriteQueue, OnceAFrameWaitsEveryLaterFrameWaitsBehindIt) {
   BusWriteQueue q({});
   std::vector<can::Frame> now;
-  EXPECT_TRUE(q.offer(std::vector{sdo(1)}, Lane::reliable, 0, now));  // no room: waits
+  EXPECT_TRUE(q.offer(std::vector{sdo(1)}, QueueLane::reliable, 0, now));  // no room: waits
   // The bus has room again, but sdo(1) has not been written yet: sdo(2) must not pass it.
-  EXPECT_TRUE(q.offer(std::vector{sdo(2)}, Lane::reliable, 10, now));
-  EXPECT_TRUE(q.offer(std::vector{pdo(3)}, Lane::process_data, 10, now));
+  EXPECT_TRUE(q.offer(std::vector{sdo(2)}, QueueLane::reliable, 10, now));
+  EXPECT_TRUE(q.offer(std::vector{pdo(3)}, QueueLane::process_data, 10, now));
   EXPECT_TRUE(now.empty());
   EXPECT_EQ(q.waiting(), 3u);
   EXPECT_EQ(q.head_frames(), 1u);
@@ -64,9 +64,9 @@ TEST(BusWriteQueue, AUnitGoesWholeAndNothingBehindItOvertakesIt) {
   BusWriteQueue q({});
   std::vector<can::Frame> now;
   const std::vector packet{pdo(1), pdo(2), pdo(3)};
-  EXPECT_TRUE(q.offer(packet, Lane::reliable, 2, now));  // 2 free slots: not enough, waits
+  EXPECT_TRUE(q.offer(packet, QueueLane::reliable, 2, now));  // 2 free slots: not enough, waits
   EXPECT_TRUE(now.empty());
-  EXPECT_TRUE(q.offer(std::vector{sdo(4)}, Lane::reliable, 2, now));
+  EXPECT_TRUE(q.offer(std::vector{sdo(4)}, QueueLane::reliable, 2, now));
   EXPECT_EQ(q.head_frames(), 3u);
   std::vector<can::Frame> out;
   q.take(2, out);  // sdo(4) would fit, but the packet ahead of it does not
@@ -83,10 +83,10 @@ TEST(BusWriteQueue, ReliableFramesAreNeverDroppedProcessDataIsBeyondTheBound) {
   BusWriteQueue q(options);
   std::vector<can::Frame> now;
   for (std::uint32_t i = 0; i < 3; ++i)
-    EXPECT_TRUE(q.offer(std::vector{sdo(i)}, Lane::reliable, 0, now));
-  EXPECT_FALSE(q.offer(std::vector{pdo(9)}, Lane::process_data, 0, now));
+    EXPECT_TRUE(q.offer(std::vector{sdo(i)}, QueueLane::reliable, 0, now));
+  EXPECT_FALSE(q.offer(std::vector{pdo(9)}, QueueLane::process_data, 0, now));
   for (std::uint32_t i = 3; i < 100; ++i) {
-    EXPECT_TRUE(q.offer(std::vector{sdo(i)}, Lane::reliable, 0, now));
+    EXPECT_TRUE(q.offer(std::vector{sdo(i)}, QueueLane::reliable, 0, now));
   }
   EXPECT_EQ(q.waiting(), 100u);
   EXPECT_EQ(dropped(q, Drop::process_data_backlog), 1u);
@@ -102,11 +102,11 @@ TEST(BusWriteQueue, AUnitTheBusCanNeverHoldIsDroppedNotWaitedForever) {
   options.bus_capacity = 2;
   BusWriteQueue q(options);
   std::vector<can::Frame> now;
-  EXPECT_FALSE(q.offer(std::vector{pdo(1), pdo(2), pdo(3)}, Lane::reliable, 2, now));
+  EXPECT_FALSE(q.offer(std::vector{pdo(1), pdo(2), pdo(3)}, QueueLane::reliable, 2, now));
   EXPECT_TRUE(now.empty());
   EXPECT_TRUE(q.empty());
   EXPECT_EQ(dropped(q, Drop::larger_than_bus), 3u);
-  EXPECT_TRUE(q.offer(std::vector{pdo(1), pdo(2)}, Lane::reliable, 2, now));
+  EXPECT_TRUE(q.offer(std::vector{pdo(1), pdo(2)}, QueueLane::reliable, 2, now));
   EXPECT_EQ(now.size(), 2u);
 }
 
@@ -116,9 +116,9 @@ TEST(BusWriteQueue, BacklogTurnsOnAboveTheHighWatermarkAndOffAtTheLow) {
   options.low_watermark = 2;
   BusWriteQueue q(options);
   std::vector<can::Frame> now, out;
-  for (std::uint32_t i = 0; i < 4; ++i) q.offer(std::vector{sdo(i)}, Lane::reliable, 0, now);
+  for (std::uint32_t i = 0; i < 4; ++i) q.offer(std::vector{sdo(i)}, QueueLane::reliable, 0, now);
   EXPECT_FALSE(q.backlogged());  // at the high watermark, not above
-  q.offer(std::vector{sdo(4)}, Lane::reliable, 0, now);
+  q.offer(std::vector{sdo(4)}, QueueLane::reliable, 0, now);
   EXPECT_TRUE(q.backlogged());
   q.take(2, out);  // 3 waiting: still above the low watermark
   EXPECT_TRUE(q.backlogged());
@@ -133,7 +133,7 @@ TEST(BusWriteQueue, ClosingDropsWhatWaitsAndCountsIt) {
   options.low_watermark = 0;
   BusWriteQueue q(options);
   std::vector<can::Frame> now;
-  q.offer(std::vector{sdo(1), sdo(2)}, Lane::reliable, 0, now);
+  q.offer(std::vector{sdo(1), sdo(2)}, QueueLane::reliable, 0, now);
   EXPECT_TRUE(q.backlogged());
   q.clear();
   EXPECT_TRUE(q.empty());
@@ -161,7 +161,7 @@ TEST(BusWriteQueue, NeverReordersUnderRandomRoom) {
         const std::size_t n = 1 + random() % 4;
         for (std::size_t i = 0; i < n; ++i) unit.push_back(reliable ? sdo(seq++) : pdo(seq++));
         batch.clear();
-        if (q.offer(unit, reliable ? Lane::reliable : Lane::process_data, room, batch)) {
+        if (q.offer(unit, reliable ? QueueLane::reliable : QueueLane::process_data, room, batch)) {
           accepted.insert(accepted.end(), unit.begin(), unit.end());
           if (reliable) reliable_offered += n;
         } else {

@@ -16,7 +16,7 @@
 namespace canbridge::bridge {
 namespace {
 
-using Lane = BusWriteQueue::Lane;
+using QueueLane = BusWriteQueue::Lane;
 
 can::Frame emcy(std::uint8_t seq) {
   return can::Frame::standard(0x085, {0x00, 0x10, 0x01, seq});
@@ -53,7 +53,7 @@ class BusWriterTest : public ::testing::Test {
 
 TEST_F(BusWriterTest, FramesWaitForRoomAndGoInOrderAsItAppears) {
   medium.hold(true);
-  for (std::uint8_t i = 0; i < 10; ++i) ASSERT_TRUE(writer.write(emcy(i), Lane::reliable));
+  for (std::uint8_t i = 0; i < 10; ++i) ASSERT_TRUE(writer.write(emcy(i), QueueLane::reliable));
   // Three fit the bus's queue; seven wait, more than the high watermark: backlogged.
   EXPECT_EQ(written.size(), 3u);
   EXPECT_EQ(writer.queue().waiting(), 7u);
@@ -78,9 +78,9 @@ TEST_F(BusWriterTest, FramesWaitForRoomAndGoInOrderAsItAppears) {
 
 TEST_F(BusWriterTest, AFrameOfferedWhileOthersWaitNeverGoesFirst) {
   medium.hold(true);
-  for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(writer.write(emcy(i), Lane::reliable));
+  for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(writer.write(emcy(i), QueueLane::reliable));
   medium.release_held(3);  // room for three, but the writer has not run yet
-  ASSERT_TRUE(writer.write(emcy(4), Lane::reliable));
+  ASSERT_TRUE(writer.write(emcy(4), QueueLane::reliable));
   EXPECT_EQ(written.size(), 3u);  // emcy(4) did not take the room ahead of emcy(3)
   medium.hold(false);
   ASSERT_TRUE(test::run_until(io, [&] { return far.frames.size() == 5; }));
@@ -92,7 +92,7 @@ TEST_F(BusWriterTest, ClosingTheBusEndsTheWriterAndItsOwnerHearsWhy) {
   std::vector<std::string> ends;
   writer.on_end([&](const std::string& why) { ends.push_back(why); });
   medium.hold(true);
-  for (std::uint8_t i = 0; i < 5; ++i) ASSERT_TRUE(writer.write(emcy(i), Lane::reliable));
+  for (std::uint8_t i = 0; i < 5; ++i) ASSERT_TRUE(writer.write(emcy(i), QueueLane::reliable));
   bus->close();
   ASSERT_TRUE(test::run_until(io, [&] { return !ends.empty(); }));
   EXPECT_EQ(ends, (std::vector<std::string>{"the bus closed"}));
@@ -100,7 +100,7 @@ TEST_F(BusWriterTest, ClosingTheBusEndsTheWriterAndItsOwnerHearsWhy) {
 
 TEST_F(BusWriterTest, ClosingTheBusDropsWhatWaitsAndCountsIt) {
   medium.hold(true);
-  for (std::uint8_t i = 0; i < 5; ++i) ASSERT_TRUE(writer.write(emcy(i), Lane::reliable));
+  for (std::uint8_t i = 0; i < 5; ++i) ASSERT_TRUE(writer.write(emcy(i), QueueLane::reliable));
   bus->close();
   ASSERT_TRUE(test::run_until(io, [&] { return writer.queue().empty(); }));
   EXPECT_EQ(
@@ -160,7 +160,7 @@ TEST(BusWriterBackpressure, AStreamOf100000ProcessFramesIntoASlowBusPausesAndDro
         0x185, {static_cast<std::uint8_t>(seq), static_cast<std::uint8_t>(seq >> 8),
                 static_cast<std::uint8_t>(seq >> 16)});
   };
-  ASSERT_EQ(bus_lane_of(tpdo(0)), Lane::process_data);
+  ASSERT_EQ(bus_lane_of(tpdo(0)), QueueLane::process_data);
   std::uint32_t next = 0;
   std::vector<can::Frame> message;
   std::size_t dropped = 0;

@@ -22,7 +22,7 @@ namespace {
 using namespace std::chrono_literals;
 using TimePoint = DeadlineDriver::TimePoint;
 
-const TimePoint t0 = TimePoint{} + 1000s;
+const TimePoint kDriverStart = TimePoint{} + 1000s;
 
 // A core with one deadline; records the `now` of each call and clears its deadline.
 struct FakeCore {
@@ -42,24 +42,24 @@ TEST(DeadlineDriver, CallsOnlyTheDueCoresWithTheSameNowAndReportsTheEarliestLeft
   boost::asio::io_context io;
   DeadlineDriver driver(io.get_executor());
   FakeCore a, b, idle;
-  a.deadline = t0 + 10ms;
-  b.deadline = t0 + 20ms;
+  a.deadline = kDriverStart + 10ms;
+  b.deadline = kDriverStart + 20ms;
   a.add_to(driver, "a");
   b.add_to(driver, "b");
   idle.add_to(driver, "idle");
-  EXPECT_EQ(driver.earliest(), t0 + 10ms);
+  EXPECT_EQ(driver.earliest(), kDriverStart + 10ms);
 
-  EXPECT_EQ(driver.fire_due(t0 + 5ms), t0 + 10ms);  // nothing due yet
+  EXPECT_EQ(driver.fire_due(kDriverStart + 5ms), kDriverStart + 10ms);  // nothing due yet
   EXPECT_TRUE(a.calls.empty());
 
-  EXPECT_EQ(driver.fire_due(t0 + 15ms), t0 + 20ms);
-  EXPECT_EQ(a.calls, std::vector<TimePoint>{t0 + 15ms});
+  EXPECT_EQ(driver.fire_due(kDriverStart + 15ms), kDriverStart + 20ms);
+  EXPECT_EQ(a.calls, std::vector<TimePoint>{kDriverStart + 15ms});
   EXPECT_TRUE(b.calls.empty());
 
-  a.deadline = t0 + 30ms;  // both due at once: one call each, the same now
-  EXPECT_EQ(driver.fire_due(t0 + 40ms), std::nullopt);
-  EXPECT_EQ(a.calls.back(), t0 + 40ms);
-  EXPECT_EQ(b.calls, std::vector<TimePoint>{t0 + 40ms});
+  a.deadline = kDriverStart + 30ms;  // both due at once: one call each, the same now
+  EXPECT_EQ(driver.fire_due(kDriverStart + 40ms), std::nullopt);
+  EXPECT_EQ(a.calls.back(), kDriverStart + 40ms);
+  EXPECT_EQ(b.calls, std::vector<TimePoint>{kDriverStart + 40ms});
   EXPECT_TRUE(idle.calls.empty());
   EXPECT_EQ(driver.counters().deadlines, 3u);
 }
@@ -68,11 +68,11 @@ TEST(DeadlineDriver, ADeadlineExactlyAtNowIsDue) {
   boost::asio::io_context io;
   DeadlineDriver driver(io.get_executor());
   FakeCore a;
-  a.deadline = t0;
+  a.deadline = kDriverStart;
   a.add_to(driver, "a");
-  driver.fire_due(t0 - 1ns);
+  driver.fire_due(kDriverStart - 1ns);
   EXPECT_TRUE(a.calls.empty());
-  driver.fire_due(t0);
+  driver.fire_due(kDriverStart);
   EXPECT_EQ(a.calls.size(), 1u);
 }
 

@@ -55,7 +55,7 @@ using TimePoint = PdopReassembler::TimePoint;
 using Bytes = std::vector<std::uint8_t>;
 namespace pdop = canopen::pdop;
 
-const TimePoint t0 = TimePoint{} + 1000s;
+const TimePoint kReassemblyStart = TimePoint{} + 1000s;
 
 struct Got {
   bool packet = false;
@@ -118,10 +118,10 @@ Frame fragment_frame(unsigned tpdo, unsigned node, bool t, bool c, const Bytes& 
   return Frame::from_span(pdop::encode(id), data);
 }
 
-struct Rig {
-  explicit Rig(PdopReassemblerOptions options = {}) : r(options) {}
+struct ReassemblerRig {
+  explicit ReassemblerRig(PdopReassemblerOptions options = {}) : r(options) {}
   // Feeds the frames 1 ms apart from `at`; returns what came out.
-  std::vector<Got> feed(const std::vector<Frame>& frames, TimePoint at = t0,
+  std::vector<Got> feed(const std::vector<Frame>& frames, TimePoint at = kReassemblyStart,
                         std::chrono::microseconds step = 1ms) {
     for (const Frame& f : frames) {
       EXPECT_TRUE(r.on_frame(f, at, sink)) << can::to_string(f);
@@ -197,23 +197,23 @@ TEST(PdopReassemblerOptions, RangesAreValidatedNamingTheField) {
 
 TEST(PdopReassembler, TheDocsTwentyByteExampleIsOnePacket) {
   // docs/pdop.md section 6: 1A5#0001020304050607, 1E5#08090A0B0C0D0E0F, 185#10111213.
-  Rig rig;
+  ReassemblerRig rig;
   const std::vector<Frame> frames{Frame::standard(0x1A5, {0, 1, 2, 3, 4, 5, 6, 7}),
                                   Frame::standard(0x1E5, {8, 9, 10, 11, 12, 13, 14, 15}),
                                   Frame::standard(0x185, {16, 17, 18, 19})};
   ASSERT_EQ(frames, fragments(1, 5, counting(20)));
-  rig.r.on_frame(frames[0], t0, rig.sink);
+  rig.r.on_frame(frames[0], kReassemblyStart, rig.sink);
   EXPECT_EQ(rig.r.state(5, 1), State::assembling);
   EXPECT_EQ(rig.r.assembling(), 1u);
   EXPECT_EQ(rig.r.pending_fragments(), 1u);
-  rig.r.on_frame(frames[1], t0 + 1ms, rig.sink);
+  rig.r.on_frame(frames[1], kReassemblyStart + 1ms, rig.sink);
   EXPECT_TRUE(rig.sink.got.empty());
-  rig.r.on_frame(frames[2], t0 + 2ms, rig.sink);
+  rig.r.on_frame(frames[2], kReassemblyStart + 2ms, rig.sink);
   const auto got = rig.sink.take();
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 5, 1, counting(20));
-  EXPECT_EQ(got[0].first, t0);
-  EXPECT_EQ(got[0].last, t0 + 2ms);
+  EXPECT_EQ(got[0].first, kReassemblyStart);
+  EXPECT_EQ(got[0].last, kReassemblyStart + 2ms);
   EXPECT_EQ(rig.r.state(5, 1), State::idle);
   EXPECT_EQ(rig.r.next_deadline(), std::nullopt);
   const auto& c = rig.r.counters();
@@ -227,7 +227,7 @@ TEST(PdopReassembler, TheDocsTwentyByteExampleIsOnePacket) {
 }
 
 TEST(PdopReassembler, APlainPdoIsAOneFramePacket) {
-  Rig rig;
+  ReassemblerRig rig;
   auto got = rig.feed({Frame::standard(0x185, {0xAA, 0xBB, 0xCC})});
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 5, 1, {0xAA, 0xBB, 0xCC});
@@ -244,7 +244,7 @@ TEST(PdopReassembler, APlainPdoIsAOneFramePacket) {
 TEST(PdopReassembler, PacketsOfEverySizeUpToTheLimitArriveBitExact) {
   PdopReassemblerOptions o;
   o.max_packet_bytes = 70;
-  Rig rig(o);
+  ReassemblerRig rig(o);
   for (std::size_t size = 1; size <= 70; ++size) {
     const Bytes data = counting(size, static_cast<std::uint8_t>(size));
     const auto got = rig.feed(fragments(3, 9, data));
@@ -255,7 +255,7 @@ TEST(PdopReassembler, PacketsOfEverySizeUpToTheLimitArriveBitExact) {
 }
 
 TEST(PdopReassembler, EdgeNodeIds1And31OnTpdo1And4) {
-  Rig rig;
+  ReassemblerRig rig;
   for (unsigned node : {1u, 31u}) {
     for (unsigned tpdo : {1u, 4u}) {
       const Bytes data = counting(17, static_cast<std::uint8_t>(node + tpdo));
@@ -274,7 +274,7 @@ TEST(PdopReassembler, EdgeNodeIds1And31OnTpdo1And4) {
 }
 
 TEST(PdopReassembler, StreamsOfNodesAndTpdosInterleaveFreely) {
-  Rig rig;
+  ReassemblerRig rig;
   const Bytes a = counting(40, 0x10), b = counting(33, 0x40), c = counting(9, 0x80),
               d = counting(8, 0xC0);
   const auto fa = fragments(1, 3, a), fb = fragments(2, 3, b), fc = fragments(1, 4, c),
@@ -296,9 +296,9 @@ TEST(PdopReassembler, StreamsOfNodesAndTpdosInterleaveFreely) {
 }
 
 TEST(PdopReassembler, FramesThatAreNoFragmentsAreIgnored) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(1, 5, counting(20));
-  rig.r.on_frame(frames[0], t0, rig.sink);
+  rig.r.on_frame(frames[0], kReassemblyStart, rig.sink);
   const std::vector<Frame> others{
       Frame::standard(0x000, {0x01, 0x00}),                    // NMT
       Frame::standard(0x080, {}),                              // SYNC
@@ -318,15 +318,15 @@ TEST(PdopReassembler, FramesThatAreNoFragmentsAreIgnored) {
       Frame::standard(0x7E5, {0x04, 1}),  // LSS
   };
   for (const Frame& f : others) {
-    EXPECT_FALSE(rig.r.on_frame(f, t0 + 1ms, rig.sink)) << can::to_string(f);
+    EXPECT_FALSE(rig.r.on_frame(f, kReassemblyStart + 1ms, rig.sink)) << can::to_string(f);
   }
   Frame too_long = frames[1];
   too_long.len = 9;  // no classic CAN frame
-  EXPECT_FALSE(rig.r.on_frame(too_long, t0 + 1ms, rig.sink));
+  EXPECT_FALSE(rig.r.on_frame(too_long, kReassemblyStart + 1ms, rig.sink));
   EXPECT_TRUE(rig.sink.got.empty());
   EXPECT_EQ(rig.r.counters().frames, 1u);
-  rig.r.on_frame(frames[1], t0 + 2ms, rig.sink);
-  rig.r.on_frame(frames[2], t0 + 3ms, rig.sink);
+  rig.r.on_frame(frames[1], kReassemblyStart + 2ms, rig.sink);
+  rig.r.on_frame(frames[2], kReassemblyStart + 3ms, rig.sink);
   const auto got = rig.sink.take();
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 5, 1, counting(20));
@@ -335,15 +335,15 @@ TEST(PdopReassembler, FramesThatAreNoFragmentsAreIgnored) {
 // --- discards --------------------------------------------------------------------------------
 
 TEST(PdopReassembler, ALostMiddleFragmentDiscardsAndResynchronisesAtTheLastFragment) {
-  Rig rig;
+  ReassemblerRig rig;
   auto frames = fragments(2, 7, counting(40));  // 5 fragments
   frames.erase(frames.begin() + 2);             // k = 2 lost: k = 3 has t = 1, expected 0
   auto got = rig.feed({frames[0], frames[1], frames[2]});
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 7, 2, Reason::missing_fragment, 2);
-  EXPECT_EQ(got[0].discard.at, t0 + 2ms);
-  EXPECT_EQ(got[0].discard.first, t0);
-  EXPECT_EQ(got[0].discard.last, t0 + 1ms);
+  EXPECT_EQ(got[0].discard.at, kReassemblyStart + 2ms);
+  EXPECT_EQ(got[0].discard.first, kReassemblyStart);
+  EXPECT_EQ(got[0].discard.last, kReassemblyStart + 1ms);
   EXPECT_EQ(rig.r.state(7, 2), State::resynchronising);
   EXPECT_EQ(rig.r.next_deadline(), std::nullopt);  // no timer while resynchronising
   got = rig.feed({frames[3]});                     // the last fragment ends the broken packet
@@ -362,12 +362,12 @@ TEST(PdopReassembler, ALostMiddleFragmentDiscardsAndResynchronisesAtTheLastFragm
 }
 
 TEST(PdopReassembler, ALostFirstFragmentIsAMissingFragmentWithNothingOpen) {
-  Rig rig;
+  ReassemblerRig rig;
   auto frames = fragments(1, 5, counting(30));  // 4 fragments
   auto got = rig.feed({frames[1]});             // t = 1 while idle
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 5, 1, Reason::missing_fragment, 0);
-  EXPECT_EQ(got[0].discard.first, t0);
+  EXPECT_EQ(got[0].discard.first, kReassemblyStart);
   EXPECT_EQ(rig.r.state(5, 1), State::resynchronising);
   EXPECT_TRUE(rig.feed({frames[2], frames[3]}).empty());
   EXPECT_EQ(rig.r.state(5, 1), State::idle);
@@ -380,7 +380,7 @@ TEST(PdopReassembler, ALostFirstFragmentIsAMissingFragmentWithNothingOpen) {
 }
 
 TEST(PdopReassembler, ALostLastFragmentAfterAnOddCountCostsTheNextPacketToo) {
-  Rig rig;
+  ReassemblerRig rig;
   auto two = fragments(1, 5, counting(16));  // 2 fragments
   two.pop_back();                            // 1 accepted: t = 1 expected next
   const auto next = fragments(1, 5, counting(20, 0x60));
@@ -398,7 +398,7 @@ TEST(PdopReassembler, ALostLastFragmentAfterAnOddCountCostsTheNextPacketToo) {
 }
 
 TEST(PdopReassembler, ARepeatedFragmentIsADuplicate) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(3, 12, counting(30));  // 4 fragments
   auto got = rig.feed({frames[0], frames[1], frames[1]});
   ASSERT_EQ(got.size(), 1u);
@@ -414,7 +414,7 @@ TEST(PdopReassembler, ARepeatedFragmentIsADuplicate) {
 }
 
 TEST(PdopReassembler, ARepeatedLastFragmentWithToggle1IsReportedAndCostsNothing) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(1, 2, counting(16));  // 2 fragments: the last has t = 1
   auto got = rig.feed({frames[0], frames[1], frames[1]});
   ASSERT_EQ(got.size(), 2u);
@@ -427,7 +427,7 @@ TEST(PdopReassembler, ARepeatedLastFragmentWithToggle1IsReportedAndCostsNothing)
 }
 
 TEST(PdopReassembler, AToggleErrorThatRepeatsNoFragmentIsAMissingFragment) {
-  Rig rig;
+  ReassemblerRig rig;
   // Same toggle as the last accepted fragment, other bytes: a lost fragment in between.
   auto got = rig.feed({fragment_frame(1, 2, false, true, counting(8)),
                        fragment_frame(1, 2, false, true, counting(8, 1))});
@@ -446,63 +446,65 @@ TEST(PdopReassembler, AToggleErrorThatRepeatsNoFragmentIsAMissingFragment) {
 }
 
 TEST(PdopReassembler, TheTimerReportsATimeoutExactlyAtTheDeadline) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(4, 20, counting(24));  // 3 fragments
-  rig.feed({frames[0], frames[1]}, t0, 10ms);          // last accepted at t0 + 10 ms
-  ASSERT_EQ(rig.r.next_deadline(), t0 + 110ms);
-  EXPECT_TRUE(rig.tick(t0 + 110ms - 1ns).empty());
+  rig.feed({frames[0], frames[1]}, kReassemblyStart,
+           10ms);  // last accepted at kReassemblyStart + 10 ms
+  ASSERT_EQ(rig.r.next_deadline(), kReassemblyStart + 110ms);
+  EXPECT_TRUE(rig.tick(kReassemblyStart + 110ms - 1ns).empty());
   EXPECT_EQ(rig.r.state(20, 4), State::assembling);
-  const auto got = rig.tick(t0 + 110ms);
+  const auto got = rig.tick(kReassemblyStart + 110ms);
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 20, 4, Reason::timeout, 2);
-  EXPECT_EQ(got[0].discard.first, t0);
-  EXPECT_EQ(got[0].discard.last, t0 + 10ms);
-  EXPECT_EQ(got[0].discard.at, t0 + 110ms);
+  EXPECT_EQ(got[0].discard.first, kReassemblyStart);
+  EXPECT_EQ(got[0].discard.last, kReassemblyStart + 10ms);
+  EXPECT_EQ(got[0].discard.at, kReassemblyStart + 110ms);
   EXPECT_EQ(rig.r.next_deadline(), std::nullopt);
   EXPECT_EQ(rig.r.state(20, 4), State::resynchronising);
   // The late last fragment is dropped and ends the broken packet.
-  EXPECT_TRUE(rig.feed({frames[2]}, t0 + 120ms).empty());
+  EXPECT_TRUE(rig.feed({frames[2]}, kReassemblyStart + 120ms).empty());
   EXPECT_EQ(rig.r.state(20, 4), State::idle);
   EXPECT_EQ(rig.r.counters().discarded(Reason::timeout), 1u);
   rig.expect_accounted();
 }
 
 TEST(PdopReassembler, AFragmentArrivingExactlyAtTheDeadlineIsLate) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(1, 3, counting(24));
-  rig.feed({frames[0]}, t0);
-  auto got = rig.feed({frames[1]}, t0 + 100ms - 1ns);  // just in time
+  rig.feed({frames[0]}, kReassemblyStart);
+  auto got = rig.feed({frames[1]}, kReassemblyStart + 100ms - 1ns);  // just in time
   EXPECT_TRUE(got.empty());
-  got = rig.feed({frames[2]}, t0 + 200ms - 2ns);  // the deadline moved with frames[1]
+  got = rig.feed({frames[2]}, kReassemblyStart + 200ms - 2ns);  // the deadline moved with frames[1]
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 3, 1, counting(24));
 
-  rig.feed({frames[0]}, t0 + 1s);
-  got = rig.feed({frames[1]}, t0 + 1s + 100ms);  // exactly at the deadline, no tick before
+  rig.feed({frames[0]}, kReassemblyStart + 1s);
+  got = rig.feed({frames[1]},
+                 kReassemblyStart + 1s + 100ms);  // exactly at the deadline, no tick before
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 3, 1, Reason::timeout, 1);
-  EXPECT_EQ(got[0].discard.at, t0 + 1s + 100ms);
+  EXPECT_EQ(got[0].discard.at, kReassemblyStart + 1s + 100ms);
   EXPECT_EQ(rig.r.state(3, 1), State::resynchronising);  // frames[1] has c = 1: dropped
-  EXPECT_TRUE(rig.feed({frames[2]}, t0 + 1s + 101ms).empty());
+  EXPECT_TRUE(rig.feed({frames[2]}, kReassemblyStart + 1s + 101ms).empty());
   EXPECT_EQ(rig.r.state(3, 1), State::idle);
 }
 
 TEST(PdopReassembler, NextDeadlineIsTheEarliestOfAllOpenPackets) {
   PdopReassemblerOptions o;
   o.fragment_timeout = 50ms;
-  Rig rig(o);
+  ReassemblerRig rig(o);
   EXPECT_EQ(rig.r.next_deadline(), std::nullopt);
-  rig.r.on_frame(fragments(1, 31, counting(16))[0], t0 + 5ms, rig.sink);
-  rig.r.on_frame(fragments(4, 1, counting(16))[0], t0 + 3ms, rig.sink);
-  rig.r.on_frame(fragments(2, 16, counting(16))[0], t0 + 9ms, rig.sink);
-  EXPECT_EQ(rig.r.next_deadline(), t0 + 53ms);
+  rig.r.on_frame(fragments(1, 31, counting(16))[0], kReassemblyStart + 5ms, rig.sink);
+  rig.r.on_frame(fragments(4, 1, counting(16))[0], kReassemblyStart + 3ms, rig.sink);
+  rig.r.on_frame(fragments(2, 16, counting(16))[0], kReassemblyStart + 9ms, rig.sink);
+  EXPECT_EQ(rig.r.next_deadline(), kReassemblyStart + 53ms);
   EXPECT_EQ(rig.r.assembling(), 3u);
-  auto got = rig.tick(t0 + 55ms);  // two are late, reported by node then TPDO
+  auto got = rig.tick(kReassemblyStart + 55ms);  // two are late, reported by node then TPDO
   ASSERT_EQ(got.size(), 2u);
   expect_discard(got[0], 1, 4, Reason::timeout, 1);
   expect_discard(got[1], 31, 1, Reason::timeout, 1);
-  EXPECT_EQ(rig.r.next_deadline(), t0 + 59ms);
-  got = rig.tick(t0 + 59ms);
+  EXPECT_EQ(rig.r.next_deadline(), kReassemblyStart + 59ms);
+  got = rig.tick(kReassemblyStart + 59ms);
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 16, 2, Reason::timeout, 1);
   EXPECT_EQ(rig.r.next_deadline(), std::nullopt);
@@ -512,7 +514,7 @@ TEST(PdopReassembler, NextDeadlineIsTheEarliestOfAllOpenPackets) {
 TEST(PdopReassembler, GrowingPastMaxPacketBytesIsOversize) {
   PdopReassemblerOptions o;
   o.max_packet_bytes = 20;
-  Rig rig(o);
+  ReassemblerRig rig(o);
   auto got = rig.feed(fragments(1, 5, counting(20)));  // exactly the limit
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 5, 1, counting(20));
@@ -536,7 +538,7 @@ TEST(PdopReassembler, GrowingPastMaxPacketBytesIsOversize) {
 TEST(PdopReassembler, AOneByteLimitTakesOnlyOneBytePackets) {
   PdopReassemblerOptions o;
   o.max_packet_bytes = 1;
-  Rig rig(o);
+  ReassemblerRig rig(o);
   auto got = rig.feed({Frame::standard(0x185, {9}), Frame::standard(0x185, {9, 9})});
   ASSERT_EQ(got.size(), 2u);
   expect_packet(got[0], 5, 1, {9});
@@ -548,7 +550,7 @@ TEST(PdopReassembler, AOneByteLimitTakesOnlyOneBytePackets) {
 }
 
 TEST(PdopReassembler, ANonFinalFragmentShorterThan8BytesIsShort) {
-  Rig rig;
+  ReassemblerRig rig;
   auto got = rig.feed({fragment_frame(2, 4, false, true, counting(8)),
                        fragment_frame(2, 4, true, true, counting(7))});
   ASSERT_EQ(got.size(), 1u);
@@ -563,7 +565,7 @@ TEST(PdopReassembler, ANonFinalFragmentShorterThan8BytesIsShort) {
 }
 
 TEST(PdopReassembler, AZeroLengthFrameWithC0IsAnEmptyFrame) {
-  Rig rig;
+  ReassemblerRig rig;
   auto got = rig.feed({Frame::standard(0x185, {})});  // a DLC 0 plain PDO: not a packet
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 5, 1, Reason::empty_frame, 0);
@@ -581,39 +583,39 @@ TEST(PdopReassembler, AZeroLengthFrameWithC0IsAnEmptyFrame) {
 }
 
 TEST(PdopReassembler, ANodeRestartDiscardsItsOpenPacketsAndEndsResynchronisation) {
-  Rig rig;
+  ReassemblerRig rig;
   rig.feed({fragment_frame(1, 6, false, true, counting(8)),
             fragment_frame(3, 6, true, true, counting(8)),  // TPDO3: now resynchronising
             fragment_frame(2, 7, false, true, counting(8))});
   rig.sink.take();
   ASSERT_EQ(rig.r.state(6, 3), State::resynchronising);
-  rig.r.on_node_restart(6, t0 + 10ms, rig.sink);
+  rig.r.on_node_restart(6, kReassemblyStart + 10ms, rig.sink);
   auto got = rig.sink.take();
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 6, 1, Reason::node_restart, 1);
   EXPECT_EQ(rig.r.state(6, 1), State::idle);
   EXPECT_EQ(rig.r.state(6, 3), State::idle);
   EXPECT_EQ(rig.r.state(7, 2), State::assembling);  // another node: untouched
-  got = rig.feed(fragments(3, 6, counting(9)), t0 + 20ms);
+  got = rig.feed(fragments(3, 6, counting(9)), kReassemblyStart + 20ms);
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 6, 3, counting(9));
   // Already past its deadline: that is a timeout, as the next fragment would have found.
-  rig.r.on_node_restart(7, t0 + 1s, rig.sink);
+  rig.r.on_node_restart(7, kReassemblyStart + 1s, rig.sink);
   got = rig.sink.take();
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 7, 2, Reason::timeout, 1);
-  rig.r.on_node_restart(0, t0 + 1s, rig.sink);   // out of range: nothing
-  rig.r.on_node_restart(32, t0 + 1s, rig.sink);  // out of range: nothing
+  rig.r.on_node_restart(0, kReassemblyStart + 1s, rig.sink);   // out of range: nothing
+  rig.r.on_node_restart(32, kReassemblyStart + 1s, rig.sink);  // out of range: nothing
   EXPECT_TRUE(rig.sink.got.empty());
 }
 
 TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
-  Rig rig;
+  ReassemblerRig rig;
   // Node 6 TPDO1 has two fragments (t = 0, 1) open; node 7 TPDO2 is idle.
   rig.feed({fragment_frame(1, 6, false, true, counting(8)),
             fragment_frame(1, 6, true, true, counting(8))});
   ASSERT_EQ(rig.r.state(6, 1), State::assembling);
-  rig.r.on_frames_lost(t0 + 5ms, rig.sink);
+  rig.r.on_frames_lost(kReassemblyStart + 5ms, rig.sink);
   auto got = rig.sink.take();
   ASSERT_EQ(got.size(), 1u);  // only the open packet is reported
   expect_discard(got[0], 6, 1, Reason::frames_lost, 2);
@@ -623,24 +625,24 @@ TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
   // continued the open packet. It is dropped up to its c = 0 end.
   got = rig.feed({fragment_frame(1, 6, false, true, counting(8)),
                   fragment_frame(1, 6, true, false, counting(3))},
-                 t0 + 6ms);
+                 kReassemblyStart + 6ms);
   EXPECT_TRUE(got.empty());
   // The frame that carries the loss mark is a fragment like any other (it ends node 5's resync).
   Frame marked = fragment_frame(1, 5, true, false, counting(2));
   marked.flags |= can::FrameFlags::follows_loss;
-  EXPECT_TRUE(rig.r.on_frame(marked, t0 + 7ms, rig.sink));
+  EXPECT_TRUE(rig.r.on_frame(marked, kReassemblyStart + 7ms, rig.sink));
   EXPECT_EQ(rig.r.state(5, 1), State::idle);
   // On node 7, an idle stream, the tail of a packet whose first two fragments were lost looks
   // like a packet of its own: it is not delivered.
   got = rig.feed({fragment_frame(2, 7, false, true, counting(8)),
                   fragment_frame(2, 7, true, false, counting(4))},
-                 t0 + 8ms);
+                 kReassemblyStart + 8ms);
   EXPECT_TRUE(got.empty());
   // After their ends, both streams deliver again.
-  got = rig.feed(fragments(1, 6, counting(12)), t0 + 10ms);
+  got = rig.feed(fragments(1, 6, counting(12)), kReassemblyStart + 10ms);
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 6, 1, counting(12));
-  got = rig.feed(fragments(2, 7, counting(20)), t0 + 20ms);
+  got = rig.feed(fragments(2, 7, counting(20)), kReassemblyStart + 20ms);
   ASSERT_EQ(got.size(), 1u);
   expect_packet(got[0], 7, 2, counting(20));
   EXPECT_EQ(rig.r.counters().discarded(Reason::frames_lost), 1u);
@@ -648,31 +650,34 @@ TEST(PdopReassembler, LostFramesDiscardOpenPacketsAndResynchroniseEveryStream) {
 }
 
 TEST(PdopReassembler, AOneFramePacketRepeatingTheLastFragmentRightAfterIsFlagged) {
-  Rig rig;
+  ReassemblerRig rig;
   // 17 bytes: three fragments, the last one (1 byte) with t = 0: its double reception is a
   // valid one-frame packet.
   const auto frames = fragments(1, 4, counting(17));
   ASSERT_EQ(frames.size(), 3u);
-  auto got = rig.feed(frames, t0, 100us);
+  auto got = rig.feed(frames, kReassemblyStart, 100us);
   ASSERT_EQ(got.size(), 1u);
   EXPECT_FALSE(got[0].probable_repeat);
-  got = rig.feed({frames[2]}, t0 + 300us);  // right after: flagged, delivered all the same
+  got = rig.feed({frames[2]},
+                 kReassemblyStart + 300us);  // right after: flagged, delivered all the same
   ASSERT_EQ(got.size(), 1u);
   ASSERT_TRUE(got[0].packet);
   EXPECT_EQ(got[0].fragments, 1u);
   EXPECT_TRUE(got[0].probable_repeat);
   // The same bytes again: the packet before is one frame now, a plain TPDO repeating its value.
-  got = rig.feed({frames[2]}, t0 + 400us);
+  got = rig.feed({frames[2]}, kReassemblyStart + 400us);
   ASSERT_EQ(got.size(), 1u);
   EXPECT_FALSE(got[0].probable_repeat);
   // Later than kRepeatWindow after a multi-fragment packet: a packet of its own.
-  rig.feed(frames, t0 + 10ms, 100us);
-  got = rig.feed({frames[2]}, t0 + 10ms + 200us + PdopReassembler::kRepeatWindow + 1us);
+  rig.feed(frames, kReassemblyStart + 10ms, 100us);
+  got =
+      rig.feed({frames[2]}, kReassemblyStart + 10ms + 200us + PdopReassembler::kRepeatWindow + 1us);
   ASSERT_EQ(got.size(), 1u);
   EXPECT_FALSE(got[0].probable_repeat);
   // Other bytes right after: not a repeat.
-  rig.feed(frames, t0 + 20ms, 100us);
-  got = rig.feed({fragment_frame(1, 4, false, false, counting(2))}, t0 + 20ms + 300us);
+  rig.feed(frames, kReassemblyStart + 20ms, 100us);
+  got =
+      rig.feed({fragment_frame(1, 4, false, false, counting(2))}, kReassemblyStart + 20ms + 300us);
   ASSERT_EQ(got.size(), 1u);
   EXPECT_FALSE(got[0].probable_repeat);
   EXPECT_EQ(rig.r.counters().probable_repeats, 1u);
@@ -700,7 +705,7 @@ TEST(PdopReassembler, DiscardsReadWellInTheLog) {
 // --- what one toggle bit cannot see (documented in the header) -----------------------------
 
 TEST(PdopReassemblerLimits, TwoLostFragmentsInsideAPacketGoUnnoticed) {
-  Rig rig;
+  ReassemblerRig rig;
   auto frames = fragments(1, 5, counting(40));  // 5 fragments
   frames.erase(frames.begin() + 1, frames.begin() + 3);
   const auto got = rig.feed(frames);
@@ -710,7 +715,7 @@ TEST(PdopReassemblerLimits, TwoLostFragmentsInsideAPacketGoUnnoticed) {
 }
 
 TEST(PdopReassemblerLimits, TwoLostFirstFragmentsLeaveASuffixPacket) {
-  Rig rig;
+  ReassemblerRig rig;
   auto frames = fragments(1, 5, counting(40));
   frames.erase(frames.begin(), frames.begin() + 2);
   const auto got = rig.feed(frames);
@@ -719,27 +724,27 @@ TEST(PdopReassemblerLimits, TwoLostFirstFragmentsLeaveASuffixPacket) {
 }
 
 TEST(PdopReassemblerLimits, ALostLastFragmentAfterAnEvenCountMergesWithTheNextPacket) {
-  Rig rig;
+  ReassemblerRig rig;
   auto a = fragments(1, 5, counting(20));  // 3 fragments
   a.pop_back();                            // 2 accepted: t = 0 expected next
   const auto b = fragments(1, 5, counting(12, 0x40));
   auto both = a;
   both.insert(both.end(), b.begin(), b.end());
-  auto got = rig.feed(both, t0, 10ms);  // b follows within fragment_timeout
+  auto got = rig.feed(both, kReassemblyStart, 10ms);  // b follows within fragment_timeout
   ASSERT_EQ(got.size(), 1u);
   ASSERT_TRUE(got[0].packet);
   EXPECT_EQ(got[0].data.size(), 28u);
   // A gap of fragment_timeout between the packets separates them: timeout, then b is dropped
   // as the offending frame and its continuation (it has c = 1).
-  got = rig.feed(a, t0 + 1s, 10ms);
+  got = rig.feed(a, kReassemblyStart + 1s, 10ms);
   EXPECT_TRUE(got.empty());
-  got = rig.feed(b, t0 + 1s + 10ms + 100ms);
+  got = rig.feed(b, kReassemblyStart + 1s + 10ms + 100ms);
   ASSERT_EQ(got.size(), 1u);
   expect_discard(got[0], 5, 1, Reason::timeout, 2);
 }
 
 TEST(PdopReassemblerLimits, ARepeatedLastFragmentWithToggle0IsAOneFramePacket) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(1, 5, counting(20));  // the last (k = 2) has t = 0
   const auto got = rig.feed({frames[0], frames[1], frames[2], frames[2]});
   ASSERT_EQ(got.size(), 2u);
@@ -748,7 +753,7 @@ TEST(PdopReassemblerLimits, ARepeatedLastFragmentWithToggle0IsAOneFramePacket) {
 }
 
 TEST(PdopReassemblerLimits, AFragmentRepeatedAfterTheNextOneIsTakenIn) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto frames = fragments(1, 5, counting(20));
   const auto got = rig.feed({frames[0], frames[1], frames[0], frames[1], frames[2]});
   ASSERT_EQ(got.size(), 1u);
@@ -758,7 +763,7 @@ TEST(PdopReassemblerLimits, AFragmentRepeatedAfterTheNextOneIsTakenIn) {
 // --- memory ----------------------------------------------------------------------------------
 
 TEST(PdopReassembler, SteadyTrafficAllocatesNothingOnceBuffersHaveGrown) {
-  Rig rig;
+  ReassemblerRig rig;
   const auto a = fragments(2, 9, counting(256));
   const auto b = fragments(1, 31, counting(100));
   const auto plain = Frame::standard(0x185, {1, 2});
@@ -782,7 +787,7 @@ TEST(PdopReassembler, SteadyTrafficAllocatesNothingOnceBuffersHaveGrown) {
   allocations = 0;
   counting_on = true;
 #endif
-  TimePoint at = t0 + 1s;
+  TimePoint at = kReassemblyStart + 1s;
   for (int i = 0; i < 50; ++i) {
     for (std::size_t k = 0; k < a.size(); ++k) {
       rig.r.on_frame(a[k], at, sink);
@@ -979,7 +984,7 @@ void run_property(std::uint32_t seed, bool timer, Stats& stats) {
     streams.push_back(std::move(s));
   }
 
-  TimePoint now = t0;
+  TimePoint now = kReassemblyStart;
   for (;;) {
     std::vector<std::size_t> ready;
     std::optional<TimePoint> soonest;

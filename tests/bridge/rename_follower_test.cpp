@@ -18,7 +18,7 @@ using Kind = NodeEvent::Kind;
 using Change = RenameFollowed::Change;
 namespace nid = canopen::nmt_node_id;
 
-const NodeTable::TimePoint t0 = NodeTable::TimePoint{} + 1000s;
+const NodeTable::TimePoint kFollowerStart = NodeTable::TimePoint{} + 1000s;
 
 // The canopen system test's layout: a cia301 module and a pdop module (surface ids 1..31).
 struct Live {
@@ -109,15 +109,16 @@ TEST(NodeMapMove, ProblemsNameWhatIsInTheWay) {
 // The whole path of a surface master's `E0 cc nn` to a free surface id.
 TEST(RenameFollower, AFreeSurfaceIdIsTakenWhenTheBootUpConfirmsIt) {
   Live live;
-  live.from_bus(1, Frame::standard(0x701, {0x05}), t0);  // pdop local 1 (surface 3) beats
-  auto sent = live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), t0 + 10ms);
+  live.from_bus(1, Frame::standard(0x701, {0x05}),
+                kFollowerStart);  // pdop local 1 (surface 3) beats
+  auto sent = live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), kFollowerStart + 10ms);
   ASSERT_EQ(sent.size(), 1u);
   EXPECT_EQ(sent[0].second, nid::encode(nid::ChangeNodeId{1, 1}));
   // Until the boot-up, the node is where it was.
   EXPECT_EQ(live.map.surface_of(1, 1), 3);
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x181, {1}), t0 + 11ms)->id, 0x183u);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x181, {1}), kFollowerStart + 11ms)->id, 0x183u);
   // The confirming boot-up already crosses under the new id.
-  const auto boot = live.from_bus(1, Frame::standard(0x701, {0x00}), t0 + 50ms);
+  const auto boot = live.from_bus(1, Frame::standard(0x701, {0x00}), kFollowerStart + 50ms);
   ASSERT_TRUE(boot);
   EXPECT_EQ(boot->id, 0x709u);
   ASSERT_EQ(live.events.back().kind, Kind::renamed);
@@ -126,42 +127,44 @@ TEST(RenameFollower, AFreeSurfaceIdIsTakenWhenTheBootUpConfirmsIt) {
   EXPECT_EQ(live.events.back().previous_surface, 3);
   EXPECT_EQ(live.results.back().change, Change::moved);
   // Both directions use the new pair; the old surface id is free.
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x1A1, {1}), t0 + 60ms)->id, 0x1A9u);
-  const auto sdo = live.from_surface(Frame::standard(0x609, {0x40, 0x18, 0x10, 0x04}), t0 + 70ms);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x1A1, {1}), kFollowerStart + 60ms)->id, 0x1A9u);
+  const auto sdo =
+      live.from_surface(Frame::standard(0x609, {0x40, 0x18, 0x10, 0x04}), kFollowerStart + 70ms);
   ASSERT_EQ(sdo.size(), 1u);
   EXPECT_EQ(sdo[0].second.id, 0x601u);
-  EXPECT_TRUE(live.from_surface(Frame::standard(0x603, {0x40}), t0 + 70ms).empty());
+  EXPECT_TRUE(live.from_surface(Frame::standard(0x603, {0x40}), kFollowerStart + 70ms).empty());
   EXPECT_FALSE(live.map.owner_of_surface(3));
   // And back: 3 is free again.
-  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 9, 3}), t0 + 1s).size(), 1u);
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), t0 + 1050ms)->id, 0x703u);
+  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 9, 3}), kFollowerStart + 1s).size(),
+            1u);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), kFollowerStart + 1050ms)->id, 0x703u);
   EXPECT_EQ(live.map.surface_of(1, 1), 3);
   EXPECT_FALSE(live.map.owner_of_surface(9));
 }
 
 TEST(RenameFollower, AnUnconfirmedCommandMovesNothing) {
   Live live;
-  live.from_bus(1, Frame::standard(0x701, {0x05}), t0);
-  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), t0).size(), 1u);
+  live.from_bus(1, Frame::standard(0x701, {0x05}), kFollowerStart);
+  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), kFollowerStart).size(), 1u);
   EXPECT_EQ(live.map.planned_move(1, 1), 9);
-  live.tick(t0 + 2s);  // the confirm window
+  live.tick(kFollowerStart + 2s);  // the confirm window
   ASSERT_FALSE(live.events.empty());
   EXPECT_EQ(live.events.back().kind, Kind::rename_unconfirmed);
   EXPECT_EQ(live.map.planned_move(1, 1), 0);
   // A later boot-up (a power cycle) is a plain boot-up: the node stays on 3.
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), t0 + 5s)->id, 0x703u);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), kFollowerStart + 5s)->id, 0x703u);
   EXPECT_EQ(live.events.back().kind, Kind::booted);
   EXPECT_EQ(live.map.surface_of(1, 1), 3);
 }
 
 TEST(RenameFollower, ATargetTakenBeforeTheBootUpIsRefusedAndTheNodeStays) {
   Live live;
-  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), t0).size(), 1u);
-  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 4, 9}), t0).size(), 1u);
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x702, {0x00}), t0 + 10ms)->id, 0x709u);
+  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 3, 9}), kFollowerStart).size(), 1u);
+  ASSERT_EQ(live.from_surface(Frame::standard(0x000, {0xE0, 4, 9}), kFollowerStart).size(), 1u);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x702, {0x00}), kFollowerStart + 10ms)->id, 0x709u);
   EXPECT_EQ(live.results.back().change, Change::moved);
   // Local 1 confirms second: 9 is local 2's now. Refused, reported, local 1 keeps surface 3.
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), t0 + 20ms)->id, 0x703u);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x701, {0x00}), kFollowerStart + 20ms)->id, 0x703u);
   EXPECT_EQ(live.results.back().change, Change::refused);
   EXPECT_NE(live.results.back().reason.find("already owned by module 2 node 2"), std::string::npos)
       << live.results.back().reason;
@@ -172,27 +175,29 @@ TEST(RenameFollower, ATargetTakenBeforeTheBootUpIsRefusedAndTheNodeStays) {
 // to one it does not map, the node keeps its surface id there instead of vanishing.
 TEST(RenameFollower, ARenameOnTheModuleBusKeepsTheNodeOnTheSurface) {
   Live live;
-  live.from_bus(1, Frame::standard(0x701, {0x05}), t0);
-  EXPECT_FALSE(live.from_bus(1, nid::encode(nid::ChangeNodeId{1, 20}), t0));  // not forwarded
-  const auto boot = live.from_bus(1, Frame::standard(0x714, {0x00}), t0 + 30ms);
+  live.from_bus(1, Frame::standard(0x701, {0x05}), kFollowerStart);
+  EXPECT_FALSE(
+      live.from_bus(1, nid::encode(nid::ChangeNodeId{1, 20}), kFollowerStart));  // not forwarded
+  const auto boot = live.from_bus(1, Frame::standard(0x714, {0x00}), kFollowerStart + 30ms);
   ASSERT_TRUE(boot);
   EXPECT_EQ(boot->id, 0x703u);
   ASSERT_EQ(live.events.back().kind, Kind::renamed);
   EXPECT_EQ(live.events.back().previous_surface, 3);
   EXPECT_EQ(live.map.surface_of(1, 20), 3);
   EXPECT_EQ(live.map.surface_of(1, 1), 0);
-  const auto sdo = live.from_surface(Frame::standard(0x603, {0x40, 0x18, 0x10, 0x04}), t0 + 40ms);
+  const auto sdo =
+      live.from_surface(Frame::standard(0x603, {0x40, 0x18, 0x10, 0x04}), kFollowerStart + 40ms);
   ASSERT_EQ(sdo.size(), 1u);
   EXPECT_EQ(sdo[0].second.id, 0x614u);
   // To a mapped id (3 -> surface 7): nothing moves, the configured pair is used.
-  live.from_bus(1, nid::encode(nid::ChangeNodeId{20, 3}), t0 + 1s);
-  EXPECT_EQ(live.from_bus(1, Frame::standard(0x703, {0x00}), t0 + 1010ms)->id, 0x707u);
+  live.from_bus(1, nid::encode(nid::ChangeNodeId{20, 3}), kFollowerStart + 1s);
+  EXPECT_EQ(live.from_bus(1, Frame::standard(0x703, {0x00}), kFollowerStart + 1010ms)->id, 0x707u);
   EXPECT_EQ(live.results.back().change, Change::none);
   EXPECT_EQ(live.events.back().previous_surface, 3);
   EXPECT_EQ(live.map.surface_of(1, 20), 3);  // the pair stays; no node answers there now
   // An unmapped node renamed to an unmapped id has no surface id to keep: refused, reported.
-  live.from_bus(1, nid::encode(nid::ChangeNodeId{25, 26}), t0 + 2s);
-  EXPECT_FALSE(live.from_bus(1, Frame::standard(0x71A, {0x00}), t0 + 2010ms));
+  live.from_bus(1, nid::encode(nid::ChangeNodeId{25, 26}), kFollowerStart + 2s);
+  EXPECT_FALSE(live.from_bus(1, Frame::standard(0x71A, {0x00}), kFollowerStart + 2010ms));
   EXPECT_EQ(live.results.back().change, Change::refused);
 }
 

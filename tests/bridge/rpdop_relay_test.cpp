@@ -59,8 +59,8 @@ Frame fragment_frame(NodeId node, unsigned rpdo, bool t, bool c,
 }
 
 // One relay at an injected time; every call starts with an empty output.
-struct Rig {
-  explicit Rig(RpdopRelayOptions options = {}, std::initializer_list<NodeId> nodes = {3})
+struct RelayRig {
+  explicit RelayRig(RpdopRelayOptions options = {}, std::initializer_list<NodeId> nodes = {3})
       : relay(options) {
     for (NodeId n : nodes) relay.set_relayed(n, true);
   }
@@ -105,7 +105,7 @@ struct Rig {
 // ---- The forwarded phase ------------------------------------------------------------------------
 
 TEST(RpdopRelay, TwentyBytesWindowTwoIsForwardedAndCompletedOnlyByTheOutcome) {
-  Rig r({.window = 2});
+  RelayRig r({.window = 2});
   const Bytes packet = counting(20);
   const Frames fs = fragments(3, 1, packet);
   ASSERT_EQ(fs.size(), 3u);
@@ -148,7 +148,7 @@ TEST(RpdopRelay, TwentyBytesWindowTwoIsForwardedAndCompletedOnlyByTheOutcome) {
 }
 
 TEST(RpdopRelay, OneFramePacketIsForwardedAndAcknowledgedOnItsOutcome) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   EXPECT_TRUE(r.frame(Frame::standard(0x203, {7, 8, 9})));
   EXPECT_TRUE(r.out.frames.empty());
   const auto p = r.only_packet();
@@ -166,7 +166,7 @@ TEST(RpdopRelay, OneFramePacketIsForwardedAndAcknowledgedOnItsOutcome) {
 class OutcomeAbort : public ::testing::TestWithParam<std::uint8_t> {};
 
 TEST_P(OutcomeAbort, IsPassedToTheMasterWithAllFragmentsAndTheWindow) {
-  Rig r({.window = 3});
+  RelayRig r({.window = 3});
   r.frames(fragments(3, 2, counting(30)));
   const auto p = r.only_packet();
   r.outcome(p.request_id, static_cast<AckStatus>(GetParam()));
@@ -185,7 +185,7 @@ INSTANTIATE_TEST_SUITE_P(RpdopRelay, OutcomeAbort,
 TEST(RpdopRelay, OutcomeStatusesTheMasterCannotTakeBecome0x82) {
   for (const std::uint8_t status : {0x00, 0x02, 0x7F, 0x85}) {
     SCOPED_TRACE(status);
-    Rig r({.window = 4});
+    RelayRig r({.window = 4});
     r.frames(fragments(3, 1, counting(5)));
     r.outcome(r.only_packet().request_id, static_cast<AckStatus>(status));
     EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::out_of_memory, 1, 4)}));
@@ -194,7 +194,7 @@ TEST(RpdopRelay, OutcomeStatusesTheMasterCannotTakeBecome0x82) {
 }
 
 TEST(RpdopRelay, MastersAbortWhileForwardedMakesTheOutcomeStale) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   r.frames(fragments(3, 1, counting(20)));
   const auto id = r.only_packet().request_id;
   EXPECT_TRUE(r.frame(abort_of(3, 1)));
@@ -221,7 +221,7 @@ TEST(RpdopRelay, MastersAbortWhileForwardedMakesTheOutcomeStale) {
 }
 
 TEST(RpdopRelay, FragmentsWhileForwardedAreDroppedUnanswered) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   const Frames fs = fragments(3, 1, counting(20));
   r.frames(fs);
   const auto id = r.only_packet().request_id;
@@ -239,7 +239,7 @@ TEST(RpdopRelay, FragmentsWhileForwardedAreDroppedUnanswered) {
 }
 
 TEST(RpdopRelay, NoOutcomeWithinOutcomeTimeoutIsAnswered0x83) {
-  Rig r({.window = 4, .outcome_timeout = 500ms});
+  RelayRig r({.window = 4, .outcome_timeout = 500ms});
   r.frames(fragments(3, 1, counting(20)));
   const auto id = r.only_packet().request_id;
   EXPECT_EQ(r.relay.next_deadline(), t0 + 500ms);
@@ -256,7 +256,7 @@ TEST(RpdopRelay, NoOutcomeWithinOutcomeTimeoutIsAnswered0x83) {
 }
 
 TEST(RpdopRelay, AFrameOfTheNodeAppliesItsOutcomeTimeoutFirst) {
-  Rig r({.window = 4, .outcome_timeout = 500ms}, {3, 4});
+  RelayRig r({.window = 4, .outcome_timeout = 500ms}, {3, 4});
   r.frames(fragments(3, 1, counting(20)));
   r.frames(fragments(4, 1, counting(20)));
   r.now = t0 + 600ms;
@@ -271,7 +271,7 @@ TEST(RpdopRelay, AFrameOfTheNodeAppliesItsOutcomeTimeoutFirst) {
 }
 
 TEST(RpdopRelay, FailForwardedEndsTheForwardedPacketsOfANodeOrOfAll) {
-  Rig r({.window = 4}, {3, 5, 7});
+  RelayRig r({.window = 4}, {3, 5, 7});
   r.frames(fragments(3, 1, counting(20)));
   r.frames(fragments(3, 4, counting(8)));
   r.frames(fragments(5, 2, counting(17)));
@@ -296,7 +296,7 @@ TEST(RpdopRelay, FailForwardedEndsTheForwardedPacketsOfANodeOrOfAll) {
 // ---- Receiver aborts and resynchronisation (as a node) ------------------------------------------
 
 TEST(RpdopRelay, WorkedExampleToggleErrorThenResynchronisationByTheAbortFrame) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   const Frames fs = fragments(3, 1, counting(40));
   EXPECT_TRUE(r.frame(fs[0]));
   EXPECT_TRUE(r.frame(fs[0]));  // repeated where t = 1 is expected
@@ -314,7 +314,7 @@ TEST(RpdopRelay, WorkedExampleToggleErrorThenResynchronisationByTheAbortFrame) {
 }
 
 TEST(RpdopRelay, ResynchronisationEndsAtTheNextFinalFragment) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   const Frames fs = fragments(3, 1, counting(20));
   r.frames({fs[1]});  // t = 1 with nothing open: a lost first fragment
   EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::toggle_error, 0, 4)}));
@@ -334,7 +334,7 @@ TEST(RpdopRelay, ResynchronisationEndsAtTheNextFinalFragment) {
 
 TEST(RpdopRelay, OversizeAbortsWithTheFragmentsBeforeIt) {
   {
-    Rig r({.max_packet_bytes = 16, .window = 4});
+    RelayRig r({.max_packet_bytes = 16, .window = 4});
     r.frames(fragments(3, 1, counting(20)));  // the third fragment (c = 0) passes 16 bytes
     EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::oversize, 2, 4)}));
     EXPECT_TRUE(r.out.packets.empty());
@@ -342,14 +342,14 @@ TEST(RpdopRelay, OversizeAbortsWithTheFragmentsBeforeIt) {
     EXPECT_EQ(r.only_packet().bytes, counting(16));
   }
   {
-    Rig r({.max_packet_bytes = 12, .window = 4});
+    RelayRig r({.max_packet_bytes = 12, .window = 4});
     r.frames(fragments(3, 1, counting(20)));  // the second fragment (c = 1) passes 12 bytes
     EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::oversize, 1, 4)}));
     EXPECT_EQ(r.relay.counters().dropped_fragments, 1u);  // the third, which closes it
     EXPECT_TRUE(r.out.packets.empty());
   }
   {
-    Rig r({.max_packet_bytes = 4, .window = 4});
+    RelayRig r({.max_packet_bytes = 4, .window = 4});
     r.frames({Frame::standard(0x203, {1, 2, 3, 4, 5})});  // a one-frame packet too large
     EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::oversize, 0, 4)}));
     EXPECT_EQ(r.relay.counters().receiver_aborts, 1u);
@@ -357,7 +357,7 @@ TEST(RpdopRelay, OversizeAbortsWithTheFragmentsBeforeIt) {
 }
 
 TEST(RpdopRelay, ShortFragmentAborts0x84) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   const Frames fs = fragments(3, 1, counting(20));
   r.frames({fs[0], fragment_frame(3, 1, true, true, {1, 2, 3, 4, 5})});
   EXPECT_EQ(r.out.frames, (Frames{ack(3, 1, AckStatus::short_fragment, 1, 4)}));
@@ -371,7 +371,7 @@ TEST(RpdopRelay, ShortFragmentAborts0x84) {
 }
 
 TEST(RpdopRelay, FragmentTimeoutIsSilentAndAnswered0x83OnRequest) {
-  Rig r({.fragment_timeout = 200ms, .window = 4});
+  RelayRig r({.fragment_timeout = 200ms, .window = 4});
   const Frames fs = fragments(3, 1, counting(40));
   r.frames({fs[0], fs[1]});
   EXPECT_EQ(r.relay.next_deadline(), t0 + 200ms);
@@ -392,7 +392,7 @@ TEST(RpdopRelay, FragmentTimeoutIsSilentAndAnswered0x83OnRequest) {
 }
 
 TEST(RpdopRelay, AFragmentAtTheDeadlineIsLateWithoutATick) {
-  Rig r({.fragment_timeout = 200ms, .window = 4});
+  RelayRig r({.fragment_timeout = 200ms, .window = 4});
   const Frames fs = fragments(3, 1, counting(20));
   r.frames({fs[0]});
   r.now = t0 + 200ms;
@@ -403,7 +403,7 @@ TEST(RpdopRelay, AFragmentAtTheDeadlineIsLateWithoutATick) {
 }
 
 TEST(RpdopRelay, RequestsAnswerEveryOpenPacketInRpdoOrderElseTheLastFinishedElseNothing) {
-  Rig r({.window = 4});
+  RelayRig r({.window = 4});
   EXPECT_TRUE(r.request(3).empty()) << "nothing finished since the start";
   EXPECT_EQ(r.relay.counters().ack_requests, 1u);
   r.frames({fragments(3, 4, counting(20))[0]});                            // RPDO4: receiving
@@ -427,7 +427,7 @@ TEST(RpdopRelay, RequestsAnswerEveryOpenPacketInRpdoOrderElseTheLastFinishedElse
 }
 
 TEST(RpdopRelay, AnAnsweredRequestRestartsTheWindowCount) {
-  Rig r({.window = 3});
+  RelayRig r({.window = 3});
   const Frames fs = fragments(3, 1, counting(80));
   r.frames({fs[0], fs[1]});
   EXPECT_TRUE(r.out.frames.empty());
@@ -444,7 +444,7 @@ TEST(RpdopRelay, AnAnsweredRequestRestartsTheWindowCount) {
 }
 
 TEST(RpdopRelay, NextDeadlineIsTheEarliestFragmentOrOutcomeTimeout) {
-  Rig r({.fragment_timeout = 200ms, .window = 4, .outcome_timeout = 100ms}, {3, 9});
+  RelayRig r({.fragment_timeout = 200ms, .window = 4, .outcome_timeout = 100ms}, {3, 9});
   EXPECT_EQ(r.relay.next_deadline(), std::nullopt);
   r.frames({fragments(3, 1, counting(20))[0]});
   EXPECT_EQ(r.relay.next_deadline(), t0 + 200ms);
@@ -460,7 +460,7 @@ TEST(RpdopRelay, NextDeadlineIsTheEarliestFragmentOrOutcomeTimeout) {
 }
 
 TEST(RpdopRelay, FramesOfNodesNotRelayedAndForeignFramesAreNotTaken) {
-  Rig r({.window = 4}, {});
+  RelayRig r({.window = 4}, {});
   EXPECT_FALSE(r.relay.relayed(3));
   EXPECT_FALSE(r.frame(Frame::standard(0x203, {1})));
   EXPECT_FALSE(r.frame(pdop::ack_request(3)));
@@ -502,7 +502,7 @@ TEST(RpdopRelay, FramesOfNodesNotRelayedAndForeignFramesAreNotTaken) {
 }
 
 TEST(RpdopRelay, TurningANodeOffForgetsItsStreamsSilently) {
-  Rig r({.window = 4}, {3});
+  RelayRig r({.window = 4}, {3});
   r.frames(fragments(3, 3, counting(3)));
   r.outcome(r.only_packet().request_id, AckStatus::complete);  // a last finished packet
   r.frames(fragments(3, 1, counting(20)));                     // forwarded
@@ -529,7 +529,7 @@ TEST(RpdopRelay, TurningANodeOffForgetsItsStreamsSilently) {
 }
 
 TEST(RpdopRelay, SeveralNodesAndRpdosInterleave) {
-  Rig r({.window = 2}, {1, 31});
+  RelayRig r({.window = 2}, {1, 31});
   const Frames a = fragments(1, 1, counting(24));        // 3 fragments
   const Frames b = fragments(1, 4, counting(17, 100));   // 3
   const Frames c = fragments(31, 1, counting(16, 200));  // 2
@@ -563,7 +563,7 @@ TEST(RpdopRelay, SeveralNodesAndRpdosInterleave) {
 }
 
 TEST(RpdopRelay, LargestPacketAndBufferReuse) {
-  Rig r({.max_packet_bytes = pdop::kMaxPacketBytes, .window = 255});
+  RelayRig r({.max_packet_bytes = pdop::kMaxPacketBytes, .window = 255});
   Bytes big(pdop::kMaxPacketBytes);
   for (std::size_t i = 0; i < big.size(); ++i) big[i] = static_cast<std::uint8_t>(i * 7 + i / 256);
   r.frames(fragments(3, 1, big));

@@ -35,6 +35,7 @@ namespace asio = boost::asio;
 using namespace std::chrono_literals;
 
 using test::BusRecorder;
+using test::drains_within;
 using test::run_until;
 
 // One gateway "process": its own module buses (a node endpoint on each, to write and to record),
@@ -124,12 +125,6 @@ can::Frame sdo_request(std::uint8_t node, std::uint32_t n) {
   return ::testing::AssertionSuccess();
 }
 
-bool drains(asio::io_context& io) {
-  io.restart();
-  io.run_for(2s);
-  return io.stopped();
-}
-
 // Default mapping: surface node = local + 32 x module. Local node 5 is surface node 37 on module 1
 // (gateway A) and 69 on module 2 (gateway B).
 constexpr std::uint8_t kLocal = 5;
@@ -151,7 +146,8 @@ class SurfaceGateways : public ::testing::Test {
       return master.done() &&
              std::all_of(rigs.begin(), rigs.end(), [](const auto& r) { return r->stopped(); });
     }));
-    EXPECT_TRUE(drains(io));  // nothing left pending: every coroutine saw its bus or link close
+    // Nothing left pending: every coroutine saw its bus or link close.
+    EXPECT_TRUE(drains_within(io, 2s));
   }
 
   GatewayRig& add_gateway(

@@ -13,12 +13,12 @@ namespace canbridge::bridge {
 
 namespace {
 
-constexpr std::uint32_t kOperational = 0x05;
-constexpr std::uint32_t kStopped = 0x04;
-constexpr std::uint32_t kPreOperational = 0x7F;
+constexpr std::uint32_t kNmtOperational = 0x05;
+constexpr std::uint32_t kNmtStopped = 0x04;
+constexpr std::uint32_t kNmtPreOperational = 0x7F;
 
 v1::NodeEvent event(v1::NodeEvent::Kind kind, std::uint32_t module, std::uint32_t local,
-                    std::uint32_t state = kPreOperational) {
+                    std::uint32_t state = kNmtPreOperational) {
   v1::NodeEvent e;
   e.set_kind(kind);
   e.set_module_id(module);
@@ -60,44 +60,44 @@ TEST_F(SurfaceNodeStatesTest, NothingKnownCountsNothing) {
 }
 
 TEST_F(SurfaceNodeStatesTest, ABootedNodeIsPreOperationalInTheStateItReports) {
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5, kPreOperational)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5, kNmtPreOperational)));
   EXPECT_EQ(summary(), counts(0, 1, 0, 0, 0));
 }
 
 TEST_F(SurfaceNodeStatesTest, ADiscoveredNodeCountsInItsHeartbeatsState) {
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational)));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 6, kStopped)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 6, kNmtStopped)));
   EXPECT_EQ(summary(), counts(1, 0, 1, 0, 0));
 }
 
 TEST_F(SurfaceNodeStatesTest, AStateChangeMovesTheNodeBetweenCounts) {
   states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::STATE_CHANGED, 1, 5, kOperational)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::STATE_CHANGED, 1, 5, kNmtOperational)));
   EXPECT_EQ(summary(), counts(1, 0, 0, 0, 0));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::STATE_CHANGED, 1, 5, kStopped)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::STATE_CHANGED, 1, 5, kNmtStopped)));
   EXPECT_EQ(summary(), counts(0, 0, 1, 0, 0));
   EXPECT_EQ(states.size(), 1u);
 }
 
 TEST_F(SurfaceNodeStatesTest, ALostNodeCountsLostUntilItRecovers) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::LOST, 1, 5, kOperational)));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::LOST, 1, 5, kNmtOperational)));
   EXPECT_EQ(summary(), counts(0, 0, 0, 0, 1));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::RECOVERED, 1, 5, kStopped)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::RECOVERED, 1, 5, kNmtStopped)));
   EXPECT_EQ(summary(), counts(0, 0, 1, 0, 0));
 }
 
 TEST_F(SurfaceNodeStatesTest, ALossOfANodeNeverSeenStillCountsIt) {
   // The surface missed its first event (it started after the node was discovered).
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::LOST, 1, 9, kOperational)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::LOST, 1, 9, kNmtOperational)));
   EXPECT_EQ(summary(), counts(0, 0, 0, 0, 1));
 }
 
 TEST_F(SurfaceNodeStatesTest, ANodeInItsLoaderCountsInLoaderUntilItsApplicationBoots) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::LOADER_BOOTED, 1, 5, 0x00)));
   EXPECT_EQ(summary(), counts(0, 0, 0, 1, 0));
-  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5, kPreOperational)));
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5, kNmtPreOperational)));
   EXPECT_EQ(summary(), counts(0, 1, 0, 0, 0));
 }
 
@@ -109,8 +109,8 @@ TEST_F(SurfaceNodeStatesTest, InLoaderAsTheGatewayReportsItCountsInLoader) {
 }
 
 TEST_F(SurfaceNodeStatesTest, ARenameMovesTheNodeFromItsPreviousIdToTheNewOne) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 6, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 6, kNmtOperational));
   EXPECT_TRUE(states.apply(0, renamed(1, 5, 9)));
   // The renamed node booted on its new id (pre-operational); the old id holds nothing.
   EXPECT_EQ(summary(), counts(1, 1, 0, 0, 0));
@@ -122,8 +122,8 @@ TEST_F(SurfaceNodeStatesTest, ARenameMovesTheNodeFromItsPreviousIdToTheNewOne) {
 }
 
 TEST_F(SurfaceNodeStatesTest, ARenameOfTheSameModuleIdOnAnotherGatewayMovesNothingThere) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  states.apply(1, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  states.apply(1, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   states.apply(0, renamed(1, 5, 9));
   EXPECT_EQ(summary(), counts(1, 1, 0, 0, 0));
   EXPECT_EQ(states.size(), 2u);
@@ -131,14 +131,14 @@ TEST_F(SurfaceNodeStatesTest, ARenameOfTheSameModuleIdOnAnotherGatewayMovesNothi
 
 TEST_F(SurfaceNodeStatesTest, ARenameFromAnUnknownIdAddsTheNodeAndLeavesTheOthers) {
   // A by-serial command whose node the gateway could not name: previous id 0.
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   EXPECT_TRUE(states.apply(0, renamed(1, 0, 9)));
   EXPECT_EQ(summary(), counts(1, 1, 0, 0, 0));
 }
 
 TEST_F(SurfaceNodeStatesTest, ARenameToANewSurfaceIdOnTheSameLocalIdKeepsOneNode) {
   // A surface master's move to a free surface id: the local id stays, the surface id changes.
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   v1::NodeEvent e = renamed(1, 5, 5);
   e.set_previous_surface_node(37);
   e.set_surface_node(40);
@@ -148,7 +148,7 @@ TEST_F(SurfaceNodeStatesTest, ARenameToANewSurfaceIdOnTheSameLocalIdKeepsOneNode
 }
 
 TEST_F(SurfaceNodeStatesTest, AnUnconfirmedRenameMovesNothing) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   v1::NodeEvent e = event(v1::NodeEvent::RENAME_UNCONFIRMED, 1, 9, 0x00);
   e.set_previous_local_node(5);
   EXPECT_FALSE(states.apply(0, e));
@@ -157,19 +157,19 @@ TEST_F(SurfaceNodeStatesTest, AnUnconfirmedRenameMovesNothing) {
 }
 
 TEST_F(SurfaceNodeStatesTest, UnknownKindsAndIdsOutOfRangeAreIgnored) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::KIND_UNSPECIFIED, 1, 5, kStopped)));
-  EXPECT_FALSE(states.apply(0, event(static_cast<v1::NodeEvent::Kind>(42), 1, 5, kStopped)));
-  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 0, kStopped)));
-  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 128, kStopped)));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::KIND_UNSPECIFIED, 1, 5, kNmtStopped)));
+  EXPECT_FALSE(states.apply(0, event(static_cast<v1::NodeEvent::Kind>(42), 1, 5, kNmtStopped)));
+  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 0, kNmtStopped)));
+  EXPECT_FALSE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 128, kNmtStopped)));
   EXPECT_EQ(summary(), counts(1, 0, 0, 0, 0));
   EXPECT_EQ(states.size(), 1u);
 }
 
 TEST_F(SurfaceNodeStatesTest, AGatewayWhoseLinkIsDownCountsItsNodesLostAndBackWhenItReturns) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   states.apply(0, event(v1::NodeEvent::BOOTED, 1, 6));
-  states.apply(1, event(v1::NodeEvent::DISCOVERED, 2, 5, kOperational));
+  states.apply(1, event(v1::NodeEvent::DISCOVERED, 2, 5, kNmtOperational));
   down.insert(0);
   EXPECT_EQ(summary(), counts(1, 0, 0, 0, 2));
   down.clear();  // the same process: its stream resumes, the states are still its nodes'
@@ -177,22 +177,22 @@ TEST_F(SurfaceNodeStatesTest, AGatewayWhoseLinkIsDownCountsItsNodesLostAndBackWh
 }
 
 TEST_F(SurfaceNodeStatesTest, ARestartedGatewaysNodesAreForgottenAndOthersKept) {
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 3, 7, kStopped));
-  states.apply(1, event(v1::NodeEvent::DISCOVERED, 2, 5, kOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 3, 7, kNmtStopped));
+  states.apply(1, event(v1::NodeEvent::DISCOVERED, 2, 5, kNmtOperational));
   states.apply(2, event(v1::NodeEvent::BOOTED, 4, 5));
   states.forget(0);
   EXPECT_EQ(summary(), counts(1, 1, 0, 0, 0));
   EXPECT_EQ(states.size(), 2u);
   // The new process reports its nodes again as it hears them.
-  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kPreOperational));
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtPreOperational));
   EXPECT_EQ(summary(), counts(1, 2, 0, 0, 0));
 }
 
 TEST_F(SurfaceNodeStatesTest, TheLastGatewayIdCanBeForgotten) {
   constexpr auto kLast = UINT32_MAX;
-  states.apply(kLast, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
-  states.apply(kLast - 1, event(v1::NodeEvent::DISCOVERED, 1, 5, kOperational));
+  states.apply(kLast, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
+  states.apply(kLast - 1, event(v1::NodeEvent::DISCOVERED, 1, 5, kNmtOperational));
   states.forget(kLast);
   EXPECT_EQ(states.size(), 1u);
   EXPECT_EQ(summary(), counts(1, 0, 0, 0, 0));

@@ -33,18 +33,18 @@ IdMapping to_local() {
           }};
 }
 
-std::array<std::uint8_t, 4> le(std::uint32_t v) {
+std::array<std::uint8_t, 4> le_bytes(std::uint32_t v) {
   return {static_cast<std::uint8_t>(v), static_cast<std::uint8_t>(v >> 8),
           static_cast<std::uint8_t>(v >> 16), static_cast<std::uint8_t>(v >> 24)};
 }
 
 // An expedited upload response from local node 5 carrying `value` for `mux`.
 can::Frame upload_of(Multiplexer mux, std::uint32_t value, std::size_t size = 4) {
-  const auto bytes = le(value);
+  const auto bytes = le_bytes(value);
   return upload_response(5, mux, std::span<const std::uint8_t>(bytes.data(), size));
 }
 can::Frame download_of(Multiplexer mux, std::uint32_t value, std::size_t size = 4) {
-  const auto bytes = le(value);
+  const auto bytes = le_bytes(value);
   return download_request(37, mux, std::span<const std::uint8_t>(bytes.data(), size));
 }
 

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "config/loader.hpp"
+#include "tests/config/fixtures.hpp"
 #include "tests/support/config_problems.hpp"
 #include "tests/support/temp_key_dir.hpp"
 
@@ -15,7 +16,7 @@ namespace canbridge::config {
 namespace {
 
 const std::string kConfigDir = CANBRIDGE_SOURCE_DIR "/config/";
-const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/config/fixtures/";
+using test::kConfigFixtures;
 
 using test::dump;
 using test::has;
@@ -200,7 +201,7 @@ TEST(Config, SamplePdopModuleExampleLoadsWhenUncommented) {
 }
 
 TEST(Config, PdopBlockSetsEveryLimitOfAPdopModule) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_pdop.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_pdop.yaml");
   ASSERT_EQ(g.modules.size(), 2u);
   const ModuleOptions& m = g.modules[0];
   EXPECT_FALSE(m.reassemble_pdop);
@@ -226,7 +227,7 @@ TEST(Config, PdopBlockSetsEveryLimitOfAPdopModule) {
 }
 
 TEST(Config, SurfacePdopBlockSetsTheRelayLimits) {
-  const SurfaceOptions s = load_surface(kFixtures + "surface_pdop.yaml");
+  const SurfaceOptions s = load_surface(kConfigFixtures + "surface_pdop.yaml");
   EXPECT_EQ(s.rpdop_relay.max_packet_bytes, 8192u);
   EXPECT_EQ(s.rpdop_relay.fragment_timeout, std::chrono::milliseconds(500));
   EXPECT_EQ(s.rpdop_relay.window, 8u);
@@ -281,7 +282,7 @@ TEST_F(ConfigSamples, SampleSerialExamplesLoadWhenUncommented) {
 }
 
 TEST(Config, SerialGatewayLoads) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_serial.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_serial.yaml");
   ASSERT_TRUE(g.serial.has_value());
   EXPECT_EQ(g.serial->device, "/dev/ttyS1");
   EXPECT_EQ(g.serial->baud, 115200u);
@@ -305,7 +306,7 @@ TEST(Config, SerialGatewayLoads) {
 }
 
 TEST(Config, SurfaceWithListenerAndTwoSerialLinesLoads) {
-  const SurfaceOptions s = load_surface(kFixtures + "surface_serial.yaml");
+  const SurfaceOptions s = load_surface(kConfigFixtures + "surface_serial.yaml");
   EXPECT_EQ(s.listen.to_string(), "127.0.0.1:7000");
   ASSERT_EQ(s.serial.size(), 2u);
   EXPECT_EQ(s.serial[0].device, "/dev/ttyS1");
@@ -341,7 +342,7 @@ struct BadCase {
 };
 
 void expect_the_one_problem(const BadCase& c) {
-  const std::string path = kFixtures + c.file;
+  const std::string path = kConfigFixtures + c.file;
   const bool surface = std::string(c.file).rfind("surface", 0) == 0;
   const auto ps =
       problems_of([&] { surface ? (void)load_surface(path) : (void)load_gateway(path); });
@@ -476,7 +477,7 @@ TEST(Config, EveryPdopProblemOfAGatewayIsReportedAtOnce) {
 }
 
 TEST(Config, EveryProblemOfABadSurfaceBackboneIsReportedAtOnce) {
-  const std::string path = kFixtures + "surface_bad.yaml";
+  const std::string path = kConfigFixtures + "surface_bad.yaml";
   const auto ps = problems_of([&] { load_surface(path); });
   const std::string all = dump(ps);
   EXPECT_TRUE(has(ps, 7, "backbone.serial[0].baud", "115201 is not a standard serial rate")) << all;
@@ -500,7 +501,7 @@ TEST(Config, EveryProblemOfABadSurfaceBackboneIsReportedAtOnce) {
 }
 
 TEST(Config, EveryProblemOfABadSerialGatewayIsReportedAtOnce) {
-  const std::string path = kFixtures + "gateway_serial_bad.yaml";
+  const std::string path = kConfigFixtures + "gateway_serial_bad.yaml";
   const auto ps = problems_of([&] { load_gateway(path); });
   const std::string all = dump(ps);
   EXPECT_TRUE(has(ps, 4, "backbone.connect", "port 0")) << all;
@@ -595,7 +596,7 @@ TEST(Config, BaudRatesOutsideTheTermiosSetAreRefused) {
 }
 
 TEST(Config, EveryProblemOfABadFileIsReportedWithLineAndField) {
-  auto ps = problems_of([] { load_gateway(kFixtures + "gateway_bad.yaml"); });
+  auto ps = problems_of([] { load_gateway(kConfigFixtures + "gateway_bad.yaml"); });
   const std::string all = dump(ps);
   EXPECT_TRUE(has(ps, 4, "backbone.connect", "must be host:port")) << all;
   EXPECT_TRUE(has(ps, 6, "backbone.reconnect_max_ms", "reconnect_min_ms")) << all;
@@ -611,7 +612,7 @@ TEST(Config, EveryProblemOfABadFileIsReportedWithLineAndField) {
 }
 
 TEST(Config, OverlappingSurfaceIdsNameBothOwners) {
-  auto ps = problems_of([] { load_gateway(kFixtures + "gateway_overlap.yaml"); });
+  auto ps = problems_of([] { load_gateway(kConfigFixtures + "gateway_overlap.yaml"); });
   ASSERT_EQ(ps.size(), 1u) << dump(ps);
   EXPECT_EQ(ps[0].line, 10);
   EXPECT_NE(
@@ -621,7 +622,7 @@ TEST(Config, OverlappingSurfaceIdsNameBothOwners) {
 }
 
 TEST(Config, ModuleProfilesLoadWithCia301ByDefault) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_profiles.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_profiles.yaml");
   ASSERT_EQ(g.modules.size(), 4u);
   EXPECT_EQ(g.modules[0].profile, bridge::IdProfile::qd);
   EXPECT_EQ(g.modules[1].profile, bridge::IdProfile::pdop);
@@ -633,7 +634,7 @@ TEST(Config, ModuleProfilesLoadWithCia301ByDefault) {
 }
 
 TEST(Config, LssModuleMustBeServedAndLostTimeInRange) {
-  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_lss_bad.yaml"); });
+  const auto ps = problems_of([] { load_gateway(kConfigFixtures + "gateway_lss_bad.yaml"); });
   ASSERT_EQ(ps.size(), 2u) << dump(ps);
   EXPECT_TRUE(has(ps, 8, "modules[0].heartbeat_lost_ms", "10")) << dump(ps);
   EXPECT_TRUE(has(ps, 11, "lss_module", "module 3 is not one of this gateway's modules"))
@@ -642,7 +643,8 @@ TEST(Config, LssModuleMustBeServedAndLostTimeInRange) {
 
 // A qd module's slot 1 (bits 6-5 = 01) is where a CiA 301 module's surface node 37 lives.
 TEST(Config, OverlappingProfileImagesNameBothOwnersAndTheCobId) {
-  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_overlap.yaml"); });
+  const auto ps =
+      problems_of([] { load_gateway(kConfigFixtures + "gateway_profile_overlap.yaml"); });
   ASSERT_EQ(ps.size(), 1u) << dump(ps);
   EXPECT_TRUE(has(ps, 12, "modules[1]",
                   "COB-ID 0x1A5: module 2 (cia301) local node 5 -> surface 37 TPDO1 collides "
@@ -651,7 +653,7 @@ TEST(Config, OverlappingProfileImagesNameBothOwnersAndTheCobId) {
 }
 
 TEST(Config, ProfileProblemsAreReportedWithLineAndField) {
-  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_profile_bad.yaml"); });
+  const auto ps = problems_of([] { load_gateway(kConfigFixtures + "gateway_profile_bad.yaml"); });
   EXPECT_TRUE(has(ps, 9, "modules[0]", "module 0 node 2 (pdop): surface node id 40 must be 1..31"))
       << dump(ps);
   EXPECT_TRUE(has(ps, 12, "modules[1].profile", "a qd module needs surface node ids 1..31"))

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "config/loader.hpp"
+#include "tests/config/fixtures.hpp"
 #include "tests/support/config_problems.hpp"
 
 namespace canbridge::config {
@@ -15,10 +16,10 @@ using test::dump;
 using test::has;
 using test::problems_of;
 
-const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/config/fixtures/";
+using test::kConfigFixtures;
 
 TEST(ObservabilityConfig, GatewayStatsEndpointAndMetricsLoad) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_observability.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_observability.yaml");
   EXPECT_EQ(g.stats_endpoint, "/run/canbridge/gateway.sock");
   ASSERT_TRUE(g.metrics);
   EXPECT_EQ(g.metrics->listen.host, "127.0.0.1");
@@ -26,10 +27,10 @@ TEST(ObservabilityConfig, GatewayStatsEndpointAndMetricsLoad) {
 }
 
 TEST(ObservabilityConfig, OffWithoutTheKeys) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_remote.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_remote.yaml");
   EXPECT_TRUE(g.stats_endpoint.empty());
   EXPECT_FALSE(g.metrics);
-  const SurfaceOptions s = load_surface(kFixtures + "surface_remote.yaml");
+  const SurfaceOptions s = load_surface(kConfigFixtures + "surface_remote.yaml");
   EXPECT_FALSE(s.metrics);
 }
 
@@ -49,13 +50,14 @@ TEST(ObservabilityConfig, LocalhostAndIpv6LoopbackAreLoopback) {
 }
 
 TEST(ObservabilityConfig, EveryMistakeIsReportedAtItsLine) {
-  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_observability_bad.yaml"); });
+  const auto ps =
+      problems_of([] { load_gateway(kConfigFixtures + "gateway_observability_bad.yaml"); });
   EXPECT_TRUE(has(ps, 7, "stats_endpoint", "absolute path")) << dump(ps);
   EXPECT_TRUE(has(ps, 9, "metrics.listen", "not a loopback address")) << dump(ps);
   EXPECT_TRUE(has(ps, 10, "metrics.path", "")) << dump(ps);
   EXPECT_EQ(ps.size(), 3u) << dump(ps);
   const auto surface =
-      problems_of([] { load_surface(kFixtures + "surface_observability_bad.yaml"); });
+      problems_of([] { load_surface(kConfigFixtures + "surface_observability_bad.yaml"); });
   EXPECT_TRUE(has(surface, 6, "metrics.listen", "host:port")) << dump(surface);
   EXPECT_EQ(surface.size(), 1u) << dump(surface);
 }

@@ -8,6 +8,7 @@
 
 #include "config/loader.hpp"
 #include "config/remote_access_reader.hpp"
+#include "tests/config/fixtures.hpp"
 #include "tests/support/config_problems.hpp"
 #include "tests/support/temp_key_dir.hpp"
 
@@ -18,10 +19,10 @@ using test::dump;
 using test::has;
 using test::problems_of;
 
-const std::string kFixtures = CANBRIDGE_SOURCE_DIR "/tests/config/fixtures/";
+using test::kConfigFixtures;
 
 TEST(RemoteConfig, SurfaceEndpointAndNetworksLoad) {
-  const SurfaceOptions s = load_surface(kFixtures + "surface_remote.yaml");
+  const SurfaceOptions s = load_surface(kConfigFixtures + "surface_remote.yaml");
   ASSERT_TRUE(s.command_endpoint);
   EXPECT_EQ(s.command_endpoint->unix_socket, "/tmp/canbridge-test/surface.sock");
   EXPECT_EQ(s.command_endpoint->tcp_port, 0u);
@@ -35,7 +36,7 @@ TEST(RemoteConfig, SurfaceEndpointAndNetworksLoad) {
 }
 
 TEST(RemoteConfig, WithoutTheBlocksNoEndpointAndDefaultNetworks) {
-  const SurfaceOptions s = load_surface(kFixtures + "surface_pdop.yaml");
+  const SurfaceOptions s = load_surface(kConfigFixtures + "surface_pdop.yaml");
   EXPECT_FALSE(s.command_endpoint);
   EXPECT_TRUE(s.remote.networks.empty());
   // An empty block: the endpoint with every default.
@@ -47,13 +48,13 @@ TEST(RemoteConfig, WithoutTheBlocksNoEndpointAndDefaultNetworks) {
   EXPECT_EQ(d.command_endpoint->unix_socket, "/run/canbridge/surface.sock");
   EXPECT_EQ(d.command_endpoint->sdo_timeout, std::chrono::milliseconds(1000));
   EXPECT_FALSE(d.command_endpoint->sdo_block);
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_profiles.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_profiles.yaml");
   EXPECT_EQ(g.remote.sdo_timeout, std::chrono::milliseconds(1000));
   EXPECT_EQ(g.remote.flash_block_size, 127u);
 }
 
 TEST(RemoteConfig, EveryEndpointAndNetworkMistakeIsReportedAtItsLine) {
-  const auto ps = problems_of([] { load_surface(kFixtures + "surface_remote_bad.yaml"); });
+  const auto ps = problems_of([] { load_surface(kConfigFixtures + "surface_remote_bad.yaml"); });
   EXPECT_TRUE(has(ps, 9, "command_endpoint.unix_socket", "absolute path")) << dump(ps);
   EXPECT_TRUE(has(ps, 10, "command_endpoint.tcp_port", "needs clients")) << dump(ps);
   EXPECT_TRUE(has(ps, 11, "command_endpoint.tcp_address", "not a loopback address")) << dump(ps);
@@ -82,13 +83,13 @@ TEST(RemoteConfig, ADefaultNetworkClashingWithAListedOneIsNamed) {
 }
 
 TEST(RemoteConfig, GatewayRemoteLoadsAndChecksRanges) {
-  const GatewayOptions g = load_gateway(kFixtures + "gateway_remote.yaml");
+  const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_remote.yaml");
   EXPECT_EQ(g.remote.sdo_timeout, std::chrono::milliseconds(1500));
   EXPECT_EQ(g.remote.flash_block_size, 64u);
   EXPECT_EQ(g.remote.flash_answer_timeout, std::chrono::milliseconds(30000));
   EXPECT_EQ(g.remote.boot_timeout, std::chrono::milliseconds(8000));
   EXPECT_EQ(g.remote.max_queued_per_node, 16u);
-  const auto ps = problems_of([] { load_gateway(kFixtures + "gateway_remote_bad.yaml"); });
+  const auto ps = problems_of([] { load_gateway(kConfigFixtures + "gateway_remote_bad.yaml"); });
   EXPECT_TRUE(has(ps, 8, "remote.sdo_timeout_ms", "")) << dump(ps);
   EXPECT_TRUE(has(ps, 9, "remote.flash_block_size", "")) << dump(ps);
   EXPECT_TRUE(has(ps, 10, "remote.boot_time_ms", "")) << dump(ps);

@@ -53,8 +53,8 @@ class Shell final : public SessionShell {
   bool closed = false;
 };
 
-struct End {
-  End(bool gateway, bool crc_framed, SessionCore::TimePoint now)
+struct FuzzedEnd {
+  FuzzedEnd(bool gateway, bool crc_framed, SessionCore::TimePoint now)
       : stream(options(gateway), handlers()) {
     identity.role = gateway ? v1::Hello::ROLE_GATEWAY : v1::Hello::ROLE_SURFACE;
     identity.expected_peer = gateway ? v1::Hello::ROLE_SURFACE : v1::Hello::ROLE_GATEWAY;
@@ -119,7 +119,7 @@ struct End {
 struct World {
   World(bool crc_framed) : gateway(true, crc_framed, now), surface(false, crc_framed, now) {}
 
-  void transfer(End& from, End& to) {
+  void transfer(FuzzedEnd& from, FuzzedEnd& to) {
     if (from.shell.closed || to.shell.closed) return;
     std::string out;
     from.core->fill(out, now);
@@ -138,15 +138,15 @@ struct World {
   }
   void tick(std::chrono::milliseconds d) {
     now += d;
-    for (End* e : {&gateway, &surface}) {
+    for (FuzzedEnd* e : {&gateway, &surface}) {
       if (!e->shell.closed) e->core->on_tick(now, false);
     }
     exchange();
   }
 
   SessionCore::TimePoint now = SessionCore::TimePoint{} + 1h;
-  End gateway;
-  End surface;
+  FuzzedEnd gateway;
+  FuzzedEnd surface;
   std::vector<std::vector<std::uint8_t>> wire;
 };
 
@@ -158,7 +158,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const bool attack_surface = mode & 1;
   const bool honest_first = mode & 2;
   World world((mode & 4) != 0);
-  End& target = attack_surface ? world.surface : world.gateway;
+  FuzzedEnd& target = attack_surface ? world.surface : world.gateway;
   if (honest_first) world.exchange();
   std::uint64_t queued = 0;
 
@@ -206,7 +206,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     require(d.reliable && d.size == 8 && d.n == i + 1, "the surface delivered a forged payload");
   }
   require(world.gateway.received.empty(), "the gateway delivered a forged payload");
-  for (End* e : {&world.gateway, &world.surface}) {
+  for (FuzzedEnd* e : {&world.gateway, &world.surface}) {
     const std::string& peer = e->core->authenticated_peer();
     require(peer.empty() || peer == (e == &world.gateway ? "surface" : "gw"),
             "an authenticated peer that is not the configured one");

@@ -30,7 +30,7 @@ using Bytes = std::vector<std::uint8_t>;
 
 constexpr auto kTestLimit = 10s;
 
-NodeSpec config(canopen::NodeId id) {
+NodeSpec spec_of(canopen::NodeId id) {
   NodeSpec c;
   c.kind = NodeKind::microcanopen;
   c.node_id = id;
@@ -89,8 +89,8 @@ struct Rig {
 
 TEST(NodeRunnerEndToEnd, BootUpsThenSdoUploadOfIdentity) {
   Rig rig;
-  rig.runner.add(config(5));
-  rig.runner.add(config(6));
+  rig.runner.add(spec_of(5));
+  rig.runner.add(spec_of(6));
   SdoResult vendor, product;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     vendor = co_await rig.channel.upload(5, 0x1018, 1, 1s);
@@ -108,7 +108,7 @@ TEST(NodeRunnerEndToEnd, BootUpsThenSdoUploadOfIdentity) {
 
 TEST(NodeRunnerEndToEnd, AbortFromTheNodeArrivesAsSdoAbort) {
   Rig rig;
-  rig.runner.add(config(5));
+  rig.runner.add(spec_of(5));
   SdoResult missing, read_only;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     missing = co_await rig.channel.upload(5, 0x2000, 0, 1s);
@@ -121,7 +121,7 @@ TEST(NodeRunnerEndToEnd, AbortFromTheNodeArrivesAsSdoAbort) {
 
 TEST(NodeRunnerEndToEnd, HeartbeatFollowsAPeriodDownloadedOverSdo) {
   Rig rig;
-  rig.runner.add(config(5));
+  rig.runner.add(spec_of(5));
   SdoResult write;
   const Frame heartbeat = Frame::standard(0x705, {0x7F});
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
@@ -136,7 +136,7 @@ TEST(NodeRunnerEndToEnd, HeartbeatFollowsAPeriodDownloadedOverSdo) {
 
 TEST(NodeRunnerEndToEnd, NmtStartShowsInTheHeartbeat) {
   Rig rig;
-  rig.runner.add(config(5));
+  rig.runner.add(spec_of(5));
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     const std::uint8_t period_10ms[] = {10, 0};
     co_await rig.channel.download(5, 0x1017, 0, period_10ms, 1s);
@@ -148,8 +148,8 @@ TEST(NodeRunnerEndToEnd, NmtStartShowsInTheHeartbeat) {
 
 TEST(NodeRunnerEndToEnd, RequestsToOneNodeQueueAndOthersRunAlongside) {
   Rig rig;
-  rig.runner.add(config(5));
-  rig.runner.add(config(6));
+  rig.runner.add(spec_of(5));
+  rig.runner.add(spec_of(6));
   std::tuple<SdoResult, SdoResult, SdoResult> results;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     using namespace asio::experimental::awaitable_operators;
@@ -165,7 +165,7 @@ TEST(NodeRunnerEndToEnd, RequestsToOneNodeQueueAndOthersRunAlongside) {
 
 TEST(NodeRunnerEndToEnd, AbsentNodeTimesOutWith05040000) {
   Rig rig;
-  rig.runner.add(config(5));
+  rig.runner.add(spec_of(5));
   SdoResult result;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     result = co_await rig.channel.upload(42, 0x1000, 0, 20ms);
@@ -198,11 +198,11 @@ TEST(NodeRunnerEndToEnd, StopFailsPendingAndLaterRequests) {
 
 TEST(NodeRunnerEndToEnd, NodeAddedWhileRunningBootsAtOnce) {
   Rig rig;
-  rig.runner.add(config(5));
+  rig.runner.add(spec_of(5));
   SdoResult result;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
     co_await rig.wait_until([&] { return rig.count(Frame::standard(0x705, {0x00})) == 1; });
-    rig.runner.add(config(7));
+    rig.runner.add(spec_of(7));
     co_await rig.wait_until([&] { return rig.count(Frame::standard(0x707, {0x00})) == 1; });
     result = co_await rig.channel.upload(7, 0x1000, 0, 1s);
   }));
@@ -214,7 +214,7 @@ TEST(NodeRunner, ClosingTheBusEndsRun) {
   can::VirtualBus medium(io.get_executor(), "vbus");
   auto end = medium.connect("sim");
   NodeRunner runner(io.get_executor(), *end);
-  runner.add(config(1));
+  runner.add(spec_of(1));
   bool finished = false;
   asio::co_spawn(
       io,

@@ -21,7 +21,7 @@ using Bytes = std::vector<std::uint8_t>;
 using Frames = std::vector<can::Frame>;
 using TimePoint = PdoEngine::TimePoint;
 
-const TimePoint t0 = TimePoint{} + 1000s;
+const TimePoint kEngineStart = TimePoint{} + 1000s;
 
 // ---- connection set -------------------------------------------------------------------------
 
@@ -132,7 +132,7 @@ class PdoEngineTest : public ::testing::Test {
 
   ObjectDictionary od;
   std::unique_ptr<PdoEngine> engine;
-  TimePoint now = t0;
+  TimePoint now = kEngineStart;
   Frames out;
 };
 
@@ -224,15 +224,15 @@ TEST_F(PdoEngineTest, EventTimerCadence) {
   make({spec});
   engine->start(now, out);
   EXPECT_EQ(take().size(), 1u);
-  EXPECT_EQ(engine->next_deadline(), t0 + 100ms);
-  engine->poll(t0 + 99ms, out);
+  EXPECT_EQ(engine->next_deadline(), kEngineStart + 100ms);
+  engine->poll(kEngineStart + 99ms, out);
   EXPECT_TRUE(take().empty());
   for (int period = 1; period <= 3; ++period) {
-    engine->poll(t0 + period * 100ms, out);
+    engine->poll(kEngineStart + period * 100ms, out);
     const Frames frames = take();
     ASSERT_EQ(frames.size(), 1u) << "period " << period;
     EXPECT_EQ(frames[0], can::Frame::standard(0x181, {0x34, 0x12}));
-    EXPECT_EQ(engine->next_deadline(), t0 + (period + 1) * 100ms);
+    EXPECT_EQ(engine->next_deadline(), kEngineStart + (period + 1) * 100ms);
   }
 }
 
@@ -243,25 +243,25 @@ TEST_F(PdoEngineTest, ChangeOfStateDuringInhibitGoesOutOnceAtItsEndWithTheLatest
   engine->start(now, out);
   EXPECT_EQ(take().size(), 1u);
 
-  now = t0 + 2ms;
+  now = kEngineStart + 2ms;
   set_u16(0x0001);
   EXPECT_TRUE(take().empty());
-  EXPECT_EQ(engine->next_deadline(), t0 + 10ms);
-  now = t0 + 5ms;
+  EXPECT_EQ(engine->next_deadline(), kEngineStart + 10ms);
+  now = kEngineStart + 5ms;
   set_u16(0x0002);
   EXPECT_TRUE(take().empty());
 
-  engine->poll(t0 + 10ms, out);
+  engine->poll(kEngineStart + 10ms, out);
   const Frames frames = take();
   ASSERT_EQ(frames.size(), 1u);
   EXPECT_EQ(frames[0], can::Frame::standard(0x181, {0x02, 0x00}));
-  engine->poll(t0 + 10ms, out);
-  engine->poll(t0 + 30ms, out);
+  engine->poll(kEngineStart + 10ms, out);
+  engine->poll(kEngineStart + 30ms, out);
   EXPECT_TRUE(take().empty());
   EXPECT_EQ(engine->next_deadline(), TimePoint::max());
 
   // After the inhibit time a change goes out at once.
-  now = t0 + 25ms;
+  now = kEngineStart + 25ms;
   set_u16(0x0003);
   EXPECT_EQ(take(), (Frames{can::Frame::standard(0x181, {0x03, 0x00})}));
 }
@@ -272,12 +272,12 @@ TEST_F(PdoEngineTest, ChangeUndoneDuringInhibitIsNotSent) {
   make({spec});
   engine->start(now, out);
   take();
-  now = t0 + 1ms;
+  now = kEngineStart + 1ms;
   set_u16(0x0001);
-  now = t0 + 2ms;
+  now = kEngineStart + 2ms;
   set_u16(0x1234);
   EXPECT_EQ(engine->next_deadline(), TimePoint::max());
-  engine->poll(t0 + 10ms, out);
+  engine->poll(kEngineStart + 10ms, out);
   EXPECT_TRUE(take().empty());
 }
 
@@ -286,7 +286,7 @@ TEST_F(PdoEngineTest, SynchronousTpdoEveryNthSync) {
   engine->start(now, out);
   EXPECT_TRUE(take().empty());
   for (int sync = 1; sync <= 9; ++sync) {
-    engine->on_sync(t0 + sync * 10ms, out);
+    engine->on_sync(kEngineStart + sync * 10ms, out);
     EXPECT_EQ(take().size(), sync % 3 == 0 ? 1u : 0u) << "SYNC " << sync;
   }
   // Change of state does not trigger a synchronous TPDO.
@@ -317,20 +317,20 @@ TEST_F(PdoEngineTest, Bit31DisablesAndClearingItResumes) {
   engine->start(now, out);
   take();
 
-  now = t0 + 50ms;
+  now = kEngineStart + 50ms;
   ASSERT_FALSE(od.write(0x1800, 1, u32(0x80000181)));
   EXPECT_EQ(engine->tpdo_cob_id(1), std::nullopt);
   set_u16(0x0007);
-  engine->poll(t0 + 100ms, out);
-  engine->on_sync(t0 + 100ms, out);
+  engine->poll(kEngineStart + 100ms, out);
+  engine->on_sync(kEngineStart + 100ms, out);
   EXPECT_TRUE(take().empty());
   EXPECT_EQ(engine->next_deadline(), TimePoint::max());
 
-  now = t0 + 150ms;
+  now = kEngineStart + 150ms;
   ASSERT_FALSE(od.write(0x1800, 1, u32(0x181)));
   EXPECT_EQ(take(), (Frames{can::Frame::standard(0x181, {0x07, 0x00})}));
   EXPECT_EQ(engine->tpdo_cob_id(1), 0x181u);
-  EXPECT_EQ(engine->next_deadline(), t0 + 250ms);
+  EXPECT_EQ(engine->next_deadline(), kEngineStart + 250ms);
 }
 
 TEST_F(PdoEngineTest, CobIdChangesOnlyWhileDisabled) {

@@ -12,4 +12,12 @@ namespace canbridge::test {
 bool run_until(boost::asio::io_context& io, const std::function<bool()>& done,
                std::chrono::milliseconds timeout = std::chrono::milliseconds(5000));
 
+// Runs the io_context until it has no work left; true if that happened within `timeout`, i.e.
+// nothing was left pending (a stopped role's coroutines all saw their bus or link close).
+inline bool drains_within(boost::asio::io_context& io, std::chrono::milliseconds timeout) {
+  io.restart();
+  io.run_for(timeout);
+  return io.stopped();
+}
+
 }  // namespace canbridge::test
