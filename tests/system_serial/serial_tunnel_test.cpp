@@ -397,9 +397,14 @@ TEST_F(SerialTunnel, PdoFloodDoesNotCostAReliableFrame) {
   ASSERT_NO_FATAL_FAILURE(expect_running());
   stop_all();
   EXPECT_EQ(counter(gateway_final_, "reliable-refused"), 0) << gateway_final_;
-  // cangen sends several times what the line carries: the flood backlogged it past
-  // conflate_after_ms, so values were conflated (and the reliable ones above all arrived).
-  EXPECT_GT(counter(gateway_final_, "conflated"), 0) << gateway_final_;
+  // cangen sends several times what the line carries, on a line with bit errors (BER 1e-4): not
+  // every value crossed. Which way a value went depends on where the backlog waited: in the
+  // gateway's outbox past conflate_after_ms (conflated), or, when the guest's CPU was busy and
+  // the gateway read the flood late in a few large batches, on the line in a message a bit error
+  // destroyed (process data is never resent). Two CI runs beside the image test saw the second:
+  // conflated 0, 1,130 and 1,246 of 2,000 crossed. Either way the reliable frames above all
+  // arrived, in order, which is what this test is for.
+  EXPECT_LT(pdos.size(), sent_pdos.size()) << gateway_final_;
   std::cout << "[  rig     ] gateway: " << gateway_final_ << "\n";
 }
 
