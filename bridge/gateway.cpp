@@ -295,18 +295,12 @@ void Gateway::queue_node_events() {
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
     v1::NodeEvent& o = *out.add_events();
+    describe_node(m, e.local, e.state, e.boot_count, o);
     o.set_kind(to_proto(e.kind));
-    o.set_module_id(modules_[m].id);
-    o.set_local_node(e.local);
-    o.set_surface_node(map_.surface_of(m, e.local));
     o.set_previous_local_node(e.previous_local);
     o.set_previous_surface_node(e.previous_surface ? e.previous_surface
                                 : e.previous_local ? map_.surface_of(m, e.previous_local)
                                                    : 0);
-    o.set_nmt_state(static_cast<std::uint32_t>(e.state));
-    o.set_boot_count(e.boot_count);
-    const NodeRecord* record = node_table_.node(m, e.local);
-    o.set_in_loader(record && record->loader == LoaderState::in_loader);
   }
   const std::size_t events = node_events_.size();
   counters_.node_events += events;
@@ -333,6 +327,18 @@ void Gateway::bound_node_events() {
              "gateway: node events dropped: the backbone link is down too long (counted)");
 }
 
+// The fields every node event carries: which node (module, local and surface id) and how it is.
+void Gateway::describe_node(std::size_t m, NodeId local, NmtState state, std::uint32_t boot_count,
+                            v1::NodeEvent& o) const {
+  o.set_module_id(modules_[m].id);
+  o.set_local_node(local);
+  o.set_surface_node(map_.surface_of(m, local));
+  o.set_nmt_state(static_cast<std::uint32_t>(state));
+  o.set_boot_count(boot_count);
+  const NodeRecord* record = node_table_.node(m, local);
+  o.set_in_loader(record && record->loader == LoaderState::in_loader);
+}
+
 void Gateway::queue_node_snapshot(const v1::Hello& surface) {
   snapshot_surface_ = surface.session_id();
   // A snapshot still queued was for a surface process that never got it: this one supersedes it.
@@ -347,13 +353,8 @@ void Gateway::queue_node_snapshot(const v1::Hello& surface) {
       // What the discovery of the node in its present state says; a lost node is then lost, as
       // the surface counts a LOST after it (the last state kept, as in the table).
       v1::NodeEvent& o = *out.add_events();
+      describe_node(m, local, record.state, record.boot_count, o);
       o.set_kind(v1::NodeEvent::DISCOVERED);
-      o.set_module_id(modules_[m].id);
-      o.set_local_node(local);
-      o.set_surface_node(map_.surface_of(m, local));
-      o.set_nmt_state(static_cast<std::uint32_t>(record.state));
-      o.set_boot_count(record.boot_count);
-      o.set_in_loader(record.loader == LoaderState::in_loader);
       ++nodes;
       if (record.lost) {
         v1::NodeEvent& l = *out.add_events();

@@ -175,6 +175,8 @@ class Gateway {
   // A surface process the gateway has not reported to (the first ever, a restarted one) learns
   // every node the table knows, in their states now, from these events: behind what is queued.
   void queue_node_snapshot(const v1::Hello& surface);
+  void describe_node(std::size_t module_index, NodeId local, NmtState state,
+                     std::uint32_t boot_count, v1::NodeEvent& out) const;
   // The bound on queued node event payloads: the oldest goes first, a snapshot never.
   void bound_node_events();
   void produce(backbone::PayloadSink& sink);
