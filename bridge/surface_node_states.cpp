@@ -3,6 +3,7 @@
 #include <cstdint>
 
 #include "canopen/cob_id.hpp"
+#include "routing/node_table.hpp"
 
 namespace canbridge::bridge {
 
@@ -55,7 +56,7 @@ void SurfaceNodeStates::forget(GatewayId gateway) {
 }
 
 NodeSummary SurfaceNodeStates::summary(const LinkUp& link_up) const {
-  NodeSummary s;
+  NodeCounts c;
   // One link_up call per gateway, not per node: the map is ordered by gateway first.
   bool have_gateway = false;
   GatewayId gateway = 0;
@@ -67,19 +68,9 @@ NodeSummary SurfaceNodeStates::summary(const LinkUp& link_up) const {
       up = link_up(gateway);
     }
     const auto state = static_cast<canopen::NmtState>(node.nmt_state & 0x7F);  // no toggle bit
-    if (node.lost || !up) {
-      ++s.lost;
-    } else if (node.in_loader) {
-      ++s.in_loader;
-    } else if (state == canopen::NmtState::operational) {
-      ++s.operational;
-    } else if (state == canopen::NmtState::stopped) {
-      ++s.stopped;
-    } else {
-      ++s.pre_operational;
-    }
+    c.add(state, node.lost || !up, node.in_loader);
   }
-  return s;
+  return {c.operational, c.pre_operational, c.stopped, c.in_loader, c.lost};
 }
 
 }  // namespace canbridge::bridge

@@ -517,20 +517,24 @@ const NodeRecord* NodeTable::node(std::size_t module_index, NodeId local) const 
   return &m.slots[local].record;
 }
 
+void NodeCounts::add(NmtState state, bool is_lost, bool is_in_loader) {
+  if (is_lost) {
+    ++lost;
+  } else if (is_in_loader) {
+    ++in_loader;
+  } else if (state == NmtState::operational) {
+    ++operational;
+  } else if (state == NmtState::stopped) {
+    ++stopped;
+  } else {
+    ++pre_operational;
+  }
+}
+
 NodeCounts NodeTable::counts(std::size_t module_index) const {
   NodeCounts c;
   for_each_known(module_index, [&c](NodeId, const NodeRecord& r) {
-    if (r.lost) {
-      ++c.lost;
-    } else if (r.loader == LoaderState::in_loader) {
-      ++c.in_loader;
-    } else if (r.state == NmtState::operational) {
-      ++c.operational;
-    } else if (r.state == NmtState::stopped) {
-      ++c.stopped;
-    } else {
-      ++c.pre_operational;
-    }
+    c.add(r.state, r.lost, r.loader == LoaderState::in_loader);
   });
   return c;
 }

@@ -107,6 +107,8 @@ struct NodeCounts {
   std::size_t in_loader = 0;
   std::size_t lost = 0;
   std::size_t total() const { return operational + pre_operational + stopped + in_loader + lost; }
+  // Counts one node in its one place (the gateway's table and the surface's view count alike).
+  void add(NmtState state, bool is_lost, bool is_in_loader);
   friend bool operator==(const NodeCounts&, const NodeCounts&) = default;
 };
 // "nodes 7: 5 op, 1 pre-op, 0 stopped, 0 loader, 1 lost"
