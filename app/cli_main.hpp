@@ -9,7 +9,8 @@
 
 namespace canbridge::cli {
 
-// True for the names run_client handles (main.cpp dispatches on it).
+// True for the names run_client handles (parse_command_line, app/command_line.cpp, dispatches on
+// it).
 bool is_client_command(std::string_view name);
 // True for the options all operator commands share that take a value (--endpoint, -c, ...):
 // they may stand before the command's name, and the word after them is their value.
