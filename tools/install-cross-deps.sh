@@ -71,7 +71,9 @@ populate_sysroot() {
   wanted+=("${target_packages_all[@]}")
   local versions
   versions=$(apt-cache policy "${wanted[@]}" 2>/dev/null | awk '/^[^ ]/{p=$1} /Candidate:/{print p, $2}')
-  if grep -q "(none)" <<<"$versions" || [[ -z $versions ]]; then
+  # apt-cache prints nothing for a package it does not know (an architecture just added, whose
+  # lists apt has not fetched yet), so a short list means the lists are stale, like "(none)".
+  if grep -q "(none)" <<<"$versions" || (($(grep -c . <<<"$versions") < ${#wanted[@]})); then
     apt_update
     versions=$(apt-cache policy "${wanted[@]}" | awk '/^[^ ]/{p=$1} /Candidate:/{print p, $2}')
   fi
