@@ -1,5 +1,6 @@
 #include "tests/support/process.hpp"
 
+#include <elf.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
@@ -7,14 +8,62 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <sstream>
 #include <string_view>
 #include <system_error>
 
 extern char** environ;
 
 namespace canbridge::test {
+namespace {
+
+#ifdef CANBRIDGE_TARGET_LAUNCHER
+// The ELF machine this test program was compiled for.
+constexpr std::uint16_t kOwnElfMachine =
+#if defined(__aarch64__)
+    EM_AARCH64;
+#elif defined(__arm__)
+    EM_ARM;
+#else
+    0;  // no other cross target: nothing is launched through the emulator
+#endif
+
+// True when `path` is an ELF executable for the machine this program was built for.
+bool is_target_program(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  unsigned char header[20] = {};
+  if (!file.read(reinterpret_cast<char*>(header), sizeof header)) return false;
+  if (std::memcmp(header, ELFMAG, SELFMAG) != 0) return false;
+  const auto machine = static_cast<std::uint16_t>(header[18] | (header[19] << 8));  // e_machine, LE
+  return machine == kOwnElfMachine;
+}
+#endif
+
+// In a cross-built tree (CANBRIDGE_TARGET_LAUNCHER: the emulator ctest runs the tests with, e.g.
+// "qemu-arm -L /usr/arm-linux-gnueabihf -E LD_LIBRARY_PATH=..."), a test that spawns one of the
+// tree's own programs spawns a target binary, which the build machine's kernel execs only where
+// binfmt_misc is set up for qemu (not in containers and CI). Such a child runs through the same
+// emulator as the test; the build machine's tools (candump, sh) are spawned as they are.
+std::vector<std::string> through_target_launcher(std::vector<std::string> argv) {
+#ifdef CANBRIDGE_TARGET_LAUNCHER
+  if (!argv.empty() && argv[0].find('/') != std::string::npos && is_target_program(argv[0])) {
+    std::vector<std::string> launched;
+    std::istringstream words(CANBRIDGE_TARGET_LAUNCHER);
+    for (std::string word; words >> word;) launched.push_back(word);
+    launched.insert(launched.end(), argv.begin(), argv.end());
+    return launched;
+  }
+#endif
+  return argv;
+}
+
+}  // namespace
 
 ChildProcess::ChildProcess(std::vector<std::string> argv, Capture capture) {
+  argv = through_target_launcher(std::move(argv));
   int fds[2];
   if (::pipe2(fds, O_CLOEXEC) != 0) throw std::system_error(errno, std::system_category(), "pipe");
   posix_spawn_file_actions_t actions;
