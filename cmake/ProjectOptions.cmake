@@ -17,6 +17,18 @@ if(CANBRIDGE_SANITIZE)
   target_link_options(canbridge_sanitizers INTERFACE -fsanitize=address,undefined)
 endif()
 
-# Every project target links this: warnings + sanitizers (when enabled).
+# Hardening as Debian builds its own packages (dpkg-buildflags; lintian's hardening checks on the
+# .deb): stack protector, fortified libc calls where the compiler optimises (FORTIFY needs -O),
+# and relocations read-only before main (-z relro -z now). Not with the sanitizers, which do
+# those checks themselves and whose interceptors FORTIFY's wrappers would bypass.
+add_library(canbridge_hardening INTERFACE)
+if(NOT CANBRIDGE_SANITIZE)
+  target_compile_options(canbridge_hardening INTERFACE -fstack-protector-strong
+                         $<$<CONFIG:Release,RelWithDebInfo,MinSizeRel>:-D_FORTIFY_SOURCE=2>)
+  target_link_options(canbridge_hardening INTERFACE LINKER:-z,relro,-z,now)
+endif()
+
+# Every project target links this: warnings, hardening, sanitizers (when enabled).
 add_library(canbridge_project_options INTERFACE)
-target_link_libraries(canbridge_project_options INTERFACE canbridge_warnings canbridge_sanitizers)
+target_link_libraries(canbridge_project_options INTERFACE canbridge_warnings canbridge_hardening
+                                                          canbridge_sanitizers)
