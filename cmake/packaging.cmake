@@ -59,21 +59,64 @@ foreach(script postinst prerm postrm)
                  FILE_PERMISSIONS OWNER_READ OWNER_WRITE OWNER_EXECUTE GROUP_READ GROUP_EXECUTE
                                   WORLD_READ WORLD_EXECUTE)
 endforeach()
+# Debian's copyright file and the changelog of a native package (gzip -9n: no name or time
+# in the header, as Debian policy wants), beside the docs; lintian checks both (tests/package).
+set(CANBRIDGE_PACKAGE_MAINTAINER "canbridge developers <dev@canbridge.invalid>"
+    CACHE STRING "The .deb's Maintainer: (.invalid never resolves: a packager sets their own)")
+configure_file(${PROJECT_SOURCE_DIR}/cmake/debian/changelog.in ${PROJECT_BINARY_DIR}/debian/changelog
+               @ONLY)
+execute_process(COMMAND gzip -9nc ${PROJECT_BINARY_DIR}/debian/changelog
+                OUTPUT_FILE ${PROJECT_BINARY_DIR}/debian/changelog.gz COMMAND_ERROR_IS_FATAL ANY)
+install(FILES ${PROJECT_SOURCE_DIR}/cmake/debian/copyright
+              ${PROJECT_BINARY_DIR}/debian/changelog.gz DESTINATION ${CMAKE_INSTALL_DOCDIR})
+
+# Manual pages (man canbridge, ...) made from each executable's --help and --version by help2man
+# at build time, gzipped as Debian installs them. None where help2man is missing (a message
+# says so) or where the executables cannot run on the build machine (cross builds).
+find_program(CANBRIDGE_HELP2MAN help2man)
+if(CMAKE_CROSSCOMPILING)
+elseif(NOT CANBRIDGE_HELP2MAN)
+  message(STATUS "canbridge: no help2man: no manual pages (apt-get install help2man)")
+else()
+  set(canbridge_man_pages
+      "canbridge|CANopen gateway and surface roles tunnelling CAN buses over a backbone"
+      "canbridge-sim|simulated CANopen nodes and modules on CAN buses"
+      "canbridge-link-emulator|a slow, noisy, breakable wireline between two endpoints")
+  foreach(entry IN LISTS canbridge_man_pages)
+    string(REPLACE "|" ";" entry "${entry}")
+    list(GET entry 0 program)
+    list(GET entry 1 summary)
+    set(page ${PROJECT_BINARY_DIR}/man/${program}.1)
+    add_custom_command(
+      OUTPUT ${page}.gz
+      COMMAND ${CMAKE_COMMAND} -E make_directory ${PROJECT_BINARY_DIR}/man
+      COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary}
+              --output=${page} $<TARGET_FILE:${program}>
+      COMMAND gzip -9nf ${page}
+      DEPENDS ${program}
+      COMMENT "Manual page ${program}.1"
+      VERBATIM)
+    add_custom_target(${program}-man-page ALL DEPENDS ${page}.gz)
+    install(FILES ${page}.gz DESTINATION ${CMAKE_INSTALL_MANDIR}/man1)
+  endforeach()
+endif()
+
 file(WRITE ${PROJECT_BINARY_DIR}/debian/conffiles
      "${CANBRIDGE_CONFIG_DIR}/gateway.yaml\n${CANBRIDGE_CONFIG_DIR}/surface.yaml\n")
 
 set(CPACK_GENERATOR DEB)
 set(CPACK_PACKAGE_NAME canbridge)
 set(CPACK_PACKAGE_VENDOR canbridge)
-set(CPACK_PACKAGE_CONTACT "canbridge <dev@canbridge>")
+set(CPACK_PACKAGE_CONTACT "${CANBRIDGE_PACKAGE_MAINTAINER}")
+# The synopsis; the extended description below must not repeat it, and its lines stay within
+# 80 columns (lintian).
 set(CPACK_PACKAGE_DESCRIPTION_SUMMARY "CANopen gateway tunnelling SocketCAN buses over a backbone link")
 set(CPACK_DEBIAN_PACKAGE_DESCRIPTION
-    "CANopen gateway tunnelling SocketCAN buses over a backbone link\n\
-canbridge presents the CANopen nodes of several module CAN buses (the gateway role,\n\
-on the tool's board) on one surface CAN interface (the surface role, on a PC), over\n\
-TCP or serial lines, authenticated with pre-shared keys or certificates. Includes\n\
-systemd units for both roles, canbridge-sim (simulated nodes) and\n\
-canbridge-link-emulator (a slow, noisy wireline for tests).")
+    "canbridge presents the CANopen nodes of several module CAN buses (the gateway\n\
+role, on the tool's board) on one surface CAN interface (the surface role, on a\n\
+PC), over TCP or serial lines, authenticated with pre-shared keys or\n\
+certificates. Includes systemd units for both roles, canbridge-sim (simulated\n\
+nodes) and canbridge-link-emulator (a slow, noisy wireline for tests).")
 set(CPACK_DEBIAN_PACKAGE_SECTION net)
 set(CPACK_DEBIAN_PACKAGE_PRIORITY optional)
 set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)

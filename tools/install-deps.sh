@@ -9,6 +9,8 @@ packages=(
   can-utils iproute2 kmod user-mode-linux
   libcli11-dev tshark
   dpkg-dev  # dpkg-shlibdeps: the .deb's library dependencies (cpack -G DEB, tests/package)
+  help2man  # the manual pages, from each executable's --help (cmake/packaging.cmake)
+  lintian   # Debian's package checker, run on the .deb by tests/package
 )
 missing=()
 for p in "${packages[@]}"; do
