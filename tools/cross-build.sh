@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Cross-builds canbridge for a Debian ARM architecture and runs its unit tests under qemu-user:
-#   tools/cross-build.sh ARCH [BUILD_DIR]      ARCH: armhf or arm64; BUILD_DIR: build-ARCH
+#   tools/cross-build.sh ARCH [BUILD_DIR [-- CMAKE_ARGS...]]
+# ARCH: armhf or arm64; BUILD_DIR: build-ARCH; CMAKE_ARGS are added to the configure line
+# (tools/test.sh passes -DCANBRIDGE_UNITY_BUILD=ON for its from-scratch tree).
 # Installs what is missing (tools/install-cross-deps.sh), configures with
 # cmake/toolchains/ARCH.cmake (Release, -O2, unit tests, no rig or bench programs), builds, runs
 # `ctest -L unit` under qemu-user and prints the stripped size of the gateway executable.
@@ -11,9 +13,14 @@ arch=${1:-}
 case $arch in
   armhf) triplet=arm-linux-gnueabihf ;;
   arm64) triplet=aarch64-linux-gnu ;;
-  *) echo "usage: $0 armhf|arm64 [BUILD_DIR]" >&2; exit 2 ;;
+  *) echo "usage: $0 armhf|arm64 [BUILD_DIR [-- CMAKE_ARGS...]]" >&2; exit 2 ;;
 esac
 build=${2:-$root/build-$arch}
+extra_cmake_args=()
+if (($# > 2)); then
+  [[ $3 == -- ]] || { echo "usage: $0 armhf|arm64 [BUILD_DIR [-- CMAKE_ARGS...]]" >&2; exit 2; }
+  extra_cmake_args=("${@:4}")
+fi
 jobs=${CANBRIDGE_JOBS:-$(nproc)}
 
 "$root/tools/install-cross-deps.sh" "$arch"
@@ -22,7 +29,8 @@ launcher=()
 command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_TOOLCHAIN_FILE="$root/cmake/toolchains/$arch.cmake" \
   "${launcher[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_CXX_FLAGS_RELEASE="-O2 -DNDEBUG" \
-  -DCANBRIDGE_UNIT_TESTS=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF >/dev/null
+  -DCANBRIDGE_UNIT_TESTS=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
+  "${extra_cmake_args[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
 
 # Unit tests qemu-user cannot run faithfully; each entry is a ctest regex with its reason.
