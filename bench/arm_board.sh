@@ -238,6 +238,10 @@ sleep $load_seconds
 for p in \$pids; do kill -0 \$p 2>/dev/null || say "a cangen exited early"; done
 say "gw_load_rss_kb=\$(status \$gpid VmRSS) gw_load_hwm_kb=\$(status \$gpid VmHWM) sf_load_rss_kb=\$(status \$spid VmRSS) sf_load_hwm_kb=\$(status \$spid VmHWM)"
 say "gw_load_split_kb=\$(mem_split \$gpid)"
+# Which mappings hold it: the executable, each library, the heap ([anon] and [heap]), stacks.
+say "gw_load_rss_by_mapping_kb=\$(awk '\$1 ~ /^[0-9a-f]+-[0-9a-f]+\$/ {n = NF >= 6 ? \$6 : "[anon]"; sub(/.*\//, "", n)}
+  \$1 == "Rss:" {kb[n] += \$2} END {for (n in kb) if (kb[n] >= 64) print n ":" kb[n]}' /proc/\$gpid/smaps |
+  sort -t: -k2 -rn | tr '\n' ' ')"
 kill \$pids; wait \$pids 2>/dev/null
 t2=\$(cut -d' ' -f1 /proc/uptime)
 say "load_s=\$(awk -v a=\$t1 -v b=\$t2 'BEGIN{print b - a}')"
