@@ -1,10 +1,12 @@
 // Statistics of real processes (issue 18): a gateway on vcan1 + vcan2 and a surface on vcan0, each
 // with its stats endpoint and Prometheus endpoint. Known traffic from cangen must show in
 // `canbridge stats` as exact totals and as rates close to what the test measured itself; taking
-// vcan1 down must be logged at once and show as "down", and frames must flow again once it is up.
+// vcan1 down must be logged at once and show as "down", and frames must flow again once it is up;
+// a surface killed and started again must count the gateway's nodes again.
 #include <arpa/inet.h>
 #include <gtest/gtest.h>
 #include <netinet/in.h>
+#include <signal.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -268,6 +270,61 @@ TEST_F(Statistics, InterfaceDownAndUpIsLoggedShownAndFramesFlowAgain) {
             std::string::npos)
       << up;
   EXPECT_GE(number_after(up, kVcan1, "reopens"), 1) << up;
+}
+
+// The surface's node summary comes from the gateways' node events; a surface that was killed and
+// started again has missed them all, so the gateway sends it a snapshot of its node table. The
+// node below beats on and never changes state, so after the restart nothing but the snapshot can
+// bring it back into the surface's statistics.
+TEST_F(Statistics, ARestartedSurfaceCountsTheGatewaysNodesAgain) {
+  // Module 1 node 5: boot-up, then an operational heartbeat every 100 ms (kept alive throughout).
+  RawCanSocket vcan1("vcan1");
+  vcan1.send(Frame::standard(0x705, {0x00}));
+  ChildProcess heartbeats({"cangen", "vcan1", "-g", "100", "-I", "705", "-L", "1", "-D", "05"});
+  const auto operational_nodes = [](const std::string& json) {
+    return number_after(json, "\"nodes\":", "operational");
+  };
+  auto deadline = Clock::now() + 10s;
+  std::string before;
+  do {
+    before = stats(surface_socket_);
+  } while (operational_nodes(before) < 1 && Clock::now() < deadline);
+  ASSERT_GE(operational_nodes(before), 1) << before << gateway_->output();
+  const long long total = number_after(before, "\"nodes\":", "total");
+
+  // SIGKILL: nothing is flushed or said goodbye; then the same config (the gateway reconnects to
+  // the same port).
+  const std::uint16_t backbone = logged_port(*surface_, "listening on 127\\.0\\.0\\.1:");
+  ASSERT_EQ(::kill(surface_->pid(), SIGKILL), 0);
+  ASSERT_TRUE(surface_->wait(10s).has_value());
+  std::string config =
+      "role: surface\nname: stats-surface\nbus: vcan0\nbackbone:\n  listen: "
+      "127.0.0.1:" +
+      std::to_string(backbone) +
+      "\n  auth: {mode: plain}\n"
+      "gateways: [{name: stats-gateway, modules: [1, 2]}]\n"
+      "command_endpoint: {unix_socket: " +
+      surface_socket_ +
+      "}\n"
+      "metrics: {listen: 127.0.0.1:0}\nlog:\n  level: info\n"
+      "  stats_interval_s: 1\n";
+  surface_ = std::make_unique<ChildProcess>(std::vector<std::string>{
+      CANBRIDGE_BIN, "surface", "--config", write_file("stats-surface-again.yaml", config)});
+  ASSERT_TRUE(surface_->wait_for_line("gateway 'stats-gateway' ready", 20s))
+      << surface_->output() << gateway_->output();
+
+  deadline = Clock::now() + 10s;
+  std::string after;
+  do {
+    after = stats(surface_socket_);
+  } while (operational_nodes(after) < operational_nodes(before) && Clock::now() < deadline);
+  EXPECT_EQ(number_after(after, "\"nodes\":", "total"), total) << after;
+  EXPECT_EQ(operational_nodes(after), operational_nodes(before)) << after;
+  EXPECT_EQ(number_after(after, "\"nodes\":", "lost"), number_after(before, "\"nodes\":", "lost"))
+      << after;
+  // The node beat on throughout (cangen exits 1 on SIGTERM: its status says nothing here).
+  EXPECT_FALSE(heartbeats.finished()) << heartbeats.output();
+  heartbeats.stop();
 }
 
 }  // namespace
