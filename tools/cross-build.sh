@@ -6,7 +6,9 @@
 # Installs what is missing (tools/install-cross-deps.sh), configures with
 # cmake/toolchains/ARCH.cmake (Release, -O2, unit tests, no rig or bench programs), builds, runs
 # `ctest -L unit` under qemu-user and prints the stripped size of the gateway executable.
-# CANBRIDGE_JOBS sets the parallelism (default: nproc). docs/cross-build.md has the details.
+# CANBRIDGE_JOBS sets the parallelism (default: nproc); CANBRIDGE_CROSS_BUILD_ONLY=1 stops after
+# the build (tools/test.sh builds in the background and tests later). docs/cross-build.md has the
+# details.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 arch=${1:-}
@@ -32,6 +34,7 @@ cmake -S "$root" -B "$build" -G Ninja -DCMAKE_TOOLCHAIN_FILE="$root/cmake/toolch
   -DCANBRIDGE_UNIT_TESTS=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
   "${extra_cmake_args[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
+[[ ${CANBRIDGE_CROSS_BUILD_ONLY:-0} == 1 ]] && exit 0
 
 # Unit tests qemu-user cannot run faithfully; each entry is a ctest regex with its reason.
 excluded=(
