@@ -15,14 +15,14 @@
 # unpacked with `dpkg-deb -x` into a temporary folder: nothing of ARCH is installed on the host.
 #
 # The guest mirrors bench/speed_bench.sh's four-bus scenario: vcan0 (surface) and vcan1..vcan4
-# (modules 1, 2, 0, 3), config/gateway.yaml and config/surface.yaml as shipped plus its
-# derive_fourbus lines. The guest has a filesystem of its own, so the shipped key path
-# (/etc/canbridge/keys/) and command socket (/run/canbridge/surface.sock) are used unchanged; the
-# psk key is made with openssl per run. Steps: surface and gateway started, connected (their
-# "ready" log lines), CANBRIDGE_ARM_IDLE_SECONDS idle, then VmRSS read; then cangen sends TPDO
-# 0x181 on each module bus and RPDO 0x221 (surface node 33, module 1's node 1) on the surface
-# bus, one frame per CANBRIDGE_ARM_GAP_MS each (0.125: speed_bench's nominal 8 frames per ms per
-# bus; the emulated CPU reaches less, the rate reached is printed), for
+# (modules 1, 2, 0, 3), config/gateway.yaml and config/surface.yaml as shipped plus the lines
+# four_bus_configs (bench/rig_common.sh) adds. The guest has a filesystem of its own, so the
+# shipped key path (/etc/canbridge/keys/) and command socket (/run/canbridge/surface.sock) are
+# used unchanged; the psk key is made with openssl per run. Steps: surface and gateway started,
+# connected (their "ready" log lines), CANBRIDGE_ARM_IDLE_SECONDS idle, then VmRSS read; then
+# cangen sends TPDO 0x181 on each module bus and RPDO 0x221 (surface node 33, module 1's node 1)
+# on the surface bus, one frame per CANBRIDGE_ARM_GAP_MS each (0.125: speed_bench's nominal 8
+# frames per ms per bus; the emulated CPU reaches less, the rate reached is printed), for
 # CANBRIDGE_ARM_LOAD_SECONDS; VmRSS and VmHWM are read at its end, then both are stopped and their
 # final stats lines prove the frames crossed.
 #
@@ -31,6 +31,8 @@
 # CANBRIDGE_ARM_TIMEOUT (1200 s for the whole boot), CANBRIDGE_ARM_KEEP=1 (keep the work folder).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
+# shellcheck source=bench/rig_common.sh
+source "$root/bench/rig_common.sh"
 arch=${1:-}
 case $arch in
   armhf)
@@ -162,22 +164,12 @@ for exe in canbridge cangen candump; do
   fi
 done
 
-# The shipped configs; only the four-bus lines of speed_bench.sh's derive_fourbus are added.
-cp "$root/config/gateway.yaml" "$root/config/surface.yaml" "$rootfs/bench/"
-sed -i -e '/^    bus: vcan2$/a\  - id: 0\n    bus: vcan3\n  - id: 3\n    bus: vcan4' "$rootfs/bench/gateway.yaml"
-sed -i -e 's|^    modules: \[1, 2\]$|    modules: [0, 1, 2, 3]|' \
-  -e 's|^    surface_nodes: \[33-63, 65-95\]$|    surface_nodes: [1-31, 33-63, 65-95, 97-127]|' \
-  "$rootfs/bench/surface.yaml"
+# The shipped configs; only the four-bus lines speed_bench.sh also adds (rig_common.sh).
+four_bus_configs "$root/config" "$rootfs/bench"
 echo "arm_board: config lines changed from config/*.yaml (< shipped, > used):"
 for r in gateway surface; do
   diff "$root/config/$r.yaml" "$rootfs/bench/$r.yaml" | grep '^[<>]' | sed "s|^|  $r.yaml: |" || true
 done
-# A sample that changed under the sed lines would silently give a two-bus run: refuse it.
-if ! grep -q '^    bus: vcan4$' "$rootfs/bench/gateway.yaml" ||
-  ! grep -q 'modules: \[0, 1, 2, 3\]' "$rootfs/bench/surface.yaml"; then
-  echo "arm_board: the four-bus lines no longer apply to config/*.yaml" >&2
-  exit 1
-fi
 (umask 077 && openssl rand -hex 32 >"$rootfs/etc/canbridge/keys/tool-gateway.key")
 
 cat >"$rootfs/init" <<INIT

@@ -5,6 +5,7 @@
 #   wait_line FILE TEXT [TRIES]                bounded wait for a line (25 ms per try, default 800)
 #   kv FILE KEY                                the value of KEY=value in FILE
 #   median                                     the median of the numbers on stdin ("-" for none)
+#   four_bus_configs SRC DEST                  the four-bus scenario's configs from SRC's
 
 # Re-executes the calling script in the vcan rig (user-mode Linux where the host has no CAN),
 # passing every CANBRIDGE_* variable through (vcan_rig.sh forwards them to the guest).
@@ -32,4 +33,22 @@ kv() { { grep "^$2=" "$1" 2>/dev/null | tail -1 | cut -d= -f2; } || true; }
 
 median() {
   sort -g | awk '$1 != "-" && $1 != "" {a[n++] = $1} END {if (n == 0) print "-"; else print a[int((n - 1) / 2)]}'
+}
+
+# The four-bus scenario's configs: SRC/gateway.yaml with modules 0 (vcan3) and 3 (vcan4) added to
+# the sample's 1 (vcan1) and 2 (vcan2), SRC/surface.yaml serving all four; written to DEST. A
+# sample whose lines no longer match would silently give a two-bus run: that is refused.
+four_bus_configs() {
+  local src=$1 dest=$2
+  mkdir -p "$dest"
+  sed -e '/^    bus: vcan2$/a\  - id: 0\n    bus: vcan3\n  - id: 3\n    bus: vcan4' \
+    "$src/gateway.yaml" >"$dest/gateway.yaml"
+  sed -e 's|^    modules: \[1, 2\]$|    modules: [0, 1, 2, 3]|' \
+    -e 's|^    surface_nodes: \[33-63, 65-95\]$|    surface_nodes: [1-31, 33-63, 65-95, 97-127]|' \
+    "$src/surface.yaml" >"$dest/surface.yaml"
+  if ! grep -q '^    bus: vcan4$' "$dest/gateway.yaml" ||
+    ! grep -q 'modules: \[0, 1, 2, 3\]' "$dest/surface.yaml"; then
+    echo "bench: the four-bus lines no longer apply to $src/*.yaml" >&2
+    return 1
+  fi
 }

@@ -100,16 +100,6 @@ sed -e "/^ *#/!s|/etc/canbridge/keys/|$work/keys/|" \
   -e "/^ *#/!s|unix_socket: /run/canbridge/surface.sock|unix_socket: $work/surface.sock|" \
   "$root/config/surface.yaml" >"$work/tcp/surface.yaml"
 
-# derive_fourbus DIR: DIR-4bus, the gateway with modules 0 (vcan3) and 3 (vcan4) added.
-derive_fourbus() {
-  mkdir -p "$1-4bus"
-  sed -e '/^    bus: vcan2$/a\  - id: 0\n    bus: vcan3\n  - id: 3\n    bus: vcan4' \
-    "$1/gateway.yaml" >"$1-4bus/gateway.yaml"
-  sed -e 's|^    modules: \[1, 2\]$|    modules: [0, 1, 2, 3]|' \
-    -e 's|^    surface_nodes: \[33-63, 65-95\]$|    surface_nodes: [1-31, 33-63, 65-95, 97-127]|' \
-    "$1/surface.yaml" >"$1-4bus/surface.yaml"
-}
-
 # derive_serial DIR BAUD: DIR-serial-BAUD, the backbone on the emulator's pty pair.
 derive_serial() {
   local d=$1-serial-$2
@@ -146,7 +136,7 @@ apply_tune() {
   done
 }
 
-derive_fourbus "$work/tcp"
+four_bus_configs "$work/tcp" "$work/tcp-4bus"
 for baud in 115200 1000000; do derive_serial "$work/tcp" $baud; done
 if [[ -n $tune ]]; then
   mkdir -p "$work/tuned" "$work/tuned-4bus"
