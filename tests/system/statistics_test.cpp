@@ -60,6 +60,16 @@ std::string stats(const std::string& endpoint) {
   return r.output;
 }
 
+// `canbridge stats` read again until `done` holds for it or `timeout` passes; the last reading.
+template <typename Predicate>
+std::string stats_until(const std::string& endpoint, std::chrono::milliseconds timeout,
+                        Predicate done) {
+  const auto deadline = Clock::now() + timeout;
+  std::string json = stats(endpoint);
+  while (!done(json) && Clock::now() < deadline) json = stats(endpoint);
+  return json;
+}
+
 // GET /metrics on 127.0.0.1:`port` with a plain socket; the whole response.
 std::string http_get(std::uint16_t port, const std::string& target) {
   const int fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
@@ -96,15 +106,7 @@ class Statistics : public ::testing::Test {
     dir_ = ::testing::TempDir();
     surface_socket_ = dir_ + "stats-surface.sock";
     gateway_socket_ = dir_ + "stats-gateway.sock";
-    const std::string surface_cfg = write_file(
-        "stats-surface.yaml",
-        "role: surface\nname: stats-surface\nbus: vcan0\nbackbone:\n  listen: 127.0.0.1:0\n"
-        "  auth: {mode: plain}\ngateways: [{name: stats-gateway, modules: [1, 2]}]\n"
-        "command_endpoint: {unix_socket: " +
-            surface_socket_ +
-            "}\nmetrics: {listen: 127.0.0.1:0}\nlog:\n  level: info\n  stats_interval_s: 1\n");
-    surface_ = std::make_unique<ChildProcess>(
-        std::vector<std::string>{CANBRIDGE_BIN, "surface", "--config", surface_cfg});
+    start_surface("127.0.0.1:0");
     ASSERT_TRUE(surface_->wait_for_line("listening on 127.0.0.1:", 10s)) << surface_->output();
     const std::uint16_t backbone = logged_port(*surface_, "listening on 127\\.0\\.0\\.1:");
     surface_metrics_ = logged_port(*surface_, "metrics: serving http://127\\.0\\.0\\.1:");
@@ -128,6 +130,22 @@ class Statistics : public ::testing::Test {
     gateway_metrics_ = logged_port(*gateway_, "metrics: serving http://127\\.0\\.0\\.1:");
     ASSERT_NE(gateway_metrics_, 0) << gateway_->output();
     ready_ = true;
+  }
+
+  // Starts the surface with its backbone listening on `listen` (an ephemeral port at first, the
+  // same port again after a restart, where the gateway reconnects).
+  static void start_surface(const std::string& listen) {
+    const std::string config = write_file(
+        "stats-surface.yaml",
+        "role: surface\nname: stats-surface\nbus: vcan0\nbackbone:\n  listen: " + listen +
+            "\n  auth: {mode: plain}\n"
+            "gateways: [{name: stats-gateway, modules: [1, 2]}]\n"
+            "command_endpoint: {unix_socket: " +
+            surface_socket_ +
+            "}\nmetrics: {listen: 127.0.0.1:0}\nlog:\n  level: info\n"
+            "  stats_interval_s: 1\n");
+    surface_ = std::make_unique<ChildProcess>(
+        std::vector<std::string>{CANBRIDGE_BIN, "surface", "--config", config});
   }
 
   static void TearDownTestSuite() {
@@ -180,13 +198,12 @@ TEST_F(Statistics, KnownTrafficGivesExactTotalsAndMeasuredRates) {
   // One stats read well inside the run: once 1200 frames are counted, the gateway's last
   // one-second sampling window lies inside it (1200 frames took over 2 s at <= 500 frames/s,
   // and 800 more are to come).
-  std::string during;
-  const auto deadline = Clock::now() + 60s;
-  while (Clock::now() < deadline && during.empty()) {
-    const std::string g = stats(gateway_socket_);
-    if (number_after(g, kVcan1, "rx_frames") - rx0 >= 1200) during = g;
-  }
-  ASSERT_FALSE(during.empty()) << "the traffic never reached 1200 frames\n" << gateway_->output();
+  const auto counted_1200 = [&](const std::string& json) {
+    return number_after(json, kVcan1, "rx_frames") - rx0 >= 1200;
+  };
+  const std::string during = stats_until(gateway_socket_, 60s, counted_1200);
+  ASSERT_TRUE(counted_1200(during)) << "the traffic never reached 1200 frames\n"
+                                    << gateway_->output();
   ASSERT_EQ(cangen.wait(60s), 0) << cangen.output();
   // cangen's pace is steady, so its average over the run is the rate any window inside shows.
   const double measured =
@@ -203,13 +220,11 @@ TEST_F(Statistics, KnownTrafficGivesExactTotalsAndMeasuredRates) {
   EXPECT_GT(real_after(during, kBackbone, "tx_bytes_per_s"), 0.0) << during;
 
   // Totals: wait (by reading) until the surface wrote all of them, then every count is exact.
-  std::string s1;
-  while (Clock::now() < deadline) {
-    s1 = stats(surface_socket_);
-    if (number_after(s1, kVcan0, "tx_frames") - tx0 >= kFrames) break;
-  }
+  stats_until(surface_socket_, 60s, [&](const std::string& json) {
+    return number_after(json, kVcan0, "tx_frames") - tx0 >= kFrames;
+  });
   const std::string g1 = stats(gateway_socket_);
-  s1 = stats(surface_socket_);
+  const std::string s1 = stats(surface_socket_);
   EXPECT_EQ(number_after(g1, kVcan1, "rx_frames") - rx0, kFrames) << g1;
   EXPECT_EQ(number_after(g1, kBackbone, "frames_sent") - sent0, kFrames) << g1;
   EXPECT_EQ(number_after(s1, kBackbone, "frames_received") - received0, kFrames) << s1;
@@ -284,11 +299,8 @@ TEST_F(Statistics, ARestartedSurfaceCountsTheGatewaysNodesAgain) {
   const auto operational_nodes = [](const std::string& json) {
     return number_after(json, "\"nodes\":", "operational");
   };
-  auto deadline = Clock::now() + 10s;
-  std::string before;
-  do {
-    before = stats(surface_socket_);
-  } while (operational_nodes(before) < 1 && Clock::now() < deadline);
+  const std::string before = stats_until(
+      surface_socket_, 10s, [&](const std::string& json) { return operational_nodes(json) >= 1; });
   ASSERT_GE(operational_nodes(before), 1) << before << gateway_->output();
   const long long total = number_after(before, "\"nodes\":", "total");
 
@@ -297,27 +309,13 @@ TEST_F(Statistics, ARestartedSurfaceCountsTheGatewaysNodesAgain) {
   const std::uint16_t backbone = logged_port(*surface_, "listening on 127\\.0\\.0\\.1:");
   ASSERT_EQ(::kill(surface_->pid(), SIGKILL), 0);
   ASSERT_TRUE(surface_->wait(10s).has_value());
-  std::string config =
-      "role: surface\nname: stats-surface\nbus: vcan0\nbackbone:\n  listen: "
-      "127.0.0.1:" +
-      std::to_string(backbone) +
-      "\n  auth: {mode: plain}\n"
-      "gateways: [{name: stats-gateway, modules: [1, 2]}]\n"
-      "command_endpoint: {unix_socket: " +
-      surface_socket_ +
-      "}\n"
-      "metrics: {listen: 127.0.0.1:0}\nlog:\n  level: info\n"
-      "  stats_interval_s: 1\n";
-  surface_ = std::make_unique<ChildProcess>(std::vector<std::string>{
-      CANBRIDGE_BIN, "surface", "--config", write_file("stats-surface-again.yaml", config)});
+  start_surface("127.0.0.1:" + std::to_string(backbone));
   ASSERT_TRUE(surface_->wait_for_line("gateway 'stats-gateway' ready", 20s))
       << surface_->output() << gateway_->output();
 
-  deadline = Clock::now() + 10s;
-  std::string after;
-  do {
-    after = stats(surface_socket_);
-  } while (operational_nodes(after) < operational_nodes(before) && Clock::now() < deadline);
+  const std::string after = stats_until(surface_socket_, 10s, [&](const std::string& json) {
+    return operational_nodes(json) >= operational_nodes(before);
+  });
   EXPECT_EQ(number_after(after, "\"nodes\":", "total"), total) << after;
   EXPECT_EQ(operational_nodes(after), operational_nodes(before)) << after;
   EXPECT_EQ(number_after(after, "\"nodes\":", "lost"), number_after(before, "\"nodes\":", "lost"))
