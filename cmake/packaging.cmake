@@ -74,32 +74,29 @@ install(FILES ${PROJECT_SOURCE_DIR}/cmake/debian/copyright
 # at build time, gzipped as Debian installs them. None where help2man is missing (a message
 # says so) or where the executables cannot run on the build machine (cross builds).
 find_program(CANBRIDGE_HELP2MAN help2man)
-if(CMAKE_CROSSCOMPILING)
-elseif(NOT CANBRIDGE_HELP2MAN)
+if(NOT CANBRIDGE_HELP2MAN AND NOT CMAKE_CROSSCOMPILING)
   message(STATUS "canbridge: no help2man: no manual pages (apt-get install help2man)")
-else()
-  set(canbridge_man_pages
-      "canbridge|CANopen gateway and surface roles tunnelling CAN buses over a backbone"
-      "canbridge-sim|simulated CANopen nodes and modules on CAN buses"
-      "canbridge-link-emulator|a slow, noisy, breakable wireline between two endpoints")
-  foreach(entry IN LISTS canbridge_man_pages)
-    string(REPLACE "|" ";" entry "${entry}")
-    list(GET entry 0 program)
-    list(GET entry 1 summary)
-    set(page ${PROJECT_BINARY_DIR}/man/${program}.1)
-    add_custom_command(
-      OUTPUT ${page}.gz
-      COMMAND ${CMAKE_COMMAND} -E make_directory ${PROJECT_BINARY_DIR}/man
-      COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary}
-              --output=${page} $<TARGET_FILE:${program}>
-      COMMAND gzip -9nf ${page}
-      DEPENDS ${program}
-      COMMENT "Manual page ${program}.1"
-      VERBATIM)
-    add_custom_target(${program}-man-page ALL DEPENDS ${page}.gz)
-    install(FILES ${page}.gz DESTINATION ${CMAKE_INSTALL_MANDIR}/man1)
-  endforeach()
 endif()
+function(canbridge_man_page program summary)
+  if(NOT CANBRIDGE_HELP2MAN OR CMAKE_CROSSCOMPILING)
+    return()
+  endif()
+  set(page ${PROJECT_BINARY_DIR}/man/${program}.1)
+  add_custom_command(
+    OUTPUT ${page}.gz
+    COMMAND ${CMAKE_COMMAND} -E make_directory ${PROJECT_BINARY_DIR}/man
+    COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary} --output=${page}
+            $<TARGET_FILE:${program}>
+    COMMAND gzip -9nf ${page}
+    DEPENDS ${program}
+    COMMENT "Manual page ${program}.1"
+    VERBATIM)
+  add_custom_target(${program}-man-page ALL DEPENDS ${page}.gz)
+  install(FILES ${page}.gz DESTINATION ${CMAKE_INSTALL_MANDIR}/man1)
+endfunction()
+canbridge_man_page(canbridge "CANopen gateway and surface roles tunnelling CAN buses over a backbone")
+canbridge_man_page(canbridge-sim "simulated CANopen nodes and modules on CAN buses")
+canbridge_man_page(canbridge-link-emulator "a slow, noisy, breakable wireline between two endpoints")
 
 file(WRITE ${PROJECT_BINARY_DIR}/debian/conffiles
      "${CANBRIDGE_CONFIG_DIR}/gateway.yaml\n${CANBRIDGE_CONFIG_DIR}/surface.yaml\n")
