@@ -11,16 +11,20 @@
 # details.
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
+usage() {
+  echo "usage: $0 armhf|arm64 [BUILD_DIR [-- CMAKE_ARGS...]]" >&2
+  exit 2
+}
 arch=${1:-}
 case $arch in
   armhf) triplet=arm-linux-gnueabihf ;;
   arm64) triplet=aarch64-linux-gnu ;;
-  *) echo "usage: $0 armhf|arm64 [BUILD_DIR [-- CMAKE_ARGS...]]" >&2; exit 2 ;;
+  *) usage ;;
 esac
 build=${2:-$root/build-$arch}
 extra_cmake_args=()
 if (($# > 2)); then
-  [[ $3 == -- ]] || { echo "usage: $0 armhf|arm64 [BUILD_DIR [-- CMAKE_ARGS...]]" >&2; exit 2; }
+  [[ $3 == -- ]] || usage
   extra_cmake_args=("${@:4}")
 fi
 jobs=${CANBRIDGE_JOBS:-$(nproc)}
