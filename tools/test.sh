@@ -36,6 +36,8 @@ image_prep_pid=$!
 # (nice 19): it takes only the CPU time the native trees and the rig tests leave unused (link
 # steps, single-threaded fuzz runs, tests waiting on timers), which would otherwise be lost, and
 # yields at once when they want it back. The phase then finishes what is left and runs the tests.
+# (The weights are relative: run from a session whose own autogroup is niced, the native trees
+# lose that advantage; one such run took 615 s instead of ~460 s for its sanitizer build.)
 armhf_tree=$root/build-armhf-ci
 armhf_cmake_args=(-DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_TEST_EACH_CASE=OFF)
 armhf_build_log=/tmp/canbridge-armhf-build.log
