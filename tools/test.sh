@@ -51,7 +51,14 @@ rm -rf "$armhf_tree" "$armhf_session"
 } >"$armhf_build_log" 2>&1 &
 armhf_build_pid=$!
 # A failing phase ends this script early: the build's session (compilers included) goes with it.
-trap '[[ -s $armhf_session ]] && pkill -s "$(cat "$armhf_session")" 2>/dev/null; true' EXIT
+# The trap must not fail itself: under `set -e` a failing command in it (pkill finding nothing
+# left in the session, the normal case at the end of a green run) becomes the script's status.
+stop_armhf_build() {
+  if [[ -s $armhf_session ]]; then
+    pkill -s "$(cat "$armhf_session")" 2>/dev/null || true
+  fi
+}
+trap stop_armhf_build EXIT
 
 phase "sanitizer build (ASan+UBSan): unit tests"
 rm -rf "$root/build-asan"
