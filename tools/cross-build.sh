@@ -36,7 +36,7 @@ command -v ccache >/dev/null && launcher=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache)
 cmake -S "$root" -B "$build" -G Ninja -DCMAKE_TOOLCHAIN_FILE="$root/cmake/toolchains/$arch.cmake" \
   "${launcher[@]}" -DCMAKE_BUILD_TYPE=Release -DCMAKE_CXX_FLAGS_RELEASE="-O2 -DNDEBUG" \
   -DCANBRIDGE_UNIT_TESTS=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
-  "${extra_cmake_args[@]}" >/dev/null
+  -DCANBRIDGE_WERROR=ON "${extra_cmake_args[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
 [[ ${CANBRIDGE_CROSS_BUILD_ONLY:-0} == 1 ]] && exit 0
 

@@ -67,7 +67,7 @@ rm -rf "$root/build-asan"
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
   -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
-  -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON >/dev/null
+  -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON >/dev/null
 cmake --build "$root/build-asan" -j "$jobs"
 phase "unit tests under the sanitizers"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
@@ -88,7 +88,7 @@ rm -rf "$root/build"
 # own sittings, bench/README.md; `cmake --build build` of a developer tree builds them).
 cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
   -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=ON -DCANBRIDGE_IMAGE_TEST_PREBUILT=ON \
-  -DCANBRIDGE_BENCH_TOOLS=OFF -DCANBRIDGE_UNITY_BUILD=ON >/dev/null
+  -DCANBRIDGE_BENCH_TOOLS=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON >/dev/null
 cmake --build "$root/build" -j "$jobs"
 phase "system tests and the other checks of the plain build"
 # One apt at a time: the background preparation must be done before a test could install.
