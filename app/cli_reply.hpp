@@ -26,7 +26,7 @@ inline constexpr int unreachable = 5;  // endpoint unreachable, refused, or it c
 // The rest of `line` after "[<seq>] " when it answers request `seq`; nullopt otherwise.
 std::optional<std::string_view> answer_to(std::string_view line, unsigned seq);
 
-// "ERROR: 0x06020000 #text" (an SDO abort) or "ERROR: 107 #text" (a CiA 309-3 error).
+// "ERROR:0x06020000 #text" (an SDO abort) or "ERROR:107 #text" (a CiA 309-3 error).
 struct ErrorReply {
   bool sdo_abort = false;
   std::uint32_t code = 0;

@@ -586,10 +586,7 @@ class Session : public std::enable_shared_from_this<Session> {
         sdo_block_ = cmd.number != 0;
         return finish(reply, canopen::ascii_ok(seq));
       case AsciiVerb::help:
-        for (const auto& line : canopen::ascii_help(cmd.text)) {
-          reply->lines.push_back(line + "\r\n");
-        }
-        return finish(reply, canopen::ascii_ok(seq));
+        return finish(reply, canopen::ascii_multiline(seq, canopen::ascii_help(cmd.text)));
       case AsciiVerb::nodes:
         return nodes(reply, cmd);
       case AsciiVerb::monitor:

@@ -21,7 +21,7 @@ struct CommandEndpointCounters {
   std::uint64_t auth_failures = 0;    // TCP: no or a wrong token
   std::uint64_t commands = 0;         // lines with a command
   std::uint64_t errors = 0;           // `ERROR:` responses (refusals included)
-  std::uint64_t refused = 0;          // `ERROR: 403`: not allowed for the client's role
+  std::uint64_t refused = 0;          // `ERROR:403`: not allowed for the client's role
   std::uint64_t monitor_dropped = 0;  // frame lines a slow monitor client never got
   std::size_t sessions = 0;           // connected now
 };

@@ -14,7 +14,7 @@
 
 namespace canbridge::canopen {
 
-// CiA 309-3 internal error codes (the `ERROR: <n>` responses) and canbridge's two extensions.
+// CiA 309-3 internal error codes (the `ERROR:<n>` responses) and canbridge's two extensions.
 enum class AsciiError : std::uint16_t {
   request_not_supported = 100,
   syntax = 101,

@@ -18,7 +18,7 @@ namespace canbridge::canopen {
 // Why an LSS service failed, in the "canopen.lss" category: no answer in time, or the slave's
 // error code in the configure / store answer.
 enum class LssError {
-  timeout = 1,                  // no answer within the timeout (309-3: "ERROR: 103")
+  timeout = 1,                  // no answer within the timeout (309-3: "ERROR:103")
   node_id_out_of_range = 2,     // configure node-id answered 1
   not_supported = 3,            // store (or bit timing) answered 1
   storage_access = 4,           // store answered 2: the slave could not write its memory

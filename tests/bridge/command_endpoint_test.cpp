@@ -12,6 +12,7 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <boost/asio/io_context.hpp>
 #include <chrono>
 #include <cstring>
@@ -321,7 +322,7 @@ TEST_F(CommandEndpointTest, SessionSettingsDefaultsAndErrors) {
   start(options());
   auto client = connect();
   client->send("r 0x1000 0\n");  // no default node, no sequence
-  EXPECT_EQ(line(*client, 0), "ERROR: 105 #No default node set.");
+  EXPECT_EQ(line(*client, 0), "ERROR:105 #No default node set.");
   client->send("[2] set node 9\n[3] set sdo_timeout 250\n[4] set sdo_block 1\n[5] r 0x1000 0\n");
   EXPECT_EQ(line(*client, 3), "[4] OK");
   ASSERT_EQ(calls_soon(1), 1u);
@@ -334,12 +335,11 @@ TEST_F(CommandEndpointTest, SessionSettingsDefaultsAndErrors) {
   client->send("[6] r 0x6000 1 u8\n");
   ASSERT_EQ(calls_soon(2), 2u);
   remote.complete(1, RemoteOutcome{canopen::abort_error(0x06020000), {}, {}});
-  EXPECT_EQ(line(*client, 5),
-            "[6] ERROR: 0x06020000 #" + canopen::abort_error(0x06020000).message());
+  EXPECT_EQ(line(*client, 5), "[6] ERROR:0x06020000 #Object does not exist.");
 
   client->send("[7] 9 5 r 0x1000 0\n[8] set network 9\n[9] 2 set network 3\n");
-  EXPECT_EQ(line(*client, 6), "[7] ERROR: 106 #Unsupported net. net 9");
-  EXPECT_EQ(line(*client, 7), "[8] ERROR: 106 #Unsupported net. net 9");
+  EXPECT_EQ(line(*client, 6), "[7] ERROR:106 #Unsupported net. net 9");
+  EXPECT_EQ(line(*client, 7), "[8] ERROR:106 #Unsupported net. net 9");
   EXPECT_EQ(line(*client, 8), "[9] OK");
   client->send("[10] r 0x1000 0\n[11] r 0x1000 0\n[12] r 0x1000 0\n[13] r 0x1000 0\n");
   ASSERT_EQ(calls_soon(6), 6u);
@@ -352,11 +352,11 @@ TEST_F(CommandEndpointTest, SessionSettingsDefaultsAndErrors) {
                                    "gateway gw-b is not connected"});
   remote.complete(4, RemoteOutcome{std::make_error_code(std::errc::timed_out), {}, {}});
   remote.complete(5, RemoteOutcome{canopen::abort_error(0x08000020), {}, "verify"});
-  EXPECT_EQ(line(*client, 9), "[10] ERROR: 107 #Unsupported node. no node 9 on net 3");
-  EXPECT_EQ(line(*client, 10), "[11] ERROR: 201 #Lost connection. gateway gw-b is not connected");
-  EXPECT_EQ(line(*client, 11).rfind("[12] ERROR: 103 #Time-out.", 0), 0u);
+  EXPECT_EQ(line(*client, 9), "[10] ERROR:107 #Unsupported node. no node 9 on net 3");
+  EXPECT_EQ(line(*client, 10), "[11] ERROR:201 #Lost connection. gateway gw-b is not connected");
+  EXPECT_EQ(line(*client, 11).rfind("[12] ERROR:103 #Time-out.", 0), 0u);
   EXPECT_EQ(line(*client, 12),
-            "[13] ERROR: 0x08000020 #verify: " + canopen::abort_error(0x08000020).message());
+            "[13] ERROR:0x08000020 #Data cannot be transferred or stored to application. verify");
   const auto counters = endpoint->counters();
   EXPECT_EQ(counters.commands, 13u);
   EXPECT_EQ(counters.errors, 8u);
@@ -378,13 +378,18 @@ TEST_F(CommandEndpointTest, NmtSetNodeIdHelpAndLss) {
   EXPECT_EQ(line(*client, 2), "[3] OK");
 
   client->send("[4] help datatype\n");
-  const auto help = lines(*client, 3 + canopen::ascii_help("datatype").size() + 1);
-  EXPECT_EQ(help[3], "Datatypes:");
-  EXPECT_EQ(help.back(), "[4] OK");
+  // One answer, one CR LF: its lines are separated by LF alone (as the reference gateway's help),
+  // so a client that prints an answer per CR LF (cocomm) prints all of it.
+  const auto help = lines(*client, 4);
+  ASSERT_EQ(help.size(), 4u);
+  EXPECT_EQ(help[3].rfind("Datatypes:\n", 0), 0u) << help[3];
+  EXPECT_TRUE(help[3].ends_with("\n[4] OK")) << help[3];
+  EXPECT_EQ(std::count(help[3].begin(), help[3].end(), '\n'),
+            static_cast<long>(canopen::ascii_help("datatype").size()));
 
   const std::size_t seen = help.size();
   client->send("[5] 3 lss_store\n[6] 2 lss_get_node\n[7] 2 lss_inquire_addr\n[8] lss_store\n");
-  EXPECT_EQ(line(*client, seen), "[5] ERROR: 100 #Request not supported. no LSS on net 3");
+  EXPECT_EQ(line(*client, seen), "[5] ERROR:100 #Request not supported. no LSS on net 3");
   ASSERT_EQ(calls_soon(5), 5u);
   EXPECT_EQ(remote.calls[3].lss, "lss_get_node");
   EXPECT_EQ(remote.calls[3].net, 2u);
@@ -393,7 +398,7 @@ TEST_F(CommandEndpointTest, NmtSetNodeIdHelpAndLss) {
   EXPECT_EQ(line(*client, seen + 1), "[6] 0x05");
   EXPECT_EQ(line(*client, seen + 2), "[7] 0x00000001 0x00000002 0x00000003 0x0000BEEF");
   // Net 0 (the surface's network) has no LSS of its own.
-  EXPECT_EQ(line(*client, seen + 3), "[8] ERROR: 100 #Request not supported. no LSS on net 0");
+  EXPECT_EQ(line(*client, seen + 3), "[8] ERROR:100 #Request not supported. no LSS on net 0");
 }
 
 TEST_F(CommandEndpointTest, NodesLinesAsDocumented) {
@@ -449,7 +454,7 @@ TEST_F(CommandEndpointTest, FlashReadsTheFileAndReportsProgress) {
 
   client->send("[2] 5 flash " + dir.path() + "/missing.bin\n[3] 5 flash " + dir.path() + "\n");
   EXPECT_EQ(line(*client, 3)
-                .rfind("[2] ERROR: 102 #Request not processed due to internal state. "
+                .rfind("[2] ERROR:102 #Request not processed due to internal state. "
                        "flash: cannot read ",
                        0),
             0u);
@@ -553,12 +558,12 @@ TEST_F(CommandEndpointTest, TcpAuthGoodBadMissingAndRoles) {
 
   auto missing = RawClient::tcp(o.tcp_port);
   missing->send("[1] 5 r 0x1000 0\n");
-  EXPECT_EQ(line(*missing, 0), "[1] ERROR: 401 #Authentication required.");
+  EXPECT_EQ(line(*missing, 0), "[1] ERROR:401 #Authentication required.");
   EXPECT_TRUE(closed_by_endpoint(*missing));
 
   auto wrong = RawClient::tcp(o.tcp_port);
   wrong->send("auth c0ntr0l-tokeN\n");
-  EXPECT_EQ(line(*wrong, 0), "ERROR: 401 #Authentication required. wrong token");
+  EXPECT_EQ(line(*wrong, 0), "ERROR:401 #Authentication required. wrong token");
   EXPECT_TRUE(closed_by_endpoint(*wrong));
   EXPECT_TRUE(remote.calls.empty());
 
@@ -579,8 +584,7 @@ TEST_F(CommandEndpointTest, TcpAuthGoodBadMissingAndRoles) {
   const auto got = lines(*viewer, 7);
   EXPECT_EQ(got[1], "[2] 7");
   for (std::size_t i = 2; i < 7; ++i) {
-    EXPECT_EQ(got[i],
-              "[" + std::to_string(i + 1) + "] ERROR: 403 #Not permitted for role monitor.");
+    EXPECT_EQ(got[i], "[" + std::to_string(i + 1) + "] ERROR:403 #Not permitted for role monitor.");
   }
   EXPECT_EQ(remote.calls.size(), 2u);
   const auto counters = endpoint->counters();
@@ -623,15 +627,13 @@ TEST_F(CommandEndpointTest, SocketFileModeStaleReplacedOtherFilesRefused) {
   EXPECT_EQ(st.st_mode & 0777, 0660u);
   auto client = connect();
   client->send("help lss\n");
-  EXPECT_EQ(lines(*client, canopen::ascii_help("lss").size() + 1).back(), "OK");
+  EXPECT_TRUE(lines(*client, 1).back().ends_with("\nOK"));
 
   // A second endpoint on the same live socket is refused.
   CommandEndpoint second(io.get_executor(), o, remote);
   EXPECT_THROW(second.start(), std::runtime_error);
   client->send("help\n");  // the first still serves
-  EXPECT_EQ(
-      lines(*client, canopen::ascii_help("lss").size() + canopen::ascii_help("").size() + 2).back(),
-      "OK");
+  EXPECT_TRUE(lines(*client, 2).back().ends_with("\nOK"));
 
   // Not a socket: never replaced.
   auto other = o;
@@ -664,7 +666,7 @@ TEST_F(CommandEndpointTest, OverlongLineIsRefusedAndClosed) {
   EXPECT_EQ(line(*client, 0), "[1] OK");
   client->send(std::string(200, 'x'));
   EXPECT_EQ(line(*client, 1),
-            "ERROR: 101 #Syntax error. line longer than 64 bytes; connection closed");
+            "ERROR:101 #Syntax error. line longer than 64 bytes; connection closed");
   EXPECT_TRUE(closed_by_endpoint(*client));
 }
 
@@ -678,8 +680,8 @@ TEST_F(CommandEndpointTest, BinaryGarbageIsAnsweredNotFatal) {
   ASSERT_EQ(calls_soon(1), 1u);
   remote.complete_ok(0, {42});
   const auto got = lines(*client, 3);
-  EXPECT_EQ(got[0].rfind("ERROR: 101 #Syntax error. control byte 0x00", 0), 0u) << got[0];
-  EXPECT_EQ(got[1].rfind("ERROR: 101 #Syntax error. control byte 0x0B", 0), 0u) << got[1];
+  EXPECT_EQ(got[0].rfind("ERROR:101 #Syntax error. control byte 0x00", 0), 0u) << got[0];
+  EXPECT_EQ(got[1].rfind("ERROR:101 #Syntax error. control byte 0x0B", 0), 0u) << got[1];
   EXPECT_EQ(got[2], "[9] 42");
 }
 
@@ -692,7 +694,7 @@ TEST_F(CommandEndpointTest, ClientsBeyondMaxAreTurnedAway) {
   lines(*first, 1);
   auto second = connect();
   EXPECT_EQ(line(*second, 0),
-            "ERROR: 102 #Request not processed due to internal state. too many "
+            "ERROR:102 #Request not processed due to internal state. too many "
             "clients (1)");
   EXPECT_TRUE(closed_by_endpoint(*second));
   EXPECT_EQ(endpoint->counters().clients_refused, 1u);
@@ -700,7 +702,7 @@ TEST_F(CommandEndpointTest, ClientsBeyondMaxAreTurnedAway) {
   ASSERT_TRUE(until([&] { return endpoint->counters().sessions == 0; }));
   auto third = connect();
   third->send("[2] help lss\n");
-  EXPECT_EQ(lines(*third, canopen::ascii_help("lss").size() + 1).back(), "[2] OK");
+  EXPECT_TRUE(lines(*third, 1).back().ends_with("\n[2] OK"));
 }
 
 TEST_F(CommandEndpointTest, StopClosesClientsAndCancelsTheirRequests) {

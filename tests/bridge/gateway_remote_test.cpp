@@ -413,7 +413,7 @@ TEST(GatewayRemote, LssOnAModuleWithoutItIsRefused) {
   rig.request(r);
   ASSERT_NE(rig.result(1), nullptr);
   EXPECT_EQ(rig.result(1)->abort_code(), 0x08000020u);
-  EXPECT_TRUE(rig.result(1)->not_supported());  // the endpoint says ERROR: 100, not an abort
+  EXPECT_TRUE(rig.result(1)->not_supported());  // the endpoint says ERROR:100, not an abort
   EXPECT_TRUE(rig.written.empty());
 }
 

@@ -170,7 +170,7 @@ TEST(StatsEndpoint, AnswersStatsAsOneJsonLineThenOkAndRefusesOtherCommands) {
   asio::streambuf buffer;
   asio::read_until(socket, buffer, "[9] OK\r\n");
   const std::string all(asio::buffers_begin(buffer.data()), asio::buffers_end(buffer.data()));
-  EXPECT_EQ(all.rfind("[7] {\"a\":1}\r\n[7] OK\r\n[8] ERROR: 100", 0), 0u) << all;
+  EXPECT_EQ(all.rfind("[7] {\"a\":1}\r\n[7] OK\r\n[8] ERROR:100", 0), 0u) << all;
   EXPECT_NE(all.find("[9] {\"a\":1}\r\n[9] OK\r\n"), std::string::npos) << all;
   loop.stop([&] { endpoint.stop(); });
   EXPECT_FALSE(std::filesystem::exists(path));  // stop() removes the socket file it made

@@ -220,17 +220,17 @@ TEST(AsciiResponse, Lines) {
   EXPECT_EQ(ascii_ok(7u), "[7] OK\r\n");
   EXPECT_EQ(ascii_ok(std::nullopt), "OK\r\n");
   EXPECT_EQ(ascii_line(1u, "4660"), "[1] 4660\r\n");
-  EXPECT_EQ(ascii_error(3u, AsciiError::syntax), "[3] ERROR: 101 #Syntax error.\r\n");
+  EXPECT_EQ(ascii_error(3u, AsciiError::syntax), "[3] ERROR:101 #Syntax error.\r\n");
   EXPECT_EQ(ascii_error(std::nullopt, AsciiError::not_permitted),
-            "ERROR: 403 #Not permitted for role monitor.\r\n");
+            "ERROR:403 #Not permitted for role monitor.\r\n");
   EXPECT_EQ(ascii_error(std::nullopt, AsciiError::authentication_required),
-            "ERROR: 401 #Authentication required.\r\n");
+            "ERROR:401 #Authentication required.\r\n");
   EXPECT_EQ(ascii_error(2u, AsciiError::syntax, "bad\r\nline"),
-            "[2] ERROR: 101 #Syntax error. bad  line\r\n");
-  const std::string abort = ascii_sdo_abort(9u, 0x06020000);
-  EXPECT_EQ(abort, "[9] ERROR: 0x06020000 #" + abort_error(0x06020000).message() + "\r\n");
+            "[2] ERROR:101 #Syntax error. bad  line\r\n");
+  EXPECT_EQ(ascii_sdo_abort(9u, 0x06020000), "[9] ERROR:0x06020000 #Object does not exist.\r\n");
+  // canbridge's detail follows the standard text inside the comment, never before it.
   EXPECT_EQ(ascii_sdo_abort(std::nullopt, 0x08000020, "verify"),
-            "ERROR: 0x08000020 #verify: " + abort_error(0x08000020).message() + "\r\n");
+            "ERROR:0x08000020 #Data cannot be transferred or stored to application. verify\r\n");
 }
 
 }  // namespace

@@ -109,7 +109,7 @@ TEST(CliDump, ReportsDropsAndAClosedEndpoint) {
 
 TEST(CliDump, MonitorRefusedForTheRole) {
   FakeEndpoint endpoint(
-      Script{{"[1] monitor", {"[1] ERROR: 403 #Not permitted for role monitor."}}});
+      Script{{"[1] monitor", {"[1] ERROR:403 #Not permitted for role monitor."}}});
   EXPECT_EQ(run_cli({"dump", "--raw", "--endpoint", endpoint.address()}).rc,
             exit_code::unreachable);
 }

@@ -19,20 +19,23 @@ TEST(CliReply, AnswerToMatchesOnlyItsSequence) {
 }
 
 TEST(CliReply, ErrorsAndTheirExitCodes) {
-  auto abort = parse_error("ERROR: 0x06020000 #Object does not exist.");
+  auto abort = parse_error("ERROR:0x06020000 #Object does not exist.");
   ASSERT_TRUE(abort);
   EXPECT_TRUE(abort->sdo_abort);
   EXPECT_EQ(abort->code, 0x06020000U);
   EXPECT_EQ(abort->text, "Object does not exist.");
   EXPECT_EQ(exit_code_for(*abort), exit_code::abort);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 0x05040000")), exit_code::timeout);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 106 #Unsupported net.")), exit_code::unknown);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 107")), exit_code::unknown);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 103")), exit_code::timeout);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 201")), exit_code::unreachable);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 401")), exit_code::unreachable);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 403")), exit_code::unreachable);
-  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 101 #Syntax error.")), exit_code::abort);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:0x05040000")), exit_code::timeout);
+  // The spaced form of earlier canbridge versions still parses.
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR: 0x05040000 #SDO protocol timed out.")),
+            exit_code::timeout);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:106 #Unsupported net.")), exit_code::unknown);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:107")), exit_code::unknown);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:103")), exit_code::timeout);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:201")), exit_code::unreachable);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:401")), exit_code::unreachable);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:403")), exit_code::unreachable);
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:101 #Syntax error.")), exit_code::abort);
   EXPECT_FALSE(parse_error("OK"));
   EXPECT_FALSE(parse_error("ERROR: zz"));
 }

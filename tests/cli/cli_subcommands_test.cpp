@@ -109,7 +109,7 @@ TEST(CliSdo, WriteAFileSendsItAsBase64) {
 
 TEST(CliSdo, AbortExitsOneWithCodeAndText) {
   FakeEndpoint endpoint(
-      Script{{"[1] 0 5 r 0x6000 0 u8", {"[1] ERROR: 0x06020000 #Object does not exist."}}});
+      Script{{"[1] 0 5 r 0x6000 0 u8", {"[1] ERROR:0x06020000 #Object does not exist."}}});
   const auto run = run_cli(with_endpoint({"sdo", "read", "5", "6000", "0", "u8"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::abort);
   EXPECT_THAT(run.err, HasSubstr("SDO abort 0x06020000: Object does not exist."));
@@ -117,7 +117,7 @@ TEST(CliSdo, AbortExitsOneWithCodeAndText) {
 }
 
 TEST(CliSdo, AbortWithoutTextUsesTheAbortCategory) {
-  FakeEndpoint endpoint(Script{{"[1] 0 5 r 0x6000 0", {"[1] ERROR: 0x06010000"}}});
+  FakeEndpoint endpoint(Script{{"[1] 0 5 r 0x6000 0", {"[1] ERROR:0x06010000"}}});
   const auto run = run_cli(with_endpoint({"sdo", "read", "5", "6000", "0"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::abort);
   EXPECT_THAT(run.err, HasSubstr("SDO abort: unsupported access to an object (0x06010000)"));
@@ -125,20 +125,20 @@ TEST(CliSdo, AbortWithoutTextUsesTheAbortCategory) {
 
 TEST(CliSdo, SdoTimeoutAbortExitsFour) {
   FakeEndpoint endpoint(
-      Script{{"[1] 0 5 r 0x1000 0", {"[1] ERROR: 0x05040000 #SDO protocol timed out."}}});
+      Script{{"[1] 0 5 r 0x1000 0", {"[1] ERROR:0x05040000 #SDO protocol timed out."}}});
   EXPECT_EQ(run_cli(with_endpoint({"sdo", "read", "5", "1000", "0"}, endpoint)).rc,
             exit_code::timeout);
 }
 
 TEST(CliSdo, UnknownNodeAndNetExitThree) {
   {
-    FakeEndpoint endpoint(Script{{"[1] 0 9 r 0x1000 0", {"[1] ERROR: 107 #Unsupported node."}}});
+    FakeEndpoint endpoint(Script{{"[1] 0 9 r 0x1000 0", {"[1] ERROR:107 #Unsupported node."}}});
     const auto run = run_cli(with_endpoint({"sdo", "read", "9", "1000", "0"}, endpoint));
     EXPECT_EQ(run.rc, exit_code::unknown);
     EXPECT_THAT(run.err, HasSubstr("error 107: Unsupported node."));
   }
   {
-    FakeEndpoint endpoint(Script{{"[1] 7 9 r 0x1000 0", {"[1] ERROR: 106 #Unsupported net."}}});
+    FakeEndpoint endpoint(Script{{"[1] 7 9 r 0x1000 0", {"[1] ERROR:106 #Unsupported net."}}});
     EXPECT_EQ(run_cli(with_endpoint({"sdo", "read", "9", "1000", "0", "--net", "7"}, endpoint)).rc,
               exit_code::unknown);
   }
@@ -195,7 +195,7 @@ TEST(CliEndpoint, TcpSendsTheTokenFirst) {
 }
 
 TEST(CliEndpoint, TcpWithoutTokenIsRefusedWithExitFive) {
-  FakeEndpoint endpoint(Script{{"[1] nodes", {"ERROR: 401 #Authentication required."}}},
+  FakeEndpoint endpoint(Script{{"[1] nodes", {"ERROR:401 #Authentication required."}}},
                         FakeEndpoint::Transport::tcp);
   const auto run = run_cli(with_endpoint({"nodes"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::unreachable);
@@ -204,7 +204,7 @@ TEST(CliEndpoint, TcpWithoutTokenIsRefusedWithExitFive) {
 
 TEST(CliEndpoint, MonitorRoleRefusalExitsFive) {
   FakeEndpoint endpoint(
-      Script{{"[1] 0 5 start", {"[1] ERROR: 403 #Not permitted for role monitor."}}});
+      Script{{"[1] 0 5 start", {"[1] ERROR:403 #Not permitted for role monitor."}}});
   const auto run = run_cli(with_endpoint({"nmt", "start", "5"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::unreachable);
   EXPECT_THAT(run.err, HasSubstr("Not permitted for role monitor."));
@@ -271,7 +271,7 @@ TEST(CliSetNodeId, SendsTheRenameAndReportsNoBootUp) {
   EXPECT_EQ(run.rc, exit_code::ok) << run.err;
   EXPECT_EQ(run.out, "node 5 is now node 9\n");
   FakeEndpoint failing(
-      Script{{"[1] 0 5 set node_id 9", {"[1] ERROR: 0x05040000 #no boot-up on new id"}}});
+      Script{{"[1] 0 5 set node_id 9", {"[1] ERROR:0x05040000 #no boot-up on new id"}}});
   const auto failed = run_cli(with_endpoint({"set-node-id", "5", "9"}, failing));
   EXPECT_EQ(failed.rc, exit_code::timeout);
   EXPECT_THAT(failed.err, HasSubstr("no boot-up on new id"));
@@ -332,7 +332,7 @@ TEST_F(CliFlash, PathWithACommentSignIsRefusedBeforeConnecting) {
 TEST_F(CliFlash, FailedStepExitsOneAndNamesIt) {
   FakeEndpoint endpoint(Script{{request(),
                                 {"[1] PROGRESS download 1000 1000",
-                                 "[1] ERROR: 0x08000020 #verify: 1F56h:01 CRC does not match"}}});
+                                 "[1] ERROR:0x08000020 #verify: 1F56h:01 CRC does not match"}}});
   const auto run = run_cli(with_endpoint({"flash", "5", image_.string()}, endpoint));
   EXPECT_EQ(run.rc, exit_code::abort);
   EXPECT_THAT(run.err, HasSubstr("0x08000020: verify: 1F56h:01 CRC does not match"));

@@ -315,18 +315,18 @@ TEST_F(RemoteAccess, EveryDatatypeWritesAndReadsBack) {
 
 // Errors: unknown net and node, an SDO abort with its text, no default node, a bad command.
 TEST_F(RemoteAccess, ErrorsNameTheProblem) {
-  EXPECT_TRUE(ask("9 1 r 0x1000 0 u32").starts_with("ERROR: 106")) << "unknown net";
+  EXPECT_TRUE(ask("9 1 r 0x1000 0 u32").starts_with("ERROR:106")) << "unknown net";
   // A module's net reaches local ids the surface does not map: nobody answers there.
   EXPECT_EQ(ask("set sdo_timeout 300"), "OK");
   EXPECT_TRUE(
-      std::regex_match(ask("2 99 r 0x1000 0 u32"), std::regex("ERROR: (0x05040000|107) #.*")));
+      std::regex_match(ask("2 99 r 0x1000 0 u32"), std::regex("ERROR:(0x05040000|107) #.*")));
   EXPECT_EQ(ask("set sdo_timeout 1000"), "OK");
-  EXPECT_TRUE(ask("0 99 r 0x1000 0 u32").starts_with("ERROR: 107")) << "unknown surface node";
+  EXPECT_TRUE(ask("0 99 r 0x1000 0 u32").starts_with("ERROR:107")) << "unknown surface node";
   const std::string abort = ask("2 10 r 0x6666 0 u32");
-  EXPECT_TRUE(abort.starts_with("ERROR: 0x06020000 #")) << abort;
-  EXPECT_TRUE(ask("r 0x1000 0 u32").starts_with("ERROR: 105")) << "no default node";
-  EXPECT_TRUE(std::regex_match(ask("2 10 frobnicate 1 2"), std::regex("ERROR: 10[01] #.*")));
-  EXPECT_TRUE(std::regex_match(ask("2 10 r 0x2003 0 nosuchtype"), std::regex("ERROR: 10[01] #.*")));
+  EXPECT_TRUE(abort.starts_with("ERROR:0x06020000 #")) << abort;
+  EXPECT_TRUE(ask("r 0x1000 0 u32").starts_with("ERROR:105")) << "no default node";
+  EXPECT_TRUE(std::regex_match(ask("2 10 frobnicate 1 2"), std::regex("ERROR:10[01] #.*")));
+  EXPECT_TRUE(std::regex_match(ask("2 10 r 0x2003 0 nosuchtype"), std::regex("ERROR:10[01] #.*")));
   // The connection survives every error.
   EXPECT_EQ(ask("2 10 r 0x2010 0 u32"), "305419896");
 }
@@ -362,11 +362,11 @@ TEST_F(RemoteAccess, SetCommandsChangeTheSession) {
   EXPECT_EQ(ask("2 11 stop"), "OK");
   EXPECT_EQ(ask("set sdo_timeout 300"), "OK");
   auto t0 = std::chrono::steady_clock::now();
-  EXPECT_TRUE(ask("2 11 r 0x1000 0 u32").starts_with("ERROR: 0x05040000"));
+  EXPECT_TRUE(ask("2 11 r 0x1000 0 u32").starts_with("ERROR:0x05040000"));
   const auto short_wait = std::chrono::steady_clock::now() - t0;
   EXPECT_EQ(ask("set sdo_timeout 2500"), "OK");
   t0 = std::chrono::steady_clock::now();
-  EXPECT_TRUE(ask("2 11 r 0x1000 0 u32").starts_with("ERROR: 0x05040000"));
+  EXPECT_TRUE(ask("2 11 r 0x1000 0 u32").starts_with("ERROR:0x05040000"));
   const auto long_wait = std::chrono::steady_clock::now() - t0;
   EXPECT_GE(long_wait, 2400ms);  // never early
   EXPECT_LT(short_wait, 2400ms) << "set sdo_timeout 300 was not applied";
@@ -495,7 +495,7 @@ TEST_F(RemoteAccess, LssOnlyWhereTheModuleAllowsIt) {
   EXPECT_EQ(ask("2 lss_switch_glob 0"), "OK");
   EXPECT_TRUE(candump_->wait_for_line("vcan1 7E5#0400", kEvent)) << candump_->output();
   const std::string refused = ask("3 lss_switch_glob 1");
-  EXPECT_TRUE(refused.starts_with("ERROR: 100")) << "module 2 has no LSS: " << refused;
+  EXPECT_TRUE(refused.starts_with("ERROR:100")) << "module 2 has no LSS: " << refused;
   // Selective switch of node 10 by its identity (the sim's cia301 nodes are LSS slaves), then
   // the inquiries answered by that node alone.
   EXPECT_EQ(ask("2 lss_switch_sel 0x1A2 0x101 0x10001 0xA010"), "OK");
@@ -610,7 +610,7 @@ TEST_F(RemoteAccess, CliFlashVerifiesAndACorruptImageLeavesTheLoader) {
   // Still in the loader: its flash status says no valid program, the application's objects are
   // gone, and the node table says so.
   EXPECT_EQ(ask("3 1 r 0x1F57 1 u32"), "1");
-  EXPECT_TRUE(ask("3 1 r 0x1008 0 vs").starts_with("ERROR: 0x0602")) << "application object";
+  EXPECT_TRUE(ask("3 1 r 0x1008 0 vs").starts_with("ERROR:0x0602")) << "application object";
   const auto nodes = cli({"nodes"});
   EXPECT_TRUE(std::regex_search(nodes.output, std::regex("loader"))) << nodes.output;
 
