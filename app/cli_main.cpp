@@ -273,19 +273,78 @@ int run_flash(const Connect& connect, const CommonOptions& common, const std::st
   return rc;
 }
 
-// The options of every operator command, before or after its name; returns --net's (whether it
-// was given changes what `nodes` asks).
+// The options every operator command takes, registered on the command itself (the leaf: `nodes`,
+// `sdo read`, ...), so that its `--help` lists them; returns --net's (whether it was given changes
+// what `nodes` asks).
 CLI::Option* add_common_options(CLI::App& app, CommonOptions& common) {
   app.add_option("--endpoint", common.endpoint,
-                 "Unix socket PATH or HOST:PORT (default: -c's command_endpoint.unix_socket, "
-                 "else /run/canbridge/surface.sock)");
-  app.add_option("--token-file", common.token_file, "token for a TCP endpoint (sent with auth)");
-  app.add_option("-c,--config", common.config, "the surface's configuration file");
-  auto* net_option = app.add_option("--net", common.net, "CiA 309-3 network (0: the surface's)");
+                 "Unix socket PATH or HOST:PORT (default: -c's endpoint, else " +
+                     std::string(kDefaultEndpoint) + ")")
+      ->type_name("PATH|HOST:PORT");
+  app.add_option("--token-file", common.token_file, "token for a TCP endpoint (sent with auth)")
+      ->type_name("FILE");
+  app.add_option("-c,--config", common.config,
+                 "a surface's file (its command_endpoint), or for stats a gateway's "
+                 "(its stats_endpoint)")
+      ->type_name("FILE");
+  auto* net_option =
+      app.add_option("--net", common.net, "CiA 309-3 network: 0 the surface's, N a module's")
+          ->type_name("N")
+          ->capture_default_str()
+          ->check(CLI::Validator(
+              [](std::string& text) -> std::string {
+                const auto n = parse_unsigned(text, 0);
+                return n && *n <= 0xFFFF ? "" : "'" + text + "' is not a network 0..65535";
+              },
+              "0..65535"));
   app.add_option("--timeout", common.timeout_s, "seconds to wait for an answer")
-      ->check(CLI::PositiveNumber);
-  app.fallthrough();  // common options also after the subcommand
+      ->type_name("SECONDS")
+      ->capture_default_str()
+      ->check(CLI::Validator(
+          [](std::string& text) -> std::string {
+            double value = 0;
+            const auto [end, ec] = std::from_chars(text.data(), text.data() + text.size(), value);
+            const bool number = ec == std::errc{} && end == text.data() + text.size();
+            return number && value > 0 && value <= 86400
+                       ? ""
+                       : "'" + text + "' is not a number of seconds above 0 and at most 86400";
+          },
+          "0..86400"));
   return net_option;
+}
+
+// CLI11 reads a subcommand's options only after its name: the command's words (`nodes`,
+// `sdo read`) go first and every other word follows in the order given, so that an option may
+// stand before, between or after them. An unknown `sdo` command is named here, in one line
+// (CLI11 would only say that a subcommand is required).
+std::vector<std::string> command_words_first(const std::vector<std::string>& args) {
+  std::vector<std::string> command, rest;
+  bool positional_only = false;
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    const std::string& word = args[i];
+    const bool option = !positional_only && word.size() >= 2 && word.front() == '-';
+    if (word == "--") positional_only = true;
+    if (option || positional_only) {
+      rest.push_back(word);
+      if (option && word.find('=') == std::string::npos && is_client_option_with_value(word) &&
+          i + 1 < args.size()) {
+        rest.push_back(args[++i]);
+      }
+      continue;
+    }
+    const bool wants_word = command.empty() || (command.size() == 1 && command[0] == "sdo");
+    (wants_word ? command : rest).push_back(word);
+  }
+  const bool help = std::find(args.begin(), args.end(), "--help") != args.end() ||
+                    std::find(args.begin(), args.end(), "-h") != args.end();
+  if (!command.empty() && command[0] == "sdo" && !help) {
+    if (command.size() < 2) throw UsageError{"sdo needs a command: read or write"};
+    if (command[1] != "read" && command[1] != "write") {
+      throw UsageError{"unknown sdo command '" + command[1] + "': expected read or write"};
+    }
+  }
+  command.insert(command.end(), rest.begin(), rest.end());
+  return command;
 }
 
 }  // namespace
@@ -307,71 +366,114 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
   CLI::App app{"canbridge: operator commands against a surface's command endpoint", "canbridge"};
   app.require_subcommand(1, 1);
   CommonOptions common;
-  auto* net_option = add_common_options(app, common);
+  const char* const node_help = "the node's id on the network (--net), 1..127";
 
   auto* nodes = app.add_subcommand("nodes", "the live node table");
+  auto* net_option = add_common_options(*nodes, common);
   auto* stats = app.add_subcommand(
       "stats", "statistics as JSON (a surface's endpoint, or a gateway's stats_endpoint)");
+  add_common_options(*stats, common);
 
   SdoArgs sdo_args;
   auto* sdo = app.add_subcommand("sdo", "read or write an object of a node");
   sdo->require_subcommand(1, 1);
-  sdo->fallthrough();
   auto* sdo_read = sdo->add_subcommand("read", "NODE INDEX SUB [TYPE]: print the value");
-  sdo_read->add_option("NODE", sdo_args.node)->required();
-  sdo_read->add_option("INDEX", sdo_args.index, "hex, 0x optional")->required();
-  sdo_read->add_option("SUB", sdo_args.sub)->required();
-  sdo_read->add_option("TYPE", sdo_args.type, "datatype (default: hex bytes)");
-  sdo_read->add_option("--file", sdo_args.file, "write the value (base64 decoded) to F");
-  sdo_read->fallthrough();
+  sdo_read->add_option("NODE", sdo_args.node, node_help)->required();
+  sdo_read->add_option("INDEX", sdo_args.index, "the object's index, hex (0x optional)")
+      ->required();
+  sdo_read->add_option("SUB", sdo_args.sub, "the sub-index, 0..255 (0x for hex)")->required();
+  sdo_read->add_option("TYPE", sdo_args.type,
+                       "datatype: b u8..u64 i8..i64 x8..x64 r32 r64 vs os us d hex "
+                       "(default: hex bytes)");
+  sdo_read->add_option("--file", sdo_args.file, "write the value (base64 decoded) to F")
+      ->type_name("F");
+  add_common_options(*sdo_read, common);
   auto* sdo_write = sdo->add_subcommand("write", "NODE INDEX SUB TYPE VALUE|--file F");
-  sdo_write->add_option("NODE", sdo_args.node)->required();
-  sdo_write->add_option("INDEX", sdo_args.index, "hex, 0x optional")->required();
-  sdo_write->add_option("SUB", sdo_args.sub)->required();
-  sdo_write->add_option("TYPE", sdo_args.type)->required();
-  sdo_write->add_option("VALUE", sdo_args.value);
-  sdo_write->add_option("--file", sdo_args.file, "write the bytes of F (types d, os, us)");
-  sdo_write->fallthrough();
+  sdo_write->add_option("NODE", sdo_args.node, node_help)->required();
+  sdo_write->add_option("INDEX", sdo_args.index, "the object's index, hex (0x optional)")
+      ->required();
+  sdo_write->add_option("SUB", sdo_args.sub, "the sub-index, 0..255 (0x for hex)")->required();
+  sdo_write
+      ->add_option("TYPE", sdo_args.type,
+                   "datatype: b u8..u64 i8..i64 x8..x64 r32 r64 vs os us d hex")
+      ->required();
+  sdo_write->add_option("VALUE", sdo_args.value, "the value, in TYPE's notation (or --file)");
+  sdo_write->add_option("--file", sdo_args.file, "write the bytes of F (types d, os, us)")
+      ->type_name("F");
+  add_common_options(*sdo_write, common);
 
   std::string nmt_command, node_text, new_id, image;
   auto* nmt = app.add_subcommand("nmt", "start|stop|preop|reset|reset-comm NODE|all");
-  nmt->add_option("COMMAND", nmt_command)->required();
-  nmt->add_option("NODE", node_text)->required();
+  nmt->add_option("COMMAND", nmt_command, "start, stop, preop, reset or reset-comm")->required();
+  nmt->add_option("NODE", node_text, "1..127, or all (broadcast)")->required();
+  add_common_options(*nmt, common);
   auto* set_node_id = app.add_subcommand("set-node-id", "NODE NEW: rename a node (fpga kind)");
-  set_node_id->add_option("NODE", node_text)->required();
-  set_node_id->add_option("NEW", new_id)->required();
+  set_node_id->add_option("NODE", node_text, node_help)->required();
+  set_node_id->add_option("NEW", new_id, "the new id, 1..127")->required();
+  add_common_options(*set_node_id, common);
   auto* flash = app.add_subcommand("flash", "NODE IMAGE: firmware download through the loader");
-  flash->add_option("NODE", node_text)->required();
-  flash->add_option("IMAGE", image)->required();
+  flash->add_option("NODE", node_text, node_help)->required();
+  flash->add_option("IMAGE", image, "the image file, read by the surface process")->required();
+  add_common_options(*flash, common);
 
   MonitorOptions monitor;
   auto* dump = app.add_subcommand("dump", "live monitor, decoded in CANopen terms");
-  dump->add_option("--module", monitor.module, "only frames of module M (0: the surface bus)");
-  dump->add_option("--node", monitor.node, "only frames of node N");
-  dump->add_option("--kind", monitor.kinds, "only these kinds (repeatable): " + kind_names());
+  dump->add_option("--module", monitor.module, "only frames of module M (0: the surface bus)")
+      ->type_name("M");
+  dump->add_option("--node", monitor.node, "only frames of node N")->type_name("N");
+  dump->add_option("--kind", monitor.kinds, "only these kinds (repeatable): " + kind_names())
+      ->type_name("KIND");
   dump->add_flag("--raw", monitor.raw, "candump format instead of decoded text");
-  dump->add_option("--count", monitor.count, "stop after this many frames");
+  dump->add_option("--count", monitor.count, "stop after this many frames (default: never)")
+      ->type_name("N");
+  add_common_options(*dump, common);
   auto* capture = app.add_subcommand("capture", "record the live frames to a file");
-  capture->add_option("-w", monitor.file, "the file (pcap, LINKTYPE_CAN_SOCKETCAN)")->required();
+  capture->add_option("-w", monitor.file, "the file (pcap, LINKTYPE_CAN_SOCKETCAN)")
+      ->type_name("FILE")
+      ->required();
   capture->add_flag("-l", monitor.candump_log, "candump log format instead of pcap");
-  capture->add_option("--module", monitor.module, "only frames of module M");
-  capture->add_option("--count", monitor.count, "stop after this many frames");
+  capture->add_option("--module", monitor.module, "only frames of module M")->type_name("M");
+  capture->add_option("--count", monitor.count, "stop after this many frames (default: never)")
+      ->type_name("N");
+  add_common_options(*capture, common);
+  app.footer(
+      "Each command takes --endpoint, --token-file, -c, --net and --timeout, before or after its "
+      "name; 'canbridge COMMAND --help' lists them. Exit status: 0 done, 1 refused or failed "
+      "(SDO abort), 2 usage, 3 unknown network or node, 4 time-out, 5 endpoint unreachable.");
 
-  std::vector<std::string> reversed(args.rbegin(), args.rend());
+  std::vector<std::string> ordered;
+  try {
+    ordered = command_words_first(args);
+  } catch (const UsageError& e) {
+    err << "canbridge: " << e.message << "\nrun 'canbridge sdo --help' for the usage\n";
+    return exit_code::usage;
+  }
+  std::vector<std::string> reversed(ordered.rbegin(), ordered.rend());
   try {
     app.parse(reversed);
   } catch (const CLI::CallForHelp&) {
     out << app.help();
     return exit_code::ok;
   } catch (const CLI::ParseError& e) {
-    err << "canbridge: " << logging::usage_message(app, e) << "\n" << app.help();
+    // One line naming what is wrong, and where the usage is: never the whole help.
+    std::string command = "canbridge";
+    const CLI::App* leaf = &app;  // the command the error is about: its extras are its own
+    while (!leaf->get_subcommands().empty()) {
+      leaf = leaf->get_subcommands().front();
+      command += " " + leaf->get_name();
+    }
+    err << "canbridge: " << logging::usage_message(*leaf, e) << "\nrun '" << command
+        << " --help' for the usage\n";
     return exit_code::usage;
   }
   try {
     const Io io{out, err, terminal};
     const Connect connect = [&](int& exit) { return Session::open(common, io, exit); };
     if (nodes->parsed()) return run_nodes(connect, common, net_option->count() > 0);
-    if (stats->parsed()) return run_stats(connect);
+    if (stats->parsed()) {
+      common.stats = true;
+      return run_stats(connect);
+    }
     if (sdo_read->parsed()) return run_sdo_read(connect, common, sdo_args);
     if (sdo_write->parsed()) return run_sdo_write(connect, common, sdo_args);
     if (nmt->parsed()) return run_nmt(connect, common, nmt_command, node_text);

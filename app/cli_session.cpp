@@ -13,9 +13,25 @@ std::string resolve_endpoint(const CommonOptions& options, std::string& problem)
   if (!options.endpoint.empty()) return options.endpoint;
   if (options.config.empty()) return kDefaultEndpoint;
   try {
-    // Only this one key: the client must not need the rest of a valid surface configuration.
+    // Only the endpoint's keys: the client must not need the rest of a valid configuration.
     const YAML::Node root = YAML::LoadFile(options.config);
-    const YAML::Node socket = root["command_endpoint"]["unix_socket"];
+    const bool gateway = root.IsMap() && root["role"] && root["role"].IsScalar() &&
+                         root["role"].as<std::string>() == "gateway";
+    if (gateway) {
+      // A gateway has no command endpoint; `stats` reads its stats_endpoint.
+      const YAML::Node stats = root["stats_endpoint"];
+      if (options.stats && stats && stats.IsScalar() && !stats.as<std::string>().empty()) {
+        return stats.as<std::string>();
+      }
+      problem = options.config + " is a gateway's configuration: " +
+                (options.stats ? std::string("it sets no stats_endpoint; set one or give "
+                                             "--endpoint")
+                               : std::string("operator commands go to a surface's command "
+                                             "endpoint; give the surface's file or --endpoint"));
+      return {};
+    }
+    const YAML::Node endpoint = root.IsMap() ? root["command_endpoint"] : YAML::Node();
+    const YAML::Node socket = endpoint && endpoint.IsMap() ? endpoint["unix_socket"] : YAML::Node();
     if (!socket) return kDefaultEndpoint;  // the surface's default too
     const std::string path = socket.as<std::string>();
     if (path.empty()) {

@@ -23,10 +23,12 @@ struct CommonOptions {
   std::string config;       // the surface's YAML: command_endpoint.unix_socket
   unsigned net = 0;         // CiA 309-3 network; 0 = the surface's network
   double timeout_s = 30.0;  // longest wait for an answer line
+  bool stats = false;       // the command is `stats`: a gateway's file names its stats_endpoint
 };
 
-// Where to connect: --endpoint, else the surface config's command_endpoint.unix_socket, else
-// kDefaultEndpoint. On a config that cannot be read returns "" and sets `problem`.
+// Where to connect: --endpoint, else the surface config's command_endpoint.unix_socket (for
+// `stats`, a gateway config's stats_endpoint), else kDefaultEndpoint. On a config that cannot be
+// read returns "" and sets `problem`.
 std::string resolve_endpoint(const CommonOptions& options, std::string& problem);
 
 struct Io {

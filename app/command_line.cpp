@@ -18,7 +18,7 @@ constexpr std::string_view kOperatorCommands =
     "[--net N] ...\n";
 
 constexpr std::string_view kRoles =
-    "gateway, surface, demo or an operator command (nodes, sdo, "
+    "gateway, surface, demo, check or an operator command (nodes, sdo, "
     "nmt, set-node-id, flash, dump, capture, stats)";
 
 constexpr std::string_view kOrder =
@@ -163,7 +163,17 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
       "'canbridge demo --nodes 8'. Each may be given once.");
   demo->fallthrough();
 
-  const std::vector<const CLI::App*> roles = {gateway, surface, demo};
+  auto* check = app.add_subcommand(
+      "check",
+      "validate a configuration file of either role (its role: key says which) and the key "
+      "files it names, without opening an interface or a socket; exit 0 when valid, 2 otherwise");
+  auto* check_config = check
+                           ->add_option("-c,--config", result.config_path,
+                                        "the file to check (default " + gateway_default + ")")
+                           ->type_name("FILE");
+  check->fallthrough();
+
+  const std::vector<const CLI::App*> roles = {gateway, surface, demo, check};
   const std::size_t at = command_position(args, roles);
   if (at < args.size() && cli::is_client_command(args[at])) {
     // The operator commands have their own parser (cli_main), which takes its common options
@@ -209,6 +219,12 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
       message = "no command given: expected " + std::string(kRoles);
     }
     return usage_error(message, command);
+  }
+  if (check->parsed()) {
+    result.command = Command::check;
+    result.config_given = check_config->count() > 0;
+    if (!result.config_given) result.config_path = gateway_default;
+    return result;
   }
   if (gateway->parsed()) {
     result.command = Command::gateway;

@@ -18,6 +18,7 @@ enum class Command {
   gateway,
   surface,
   demo,
+  check,   // validate config_path (either role) without opening interfaces or sockets
   client,  // an operator subcommand (nodes, sdo, ...): client_args go to cli::run_client
   done,    // nothing to run: print `output` and `error`, exit with exit_status
 };

@@ -10,6 +10,7 @@
 
 #include "app/cli_main.hpp"
 #include "app/command_line.hpp"
+#include "app/config_check.hpp"
 #include "app/demo.hpp"
 #include "app/run_roles.hpp"
 #include "config/loader.hpp"
@@ -67,6 +68,8 @@ int main(int argc, char** argv) {
     case Command::client:
       return canbridge::cli::run_client(command_line.client_args, std::cout, std::cerr,
                                         ::isatty(STDOUT_FILENO) == 1);
+    case Command::check:
+      return canbridge::bridge::check_config(command_line.config_path, std::cout, std::cerr);
     case Command::demo:
     case Command::gateway:
     case Command::surface:

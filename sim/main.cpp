@@ -60,19 +60,35 @@ asio::awaitable<void> log_stats(std::vector<RunningBus>& buses, unsigned seconds
   }
 }
 
-// Loads the rig and checks that every --bus names one of its buses; returns the exit status when
-// the program should stop here.
+// Loads the rig and checks that every --bus and every --interface BUS=IF names one of its buses;
+// returns the exit status when the program should stop here. A rig file that cannot be loaded is
+// exit status 2, as canbridge's own configuration files: the command line named a bad file.
 std::optional<int> load(const Options& options, sim::RigSpec& rig) {
   try {
     rig = sim::load_rig(options.rig_path);
   } catch (const std::exception& e) {
     std::cerr << "canbridge-sim: " << e.what() << "\n";
-    return 1;
+    return 2;
   }
+  const auto known = [&](const std::string& name) {
+    for (const auto& b : rig.buses) {
+      if (b.name == name) return true;
+    }
+    return false;
+  };
+  std::string names;
+  for (const auto& b : rig.buses) names += (names.empty() ? "" : ", ") + b.name;
   for (const auto& name : options.buses) {
-    bool known = false;
-    for (const auto& b : rig.buses) known = known || b.name == name;
-    if (!known) return usage_error("rig " + rig.name + " has no bus " + name);
+    if (!known(name))
+      return usage_error("rig " + rig.name + " has no bus " + name + " (it has " + names + ")");
+  }
+  // An --interface for a bus the rig does not have would be ignored, and the bus it was meant
+  // for would run on its file's interface or a virtual bus: refuse it instead.
+  for (const auto& [name, interface] : options.interfaces) {
+    if (!known(name)) {
+      return usage_error("--interface " + name + "=" + interface + ": rig " + rig.name +
+                         " has no bus " + name + " (it has " + names + ")");
+    }
   }
   return std::nullopt;
 }

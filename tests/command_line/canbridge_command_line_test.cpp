@@ -165,8 +165,8 @@ TEST(CanbridgeCommandLine, OptionsBeforeTheNameAreRefusedLikeAfterIt) {
   const std::string usage_demo = "\nrun 'canbridge demo --help' for the usage\n";
   const std::string usage = "\nrun 'canbridge --help' for the usage\n";
   const std::string roles =
-      "expected gateway, surface, demo or an operator command (nodes, sdo, nmt, set-node-id, "
-      "flash, dump, capture, stats)";
+      "expected gateway, surface, demo, check or an operator command (nodes, sdo, nmt, "
+      "set-node-id, flash, dump, capture, stats)";
   const std::vector<Row> table = {
       {{"-c", "a.yaml", "gateway", "-c", "b.yaml"},
        "canbridge: --config: given 2 times, expected once" + usage_gateway},
@@ -185,7 +185,8 @@ TEST(CanbridgeCommandLine, OptionsBeforeTheNameAreRefusedLikeAfterIt) {
        "only)" +
            usage_demo},
       {{"-c", "F", "demo"},
-       "canbridge: unexpected argument(s): -c F (-c is an option of gateway, surface only)" +
+       "canbridge: unexpected argument(s): -c F (-c is an option of gateway, surface, check "
+       "only)" +
            usage_demo},
       {{"--log-level", "debug", "demo"},
        "canbridge: unexpected argument(s): --log-level debug (--log-level is an option of "
@@ -252,7 +253,8 @@ TEST(CanbridgeCommandLine, OperatorCommandsTakeTheirCommonOptionsFirst) {
   std::ostringstream out;
   std::ostringstream err;
   EXPECT_EQ(cli::run_client({"--timeout", "0", "stats"}, out, err, false), cli::exit_code::usage);
-  EXPECT_EQ(err.str().rfind("canbridge: --timeout: Value 0 not in range", 0), 0u) << err.str();
+  EXPECT_EQ(err.str().rfind("canbridge: --timeout: '0' is not a number of seconds above 0", 0), 0u)
+      << err.str();
   // ... and an unknown one, named as given.
   err.str("");
   EXPECT_EQ(cli::run_client({"--frobnicate", "stats"}, out, err, false), cli::exit_code::usage);

@@ -168,5 +168,21 @@ TEST(ToolStringRig, EveryModuleBusBootsItsNodes) {
   EXPECT_EQ(sim.stop(), 0) << sim.output();
 }
 
+// canbridge-sim refuses what canbridge refuses, with the same exit status: a rig file that cannot
+// be read is 2 (as a configuration file of canbridge), and so is an --interface for a bus the rig
+// does not have, which would otherwise be ignored and leave the bus it was meant for elsewhere.
+TEST(SimCommandLine, AMissingRigFileExitsTwoLikeCanbridge) {
+  const auto r = test::run({CANBRIDGE_SIM_BIN, "/nonexistent/rig.yaml"});
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("/nonexistent/rig.yaml"), std::string::npos) << r.output;
+}
+
+TEST(SimCommandLine, AnInterfaceForABusTheRigLacksIsRefused) {
+  const auto r = test::run({CANBRIDGE_SIM_BIN, kRig, "--interface", "nosuchbus=vcan0"});
+  EXPECT_EQ(r.status, 2) << r.output;
+  EXPECT_NE(r.output.find("--interface nosuchbus=vcan0"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("has no bus nosuchbus"), std::string::npos) << r.output;
+}
+
 }  // namespace
 }  // namespace canbridge
