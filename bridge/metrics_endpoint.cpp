@@ -3,8 +3,6 @@
 #include <spdlog/spdlog.h>
 
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/use_awaitable.hpp>
@@ -13,8 +11,8 @@
 #include <boost/beast/http/read.hpp>
 #include <boost/beast/http/string_body.hpp>
 #include <boost/beast/http/write.hpp>
-#include <list>
 
+#include "bridge/endpoint_server.hpp"
 #include "coro/no_error.hpp"
 
 namespace canbridge::bridge {
@@ -27,27 +25,10 @@ using coro::kNoError;
 constexpr std::size_t kMaxRequestBytes = 8192;  // a GET and its headers; anything larger: closed
 
 struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Core> {
-  Core(asio::any_io_executor ex, MetricsEndpointOptions o, std::function<std::string()> e)
-      : executor(std::move(ex)),
-        options(std::move(o)),
-        exposition(std::move(e)),
-        acceptor(executor) {}
+  using Server = EndpointServer<tcp::acceptor, beast::tcp_stream>;
 
-  asio::awaitable<void> accept() {
-    auto self = shared_from_this();
-    while (open) {
-      auto [ec, socket] = co_await acceptor.async_accept(kNoError);
-      if (!open) break;
-      if (ec) {
-        asio::steady_timer pause(executor, std::chrono::milliseconds(100));
-        co_await pause.async_wait(kNoError);
-        continue;
-      }
-      if (connections.size() >= options.max_connections) continue;  // closed as it goes
-      connections.push_back(std::make_shared<beast::tcp_stream>(std::move(socket)));
-      asio::co_spawn(executor, serve(self, connections.back()), asio::detached);
-    }
-  }
+  Core(asio::any_io_executor ex, MetricsEndpointOptions o, std::function<std::string()> e)
+      : executor(std::move(ex)), options(std::move(o)), exposition(std::move(e)) {}
 
   http::response<http::string_body> answer(const http::request<http::string_body>& request) {
     http::response<http::string_body> response;
@@ -73,15 +54,16 @@ struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Cor
 
   static asio::awaitable<void> serve(std::shared_ptr<Core> self,
                                      std::shared_ptr<beast::tcp_stream> stream) {
+    if (!self) co_return;
     beast::flat_buffer buffer(kMaxRequestBytes);
-    while (self->open) {
+    while (self->server->open()) {
       http::request_parser<http::string_body> parser;
       parser.header_limit(kMaxRequestBytes);
       parser.body_limit(kMaxRequestBytes);
       stream->expires_after(self->options.read_timeout);
       auto [ec, n] = co_await http::async_read(*stream, buffer, parser, kNoError);
       (void)n;
-      if (ec || !self->open) break;  // closed, timed out, malformed or too large
+      if (ec || !self->server->open()) break;  // closed, timed out, malformed or too large
       const http::request<http::string_body>& request = parser.get();
       http::response<http::string_body> response = self->answer(request);
       stream->expires_after(self->options.read_timeout);  // a reader too slow for the answer
@@ -91,8 +73,6 @@ struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Cor
     }
     beast::error_code ignored;
     stream->socket().shutdown(tcp::socket::shutdown_both, ignored);
-    stream->close();
-    self->connections.remove(stream);
   }
 
   void start() {
@@ -105,6 +85,13 @@ struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Cor
                                "on loopback");
     }
     const tcp::endpoint endpoint(address, options.port);
+    // Past max_connections a connection is closed as it comes: a scraper retries.
+    server =
+        std::make_shared<Server>(executor, "metrics", options.max_connections,
+                                 [weak = weak_from_this()](std::shared_ptr<beast::tcp_stream> s) {
+                                   return serve(weak.lock(), std::move(s));
+                                 });
+    tcp::acceptor& acceptor = server->acceptor();
     acceptor.open(endpoint.protocol(), ec);
     if (!ec) acceptor.set_option(tcp::acceptor::reuse_address(true), ec);
     if (!ec) acceptor.bind(endpoint, ec);
@@ -114,25 +101,19 @@ struct MetricsEndpoint::Core : std::enable_shared_from_this<MetricsEndpoint::Cor
       throw std::runtime_error("metrics: cannot listen on " + options.address + ":" +
                                std::to_string(options.port) + ": " + ec.message());
     }
-    open = true;
-    asio::co_spawn(executor, accept(), asio::detached);
+    server->start();
     spdlog::info("metrics: serving http://{}:{}/metrics", options.address, port);
   }
 
   void stop() {
-    open = false;
-    boost::system::error_code ignored;
-    acceptor.close(ignored);
-    for (auto& c : connections) c->socket().close(ignored);
+    if (server) server->stop();
   }
 
   asio::any_io_executor executor;
   MetricsEndpointOptions options;
   std::function<std::string()> exposition;
-  tcp::acceptor acceptor;
-  std::list<std::shared_ptr<beast::tcp_stream>> connections;
+  std::shared_ptr<Server> server;
   std::uint16_t port = 0;
-  bool open = false;
 };
 
 MetricsEndpoint::MetricsEndpoint(asio::any_io_executor executor, MetricsEndpointOptions options,

@@ -5,8 +5,6 @@
 #include <unistd.h>
 
 #include <boost/asio/as_tuple.hpp>
-#include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/local/stream_protocol.hpp>
 #include <boost/asio/read_until.hpp>
 #include <boost/asio/steady_timer.hpp>
@@ -15,8 +13,8 @@
 #include <boost/asio/write.hpp>
 #include <cerrno>
 #include <cstring>
-#include <list>
 
+#include "bridge/endpoint_server.hpp"
 #include "canopen/ascii_command.hpp"
 #include "canopen/ascii_response.hpp"
 #include "coro/no_error.hpp"
@@ -29,37 +27,18 @@ using coro::kNoError;
 constexpr std::size_t kMaxLine = 256;  // `[<seq>] stats` and a comment fit many times over
 
 struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {
-  Core(asio::any_io_executor ex, StatsEndpointOptions o, std::function<std::string()> j)
-      : executor(std::move(ex)), options(std::move(o)), json(std::move(j)), acceptor(executor) {}
+  using Server = EndpointServer<Local::acceptor, Local::socket>;
 
-  asio::awaitable<void> accept() {
-    auto self = shared_from_this();
-    while (open) {
-      auto [ec, socket] = co_await acceptor.async_accept(kNoError);
-      if (!open) break;
-      if (ec) {
-        // EMFILE and the like would fail again at once: give the loop a breath.
-        asio::steady_timer pause(executor, std::chrono::milliseconds(100));
-        co_await pause.async_wait(kNoError);
-        continue;
-      }
-      if (clients.size() >= options.max_clients) {
-        const std::string full = canopen::ascii_line(std::nullopt, "ERROR: 102 #too many clients");
-        boost::system::error_code ignored;
-        asio::write(socket, asio::buffer(full), ignored);  // a few bytes on a fresh socket
-        continue;
-      }
-      clients.push_back(std::make_shared<Local::socket>(std::move(socket)));
-      asio::co_spawn(executor, serve(self, clients.back()), asio::detached);
-    }
-  }
+  Core(asio::any_io_executor ex, StatsEndpointOptions o, std::function<std::string()> j)
+      : executor(std::move(ex)), options(std::move(o)), json(std::move(j)) {}
 
   // One client: a line in, its answer out, one at a time; closed on an idle deadline.
   static asio::awaitable<void> serve(std::shared_ptr<Core> self,
                                      std::shared_ptr<Local::socket> socket) {
+    if (!self) co_return;
     asio::streambuf buffer(kMaxLine);
     asio::steady_timer deadline(self->executor);
-    while (self->open && socket->is_open()) {
+    while (self->server->open() && socket->is_open()) {
       deadline.expires_after(self->options.idle_timeout);
       deadline.async_wait([socket](boost::system::error_code ec) {
         if (!ec) {
@@ -69,7 +48,7 @@ struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {
       });
       auto [ec, n] = co_await asio::async_read_until(*socket, buffer, '\n', kNoError);
       deadline.cancel();
-      if (ec || !self->open) break;  // closed, idle, stopped, or a line longer than kMaxLine
+      if (ec || !self->server->open()) break;  // closed, idle, stopped, or a line too long
       std::string line(asio::buffers_begin(buffer.data()),
                        asio::buffers_begin(buffer.data()) + static_cast<std::ptrdiff_t>(n - 1));
       buffer.consume(n);
@@ -91,13 +70,22 @@ struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {
       (void)written;
       if (write_ec) break;
     }
-    boost::system::error_code ignored;
-    socket->close(ignored);
-    self->clients.remove(socket);
   }
 
   void start() {
     const std::string& path = options.unix_socket;
+    server = std::make_shared<Server>(
+        executor, "stats endpoint", options.max_clients,
+        [weak = weak_from_this()](std::shared_ptr<Local::socket> socket) {
+          return serve(weak.lock(), std::move(socket));
+        },
+        [](Local::socket& socket) {
+          const std::string full = canopen::ascii_error(
+              std::nullopt, canopen::AsciiError::internal_state, "too many clients");
+          boost::system::error_code ignored;
+          asio::write(socket, asio::buffer(full), ignored);  // a few bytes on a fresh socket
+        });
+    Local::acceptor& acceptor = server->acceptor();
     struct stat st {};
     boost::system::error_code ec;
     if (::lstat(path.c_str(), &st) == 0) {
@@ -121,17 +109,12 @@ struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {
     acceptor.listen(asio::socket_base::max_listen_connections, ec);
     if (ec)
       throw std::runtime_error("stats endpoint: cannot listen on " + path + ": " + ec.message());
-    open = true;
-    asio::co_spawn(executor, accept(), asio::detached);
+    server->start();
     spdlog::info("stats endpoint: listening on {}", path);
   }
 
   void stop() {
-    if (!open && !made_socket) return;
-    open = false;
-    boost::system::error_code ignored;
-    acceptor.close(ignored);
-    for (auto& c : clients) c->close(ignored);
+    if (server) server->stop();
     if (made_socket) ::unlink(options.unix_socket.c_str());
     made_socket = false;
   }
@@ -139,9 +122,7 @@ struct StatsEndpoint::Core : std::enable_shared_from_this<StatsEndpoint::Core> {
   asio::any_io_executor executor;
   StatsEndpointOptions options;
   std::function<std::string()> json;
-  Local::acceptor acceptor;
-  std::list<std::shared_ptr<Local::socket>> clients;
-  bool open = false;
+  std::shared_ptr<Server> server;
   bool made_socket = false;
 };
 
