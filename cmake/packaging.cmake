@@ -117,9 +117,12 @@ nodes) and canbridge-link-emulator (a slow, noisy wireline for tests).")
 set(CPACK_DEBIAN_PACKAGE_SECTION net)
 set(CPACK_DEBIAN_PACKAGE_PRIORITY optional)
 set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
-# Shared-library dependencies from dpkg-shlibdeps (package dpkg-dev); adduser for postinst.
+# Shared-library dependencies from dpkg-shlibdeps (package dpkg-dev); adduser for postinst;
+# procps for /bin/kill, the units' ExecReload (systemctl reload). openssl makes the keys and
+# tokens (`openssl rand -hex 32`, docs/security.md): recommended, the roles never run it.
 set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
-set(CPACK_DEBIAN_PACKAGE_DEPENDS "adduser")
+set(CPACK_DEBIAN_PACKAGE_DEPENDS "adduser, procps")
+set(CPACK_DEBIAN_PACKAGE_RECOMMENDS "openssl")
 set(CPACK_DEBIAN_PACKAGE_SUGGESTS "can-utils, iproute2")
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA
     ${PROJECT_BINARY_DIR}/debian/conffiles ${PROJECT_BINARY_DIR}/debian/postinst

@@ -29,10 +29,13 @@ info=$(dpkg-deb -I "$deb")
 expect "$info" "Package: canbridge" control
 expect "$info" "Version: $version" control
 depends=$(dpkg-deb -f "$deb" Depends)
-# adduser for postinst; the rest found by dpkg-shlibdeps from what the binaries link.
-for dep in adduser libc6 libstdc++6 libyaml-cpp0.7 libprotobuf-lite32 libssl3 libspdlog1.10; do
+# adduser for postinst, procps for the units' ExecReload (/bin/kill); the rest found by
+# dpkg-shlibdeps from what the binaries link.
+for dep in adduser procps libc6 libstdc++6 libyaml-cpp0.7 libprotobuf-lite32 libssl3 libspdlog1.10; do
   expect "$depends" "$dep" Depends
 done
+# The key and token recipe of the docs and the loader's messages: openssl rand -hex 32.
+expect "$(dpkg-deb -f "$deb" Recommends)" "openssl" Recommends
 conffiles=$(dpkg-deb -I "$deb" conffiles)
 [[ $conffiles == "$config_dir/gateway.yaml"$'\n'"$config_dir/surface.yaml" ]] ||
   fail "conffiles: $conffiles"
@@ -126,6 +129,7 @@ for unit in canbridge-gateway.service canbridge-surface.service; do
   for key in Type=notify NotifyAccess=main WatchdogSec= Restart=on-failure RestartSec= \
     User=canbridge Group=canbridge RuntimeDirectory=canbridge ConfigurationDirectory=canbridge \
     AmbientCapabilities=CAP_NET_ADMIN CapabilityBoundingSet=CAP_NET_ADMIN NoNewPrivileges=yes \
+    'ExecReload=/bin/kill -HUP $MAINPID' \
     ProtectSystem=strict "RestrictAddressFamilies=AF_CAN AF_UNIX AF_INET AF_INET6 AF_NETLINK" \
     "ExecStart=$bin_dir/canbridge ${unit#canbridge-}"; do
     expect "$text" "${key%.service}" "$unit"
