@@ -71,8 +71,10 @@ install(FILES ${PROJECT_SOURCE_DIR}/cmake/debian/copyright
               ${PROJECT_BINARY_DIR}/debian/changelog.gz DESTINATION ${CMAKE_INSTALL_DOCDIR})
 
 # Manual pages (man canbridge, ...) made from each executable's --help and --version by help2man
-# at build time, gzipped as Debian installs them. None where help2man is missing (a message
-# says so) or where the executables cannot run on the build machine (cross builds).
+# at build time, gzipped as Debian installs them, with what --help does not say from
+# cmake/man/<program>.h2m.in (help2man --include: canbridge's commands and their options, signals,
+# exit status, environment, files). None where help2man is missing (a message says so) or where
+# the executables cannot run on the build machine (cross builds).
 find_program(CANBRIDGE_HELP2MAN help2man)
 if(NOT CANBRIDGE_HELP2MAN AND NOT CMAKE_CROSSCOMPILING)
   message(STATUS "canbridge: no help2man: no manual pages (apt-get install help2man)")
@@ -82,13 +84,16 @@ function(canbridge_man_page program summary)
     return()
   endif()
   set(page ${PROJECT_BINARY_DIR}/man/${program}.1)
+  set(include ${PROJECT_BINARY_DIR}/man/${program}.h2m)
+  set(CANBRIDGE_RIG_DIR "${CMAKE_INSTALL_FULL_DATADIR}/canbridge/rigs")
+  configure_file(${PROJECT_SOURCE_DIR}/cmake/man/${program}.h2m.in ${include} @ONLY)
   add_custom_command(
     OUTPUT ${page}.gz
     COMMAND ${CMAKE_COMMAND} -E make_directory ${PROJECT_BINARY_DIR}/man
-    COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary} --output=${page}
-            $<TARGET_FILE:${program}>
+    COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary}
+            --include=${include} --output=${page} $<TARGET_FILE:${program}>
     COMMAND gzip -9nf ${page}
-    DEPENDS ${program}
+    DEPENDS ${program} ${include}
     COMMENT "Manual page ${program}.1"
     VERBATIM)
   add_custom_target(${program}-man-page ALL DEPENDS ${page}.gz)

@@ -112,10 +112,41 @@ fi
 echo "--- the installed binary, from a scratch root"
 root=$scratch/root
 dpkg-deb -x "$deb" "$root"
-# The manual page is the program's own --help (help2man), under the program's name.
+# The manual page is the program's own --help (help2man), under the program's name, and a
+# reference beyond it (cmake/man/canbridge.h2m.in): every command the help texts name, every
+# option of each, and the sections a daemon's page needs.
 man_page=$(gzip -dc "$root/usr/share/man/man1/canbridge.1.gz")
 expect "$man_page" ".TH CANBRIDGE" "canbridge.1"
-expect "$man_page" "gateway" "canbridge.1"
+# roff as text: \- is -, font changes go.
+man_text=$(sed -e 's/\\-/-/g' -e 's/\\f[BIRP,]//g' -e 's/\\\///g' <<<"$man_page")
+for section in DESCRIPTION OPTIONS COMMANDS SIGNALS "EXIT STATUS" ENVIRONMENT FILES "SEE ALSO"; do
+  grep -qE "^\.SH \"?$section\"?\$" <<<"$man_text" || fail "canbridge.1: no section $section"
+done
+for key in SIGHUP SIGTERM JOURNAL_STREAM NOTIFY_SOCKET "$config_dir/gateway.yaml" \
+  "$config_dir/surface.yaml" "$config_dir/keys/" /run/canbridge/surface.sock; do
+  expect "$man_text" "$key" "canbridge.1"
+done
+canbridge_help() { "$root$bin_dir/canbridge" "$@" --help; }
+top_help=$(canbridge_help)
+roles=$(awk '/^Subcommands:/ {on = 1; next} /^$/ {on = 0} on && /^  [a-z]/ {print $1}' <<<"$top_help")
+operators=$(sed -n '/^Operator commands/{n;p;}' <<<"$top_help" | tr -d ' ' | tr ',' ' ')
+[[ $roles == *gateway* && $operators == *stats* ]] ||
+  fail "canbridge --help: no roles or operator commands found: $roles / $operators"
+for command in $roles $operators "sdo read" "sdo write"; do
+  grep -qE "^(canbridge )?$command( |$)" <<<"$man_text" || fail "canbridge.1: no entry for '$command'"
+  for option in $(canbridge_help $command | grep -oE -- '--[a-z][a-z-]+' | sort -u); do
+    expect "$man_text" "$option" "canbridge.1 ($command's options)"
+  done
+done
+for option in $(grep -oE -- '--[a-z][a-z-]+' <<<"$top_help" | sort -u); do
+  expect "$man_text" "$option" "canbridge.1 (operator options)"
+done
+for program in canbridge-sim canbridge-link-emulator; do
+  text=$(gzip -dc "$root/usr/share/man/man1/$program.1.gz")
+  for section in SIGNALS "EXIT STATUS" ENVIRONMENT FILES; do
+    grep -qE "^\.SH \"?$section\"?\$" <<<"$text" || fail "$program.1: no section $section"
+  done
+done
 [[ $("$root$bin_dir/canbridge" --version) == "canbridge $version" ]] || fail "canbridge --version"
 "$root$bin_dir/canbridge" demo >"$scratch/demo.log" 2>&1 || fail "canbridge demo: $(cat "$scratch/demo.log")"
 expect "$(cat "$scratch/demo.log")" "demo OK: every node answered through the tunnel" demo
