@@ -2,10 +2,13 @@
 # logging.fatal_errors: the errors canbridge writes itself before or instead of running a role
 # (config errors, usage errors, the exception that ends a role) follow --log-format as the
 # logger's lines do: under journal every line of stderr starts with <3>, so that the journal files
-# a multi-line config error at priority error; under text they stay as they were.
-# Usage: fatal_errors_test.sh CANBRIDGE SOURCE_DIR
+# a multi-line config error at priority error; under text they stay as they were. The same for
+# canbridge-sim and canbridge-link-emulator.
+# Usage: fatal_errors_test.sh CANBRIDGE CANBRIDGE_SIM CANBRIDGE_LINK_EMULATOR SOURCE_DIR
+# CANBRIDGE_TARGET_LAUNCHER: what runs the programs in a cross-built tree (qemu-user), if any.
 set -euo pipefail
-canbridge=$1 source=$2
+launcher=${CANBRIDGE_TARGET_LAUNCHER:-}
+canbridge=$1 sim=$2 emulator=$3 source=$4
 scratch=$(mktemp -d)
 trap 'rm -rf "$scratch"' EXIT
 fail() {
@@ -13,15 +16,22 @@ fail() {
   exit 1
 }
 
-# run NAME STATUS ARGS...: runs canbridge ARGS with stderr in $scratch/NAME.err, expects STATUS.
-run() {
+# run_program NAME STATUS PROGRAM ARGS...: runs PROGRAM ARGS with stderr in $scratch/NAME.err,
+# expects STATUS.
+run_program() {
   local name=$1 status=$2
   shift 2
   local got=0
-  "$canbridge" "$@" >"$scratch/$name.out" 2>"$scratch/$name.err" || got=$?
+  # shellcheck disable=SC2086 # the launcher is a command with its arguments
+  $launcher "$@" >"$scratch/$name.out" 2>"$scratch/$name.err" || got=$?
   [[ $got == "$status" ]] || fail "$name: exit status $got, expected $status: $(cat "$scratch/$name.err")"
   [[ -s $scratch/$name.err ]] || fail "$name: nothing on stderr"
   [[ ! -s $scratch/$name.out ]] || fail "$name: stdout is not empty: $(cat "$scratch/$name.out")"
+}
+run() {  # run NAME STATUS ARGS...: canbridge ARGS
+  local name=$1 status=$2
+  shift 2
+  run_program "$name" "$status" "$canbridge" "$@"
 }
 # every_line_journal NAME NEEDLE: every stderr line starts with <3>, and one says NEEDLE.
 every_line_journal() {
@@ -63,7 +73,8 @@ every_line_journal bad_argument "<3>canbridge: unexpected argument(s): --bogus"
 : >"$scratch/auto.err"
 stream=$(stat -c '%d:%i' "$scratch/auto.err")
 got=0
-JOURNAL_STREAM=$stream "$canbridge" gateway --config "$scratch/bad.yaml" >/dev/null \
+# shellcheck disable=SC2086
+JOURNAL_STREAM=$stream $launcher "$canbridge" gateway --config "$scratch/bad.yaml" >/dev/null \
   2>>"$scratch/auto.err" || got=$?
 [[ $got == 2 ]] || fail "auto: exit status $got"
 every_line_journal auto "<3>canbridge: invalid configuration (3 problems)"
@@ -74,5 +85,23 @@ run text 2 gateway --log-format text --config "$scratch/bad.yaml"
   fail "text: first line $(head -1 "$scratch/text.err")"
 ! grep -q '^<' "$scratch/text.err" || fail "text: a prefixed line: $(cat "$scratch/text.err")"
 echo "text: $(wc -l <"$scratch/text.err") line(s), none prefixed"
+
+# canbridge-sim: a rig with two problems (exit 1), a --bus the rig does not have (a usage error).
+cat >"$scratch/bad_rig.yaml" <<'EOF'
+rig: broken
+buses:
+  - name: a
+    nodes:
+      - {kind: bogus, node_id: 200}
+EOF
+run_program sim_rig 1 "$sim" --log-format journal "$scratch/bad_rig.yaml"
+every_line_journal sim_rig "<3>canbridge-sim: invalid configuration (2 problems)"
+run_program sim_bus 2 "$sim" --log-format journal --virtual --bus nope "$source/config/rigs/demo.yaml"
+every_line_journal sim_bus "<3>canbridge-sim: rig demo has no bus nope"
+
+# canbridge-link-emulator: an endpoint that cannot be made ends the run (exit 1).
+run_program emulator_endpoint 1 "$emulator" --log-format journal \
+  --a "pty:$scratch/no/such/dir/pty" --b tcp-listen:127.0.0.1:0
+every_line_journal emulator_endpoint "<3>canbridge-link-emulator: symlink $scratch/no/such/dir/pty"
 
 echo "logging.fatal_errors: OK"
