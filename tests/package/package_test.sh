@@ -112,6 +112,13 @@ fi
 echo "--- the installed binary, from a scratch root"
 root=$scratch/root
 dpkg-deb -x "$deb" "$root"
+# Every relative link of an installed page leads to an installed file (docs/containers.md once
+# linked docker/README.md, which the package does not install).
+for page in "$root$doc_dir"/*.md "$root"/usr/share/canbridge/rigs/*.md; do
+  while read -r target; do
+    [[ -e $(dirname "$page")/$target ]] || fail "$(basename "$page") links $target: not packaged"
+  done < <(grep -oE '\]\([^)# ]+' "$page" | sed 's/^](//' | grep -vE '^[a-z]+:' || true)
+done
 # The manual page is the program's own --help (help2man), under the program's name, and a
 # reference beyond it (cmake/man/canbridge.h2m.in): every command the help texts name, every
 # option of each, and the sections a daemon's page needs.
