@@ -87,7 +87,7 @@ for path in "$bin_dir/canbridge" "$bin_dir/canbridge-sim" "$bin_dir/canbridge-li
   "$config_dir/gateway.yaml" "$config_dir/surface.yaml" \
   "$unit_dir/canbridge-gateway.service" "$unit_dir/canbridge-surface.service" \
   /usr/lib/sysusers.d/canbridge.conf /usr/share/canbridge/rigs/demo.yaml \
-  "$doc_dir/install.md" "$doc_dir/README.md" "$doc_dir/copyright" "$doc_dir/changelog.gz" \
+  "$doc_dir/install.md" "$doc_dir/getting-started.md" "$doc_dir/README.md" "$doc_dir/copyright" "$doc_dir/changelog.gz" \
   /usr/share/man/man1/canbridge.1.gz /usr/share/man/man1/canbridge-sim.1.gz \
   /usr/share/man/man1/canbridge-link-emulator.1.gz; do
   expect "$tree" ".$path" "package tree"
