@@ -218,7 +218,10 @@ CommandLine parse_command_line(const std::vector<std::string>& args, std::string
     if (app.get_subcommands().empty() && message.find("subcommand") != std::string::npos) {
       message = "no command given: expected " + std::string(kRoles);
     }
-    return usage_error(message, command);
+    // The error is written in the --log-format read before the bad argument, if any.
+    CommandLine refused = usage_error(message, command);
+    refused.log_format = log.log_format();
+    return refused;
   }
   if (check->parsed()) {
     result.command = Command::check;

@@ -21,8 +21,15 @@ namespace {
 using canbridge::bridge::Command;
 using canbridge::bridge::CommandLine;
 
-int usage_error(const std::string& message) {
-  std::cerr << "canbridge: " << message << "\n";
+// An error main writes itself, not through the logger: in the journal format every line has the
+// error priority, as the logger's own error lines do (a config error is several lines).
+void print_error(canbridge::logging::LogFormat format, const std::string& text) {
+  std::cerr << canbridge::logging::prefix_lines(canbridge::logging::resolve(format),
+                                                spdlog::level::err, text);
+}
+
+int usage_error(const CommandLine& command_line, const std::string& message) {
+  print_error(command_line.log_format, "canbridge: " + message);
   return 2;
 }
 
@@ -30,7 +37,7 @@ int usage_error(const std::string& message) {
 // override what it may, and runs the role until a signal.
 int run_role(const CommandLine& command_line) {
   if (const auto missing = canbridge::bridge::missing_default_config(command_line)) {
-    return usage_error(*missing);
+    return usage_error(command_line, *missing);
   }
   const canbridge::bridge::HangupReloadSource reload{command_line.config_path,
                                                      command_line.log_level.has_value()};
@@ -47,8 +54,9 @@ int run_role(const CommandLine& command_line) {
     const bool served = std::any_of(options.modules.begin(), options.modules.end(),
                                     [&](const auto& m) { return m.id == id; });
     if (!served) {
-      return usage_error("--lss-module " + std::to_string(id) + ": not the id of a module in " +
-                         command_line.config_path);
+      return usage_error(command_line, "--lss-module " + std::to_string(id) +
+                                           ": not the id of a module in " +
+                                           command_line.config_path);
     }
     options.lss_module = id;
   }
@@ -63,7 +71,7 @@ int main(int argc, char** argv) {
   switch (command_line.command) {
     case Command::done:
       std::cout << command_line.output;
-      std::cerr << command_line.error;
+      if (!command_line.error.empty()) print_error(command_line.log_format, command_line.error);
       return command_line.exit_status;
     case Command::client:
       return canbridge::cli::run_client(command_line.client_args, std::cout, std::cerr,
@@ -82,10 +90,10 @@ int main(int argc, char** argv) {
     }
     return run_role(command_line);
   } catch (const canbridge::config::ConfigError& e) {
-    std::cerr << "canbridge: " << e.what() << "\n";
+    print_error(command_line.log_format, std::string("canbridge: ") + e.what());
     return 2;
   } catch (const std::exception& e) {
-    std::cerr << "canbridge: " << e.what() << "\n";
+    print_error(command_line.log_format, std::string("canbridge: ") + e.what());
     return 1;
   }
 }

@@ -71,8 +71,10 @@ install(FILES ${PROJECT_SOURCE_DIR}/cmake/debian/copyright
               ${PROJECT_BINARY_DIR}/debian/changelog.gz DESTINATION ${CMAKE_INSTALL_DOCDIR})
 
 # Manual pages (man canbridge, ...) made from each executable's --help and --version by help2man
-# at build time, gzipped as Debian installs them. None where help2man is missing (a message
-# says so) or where the executables cannot run on the build machine (cross builds).
+# at build time, gzipped as Debian installs them, with what --help does not say from
+# cmake/man/<program>.h2m.in (help2man --include: canbridge's commands and their options, signals,
+# exit status, environment, files). None where help2man is missing (a message says so) or where
+# the executables cannot run on the build machine (cross builds).
 find_program(CANBRIDGE_HELP2MAN help2man)
 if(NOT CANBRIDGE_HELP2MAN AND NOT CMAKE_CROSSCOMPILING)
   message(STATUS "canbridge: no help2man: no manual pages (apt-get install help2man)")
@@ -82,13 +84,16 @@ function(canbridge_man_page program summary)
     return()
   endif()
   set(page ${PROJECT_BINARY_DIR}/man/${program}.1)
+  set(include ${PROJECT_BINARY_DIR}/man/${program}.h2m)
+  set(CANBRIDGE_RIG_DIR "${CMAKE_INSTALL_FULL_DATADIR}/canbridge/rigs")
+  configure_file(${PROJECT_SOURCE_DIR}/cmake/man/${program}.h2m.in ${include} @ONLY)
   add_custom_command(
     OUTPUT ${page}.gz
     COMMAND ${CMAKE_COMMAND} -E make_directory ${PROJECT_BINARY_DIR}/man
-    COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary} --output=${page}
-            $<TARGET_FILE:${program}>
+    COMMAND ${CANBRIDGE_HELP2MAN} --no-info --no-discard-stderr --name=${summary}
+            --include=${include} --output=${page} $<TARGET_FILE:${program}>
     COMMAND gzip -9nf ${page}
-    DEPENDS ${program}
+    DEPENDS ${program} ${include}
     COMMENT "Manual page ${program}.1"
     VERBATIM)
   add_custom_target(${program}-man-page ALL DEPENDS ${page}.gz)
@@ -117,9 +122,12 @@ nodes) and canbridge-link-emulator (a slow, noisy wireline for tests).")
 set(CPACK_DEBIAN_PACKAGE_SECTION net)
 set(CPACK_DEBIAN_PACKAGE_PRIORITY optional)
 set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
-# Shared-library dependencies from dpkg-shlibdeps (package dpkg-dev); adduser for postinst.
+# Shared-library dependencies from dpkg-shlibdeps (package dpkg-dev); adduser for postinst;
+# procps for /bin/kill, the units' ExecReload (systemctl reload). openssl makes the keys and
+# tokens (`openssl rand -hex 32`, docs/security.md): recommended, the roles never run it.
 set(CPACK_DEBIAN_PACKAGE_SHLIBDEPS ON)
-set(CPACK_DEBIAN_PACKAGE_DEPENDS "adduser")
+set(CPACK_DEBIAN_PACKAGE_DEPENDS "adduser, procps")
+set(CPACK_DEBIAN_PACKAGE_RECOMMENDS "openssl")
 set(CPACK_DEBIAN_PACKAGE_SUGGESTS "can-utils, iproute2")
 set(CPACK_DEBIAN_PACKAGE_CONTROL_EXTRA
     ${PROJECT_BINARY_DIR}/debian/conffiles ${PROJECT_BINARY_DIR}/debian/postinst

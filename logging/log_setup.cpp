@@ -20,32 +20,12 @@ constexpr const char* kTextPattern = "%Y-%m-%d %H:%M:%S.%e %^%l%$ %v";
 // name stays so a grep of `journalctl` output finds "warning" lines as in a text log.
 constexpr const char* kJournalPattern = "%*%l %v";
 
-// sd-daemon's "<N>" of a message's level: syslog priorities (3 error, 4 warning, 6 info, 7 debug).
+// sd-daemon's "<N>" of a message's level (priority_prefix).
 class JournalPriority final : public spdlog::custom_flag_formatter {
  public:
   void format(const spdlog::details::log_msg& msg, const std::tm&,
               spdlog::memory_buf_t& dest) override {
-    std::string_view prefix = "<6>";
-    switch (msg.level) {
-      case spdlog::level::critical:
-        prefix = "<2>";
-        break;
-      case spdlog::level::err:
-        prefix = "<3>";
-        break;
-      case spdlog::level::warn:
-        prefix = "<4>";
-        break;
-      case spdlog::level::info:
-        prefix = "<6>";
-        break;
-      case spdlog::level::debug:
-      case spdlog::level::trace:
-        prefix = "<7>";
-        break;
-      default:
-        break;
-    }
+    const std::string_view prefix = priority_prefix(msg.level);
     dest.append(prefix.data(), prefix.data() + prefix.size());
   }
   std::unique_ptr<custom_flag_formatter> clone() const override {
@@ -117,6 +97,41 @@ std::unique_ptr<spdlog::formatter> make_formatter(LogFormat resolved) {
     formatter->set_pattern(kTextPattern);
   }
   return formatter;
+}
+
+std::string_view priority_prefix(spdlog::level::level_enum level) {
+  switch (level) {
+    case spdlog::level::critical:
+      return "<2>";
+    case spdlog::level::err:
+      return "<3>";
+    case spdlog::level::warn:
+      return "<4>";
+    case spdlog::level::debug:
+    case spdlog::level::trace:
+      return "<7>";
+    default:
+      return "<6>";
+  }
+}
+
+std::string prefix_lines(LogFormat resolved, spdlog::level::level_enum level,
+                         std::string_view text) {
+  if (text.empty()) return {};
+  if (resolved != LogFormat::journal) {
+    std::string out(text);
+    if (out.back() != '\n') out += '\n';
+    return out;
+  }
+  const std::string_view prefix = priority_prefix(level);
+  std::string out;
+  while (!text.empty()) {
+    const std::size_t end = text.find('\n');
+    const std::string_view line = text.substr(0, end);
+    out.append(prefix).append(line).append("\n");
+    text.remove_prefix(end == std::string_view::npos ? text.size() : end + 1);
+  }
+  return out;
 }
 
 void setup_logging(LogFormat format, spdlog::level::level_enum level) {

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <string>
 #include <string_view>
 
 namespace canbridge::logging {
@@ -39,6 +40,18 @@ LogFormat resolve(LogFormat requested);
 
 // The line formatter of a resolved format (text or journal).
 std::unique_ptr<spdlog::formatter> make_formatter(LogFormat resolved);
+
+// sd-daemon's "<N>" of a level, as the journal format writes it: syslog priorities (2 critical,
+// 3 error, 4 warning, 6 info, 7 debug and trace).
+std::string_view priority_prefix(spdlog::level::level_enum level);
+
+// Text a program writes to stderr itself, not through the logger (a usage error, a config error,
+// the exception that ended a role), in a resolved format: in journal, every line starts with
+// `level`'s prefix, so that the journal files each line of a multi-line config error at that
+// priority, not at the stream's default (info); in text, unchanged. A last line without '\n'
+// gets one.
+std::string prefix_lines(LogFormat resolved, spdlog::level::level_enum level,
+                         std::string_view text);
 
 // Makes the default logger write to stderr in `format` (resolved here) at `level`.
 void setup_logging(LogFormat format, spdlog::level::level_enum level = spdlog::level::info);

@@ -32,8 +32,14 @@ using namespace canbridge;
 
 using Options = sim::SimOptions;
 
-int usage_error(const std::string& message) {
-  std::cerr << "canbridge-sim: " << message << "\n";
+// An error written outside the logger: in the journal format every line has the error priority,
+// as the logger's own error lines do.
+void print_error(logging::LogFormat format, const std::string& text) {
+  std::cerr << logging::prefix_lines(logging::resolve(format), spdlog::level::err, text);
+}
+
+int usage_error(const Options& options, const std::string& message) {
+  print_error(options.log_format, "canbridge-sim: " + message);
   return 2;
 }
 
@@ -67,7 +73,7 @@ std::optional<int> load(const Options& options, sim::RigSpec& rig) {
   try {
     rig = sim::load_rig(options.rig_path);
   } catch (const std::exception& e) {
-    std::cerr << "canbridge-sim: " << e.what() << "\n";
+    print_error(options.log_format, std::string("canbridge-sim: ") + e.what());
     return 2;
   }
   const auto known = [&](const std::string& name) {
@@ -79,15 +85,17 @@ std::optional<int> load(const Options& options, sim::RigSpec& rig) {
   std::string names;
   for (const auto& b : rig.buses) names += (names.empty() ? "" : ", ") + b.name;
   for (const auto& name : options.buses) {
-    if (!known(name))
-      return usage_error("rig " + rig.name + " has no bus " + name + " (it has " + names + ")");
+    if (!known(name)) {
+      return usage_error(options, "rig " + rig.name + " has no bus " + name + " (it has " + names +
+                                      ")");
+    }
   }
   // An --interface for a bus the rig does not have would be ignored, and the bus it was meant
   // for would run on its file's interface or a virtual bus: refuse it instead.
   for (const auto& [name, interface] : options.interfaces) {
     if (!known(name)) {
-      return usage_error("--interface " + name + "=" + interface + ": rig " + rig.name +
-                         " has no bus " + name + " (it has " + names + ")");
+      return usage_error(options, "--interface " + name + "=" + interface + ": rig " + rig.name +
+                                      " has no bus " + name + " (it has " + names + ")");
     }
   }
   return std::nullopt;
@@ -176,7 +184,7 @@ int main(int argc, char** argv) {
       std::vector<std::string>(argv + 1, argv + argc), CANBRIDGE_VERSION);
   if (!command_line.options) {
     std::cout << command_line.output;
-    std::cerr << command_line.error;
+    if (!command_line.error.empty()) print_error(logging::LogFormat::automatic, command_line.error);
     return command_line.exit_status;
   }
   const Options& options = *command_line.options;
@@ -196,7 +204,7 @@ int main(int argc, char** argv) {
       node_count += spec.nodes.size();
     }
   } catch (const std::exception& e) {
-    std::cerr << "canbridge-sim: " << e.what() << "\n";
+    print_error(options.log_format, std::string("canbridge-sim: ") + e.what());
     return 1;
   }
   return run(io, buses, node_count, options.stats_seconds);

@@ -44,6 +44,22 @@ TEST(LogFormat, TextLinesStartWithDateAndTime) {
       << line;
 }
 
+// What a program writes itself (a config error of several lines): each line at the priority,
+// as the journal files it; text as it was, with the last line ended.
+TEST(LogFormat, TextWrittenOutsideTheLoggerGetsThePriorityOnEveryLine) {
+  const std::string error =
+      "canbridge: invalid configuration (2 problems)\n  a.yaml:3: log.level: 'loud'\n"
+      "  a.yaml:9: bus: missing";
+  EXPECT_EQ(prefix_lines(LogFormat::journal, spdlog::level::err, error),
+            "<3>canbridge: invalid configuration (2 problems)\n<3>  a.yaml:3: log.level: "
+            "'loud'\n<3>  a.yaml:9: bus: missing\n");
+  EXPECT_EQ(prefix_lines(LogFormat::journal, spdlog::level::warn, "one\n"), "<4>one\n");
+  EXPECT_EQ(prefix_lines(LogFormat::journal, spdlog::level::err, "a\n\nb\n"), "<3>a\n<3>\n<3>b\n");
+  EXPECT_EQ(prefix_lines(LogFormat::text, spdlog::level::err, error), error + "\n");
+  EXPECT_EQ(prefix_lines(LogFormat::text, spdlog::level::err, "done\n"), "done\n");
+  EXPECT_EQ(prefix_lines(LogFormat::journal, spdlog::level::err, ""), "");
+}
+
 TEST(LogFormat, NamesOfFormatsAndLevels) {
   EXPECT_EQ(parse_log_format("auto"), LogFormat::automatic);
   EXPECT_EQ(parse_log_format("text"), LogFormat::text);

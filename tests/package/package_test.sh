@@ -29,10 +29,13 @@ info=$(dpkg-deb -I "$deb")
 expect "$info" "Package: canbridge" control
 expect "$info" "Version: $version" control
 depends=$(dpkg-deb -f "$deb" Depends)
-# adduser for postinst; the rest found by dpkg-shlibdeps from what the binaries link.
-for dep in adduser libc6 libstdc++6 libyaml-cpp0.7 libprotobuf-lite32 libssl3 libspdlog1.10; do
+# adduser for postinst, procps for the units' ExecReload (/bin/kill); the rest found by
+# dpkg-shlibdeps from what the binaries link.
+for dep in adduser procps libc6 libstdc++6 libyaml-cpp0.7 libprotobuf-lite32 libssl3 libspdlog1.10; do
   expect "$depends" "$dep" Depends
 done
+# The key and token recipe of the docs and the loader's messages: openssl rand -hex 32.
+expect "$(dpkg-deb -f "$deb" Recommends)" "openssl" Recommends
 conffiles=$(dpkg-deb -I "$deb" conffiles)
 [[ $conffiles == "$config_dir/gateway.yaml"$'\n'"$config_dir/surface.yaml" ]] ||
   fail "conffiles: $conffiles"
@@ -84,7 +87,7 @@ for path in "$bin_dir/canbridge" "$bin_dir/canbridge-sim" "$bin_dir/canbridge-li
   "$config_dir/gateway.yaml" "$config_dir/surface.yaml" \
   "$unit_dir/canbridge-gateway.service" "$unit_dir/canbridge-surface.service" \
   /usr/lib/sysusers.d/canbridge.conf /usr/share/canbridge/rigs/demo.yaml \
-  "$doc_dir/install.md" "$doc_dir/README.md" "$doc_dir/copyright" "$doc_dir/changelog.gz" \
+  "$doc_dir/install.md" "$doc_dir/getting-started.md" "$doc_dir/README.md" "$doc_dir/copyright" "$doc_dir/changelog.gz" \
   /usr/share/man/man1/canbridge.1.gz /usr/share/man/man1/canbridge-sim.1.gz \
   /usr/share/man/man1/canbridge-link-emulator.1.gz; do
   expect "$tree" ".$path" "package tree"
@@ -109,10 +112,48 @@ fi
 echo "--- the installed binary, from a scratch root"
 root=$scratch/root
 dpkg-deb -x "$deb" "$root"
-# The manual page is the program's own --help (help2man), under the program's name.
+# Every relative link of an installed page leads to an installed file (docs/containers.md once
+# linked docker/README.md, which the package does not install).
+for page in "$root$doc_dir"/*.md "$root"/usr/share/canbridge/rigs/*.md; do
+  while read -r target; do
+    [[ -e $(dirname "$page")/$target ]] || fail "$(basename "$page") links $target: not packaged"
+  done < <(grep -oE '\]\([^)# ]+' "$page" | sed 's/^](//' | grep -vE '^[a-z]+:' || true)
+done
+# The manual page is the program's own --help (help2man), under the program's name, and a
+# reference beyond it (cmake/man/canbridge.h2m.in): every command the help texts name, every
+# option of each, and the sections a daemon's page needs.
 man_page=$(gzip -dc "$root/usr/share/man/man1/canbridge.1.gz")
 expect "$man_page" ".TH CANBRIDGE" "canbridge.1"
-expect "$man_page" "gateway" "canbridge.1"
+# roff as text: \- is -, font changes go.
+man_text=$(sed -e 's/\\-/-/g' -e 's/\\f[BIRP,]//g' -e 's/\\\///g' <<<"$man_page")
+for section in DESCRIPTION OPTIONS COMMANDS SIGNALS "EXIT STATUS" ENVIRONMENT FILES "SEE ALSO"; do
+  grep -qE "^\.SH \"?$section\"?\$" <<<"$man_text" || fail "canbridge.1: no section $section"
+done
+for key in SIGHUP SIGTERM JOURNAL_STREAM NOTIFY_SOCKET "$config_dir/gateway.yaml" \
+  "$config_dir/surface.yaml" "$config_dir/keys/" /run/canbridge/surface.sock; do
+  expect "$man_text" "$key" "canbridge.1"
+done
+canbridge_help() { "$root$bin_dir/canbridge" "$@" --help; }
+top_help=$(canbridge_help)
+roles=$(awk '/^Subcommands:/ {on = 1; next} /^$/ {on = 0} on && /^  [a-z]/ {print $1}' <<<"$top_help")
+operators=$(sed -n '/^Operator commands/{n;p;}' <<<"$top_help" | tr -d ' ' | tr ',' ' ')
+[[ $roles == *gateway* && $operators == *stats* ]] ||
+  fail "canbridge --help: no roles or operator commands found: $roles / $operators"
+for command in $roles $operators "sdo read" "sdo write"; do
+  grep -qE "^(canbridge )?$command( |$)" <<<"$man_text" || fail "canbridge.1: no entry for '$command'"
+  for option in $(canbridge_help $command | grep -oE -- '--[a-z][a-z-]+' | sort -u); do
+    expect "$man_text" "$option" "canbridge.1 ($command's options)"
+  done
+done
+for option in $(grep -oE -- '--[a-z][a-z-]+' <<<"$top_help" | sort -u); do
+  expect "$man_text" "$option" "canbridge.1 (operator options)"
+done
+for program in canbridge-sim canbridge-link-emulator; do
+  text=$(gzip -dc "$root/usr/share/man/man1/$program.1.gz")
+  for section in SIGNALS "EXIT STATUS" ENVIRONMENT FILES; do
+    grep -qE "^\.SH \"?$section\"?\$" <<<"$text" || fail "$program.1: no section $section"
+  done
+done
 [[ $("$root$bin_dir/canbridge" --version) == "canbridge $version" ]] || fail "canbridge --version"
 "$root$bin_dir/canbridge" demo >"$scratch/demo.log" 2>&1 || fail "canbridge demo: $(cat "$scratch/demo.log")"
 expect "$(cat "$scratch/demo.log")" "demo OK: every node answered through the tunnel" demo
@@ -126,6 +167,7 @@ for unit in canbridge-gateway.service canbridge-surface.service; do
   for key in Type=notify NotifyAccess=main WatchdogSec= Restart=on-failure RestartSec= \
     User=canbridge Group=canbridge RuntimeDirectory=canbridge ConfigurationDirectory=canbridge \
     AmbientCapabilities=CAP_NET_ADMIN CapabilityBoundingSet=CAP_NET_ADMIN NoNewPrivileges=yes \
+    'ExecReload=/bin/kill -HUP $MAINPID' \
     ProtectSystem=strict "RestrictAddressFamilies=AF_CAN AF_UNIX AF_INET AF_INET6 AF_NETLINK" \
     "ExecStart=$bin_dir/canbridge ${unit#canbridge-}"; do
     expect "$text" "${key%.service}" "$unit"

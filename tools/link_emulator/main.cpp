@@ -10,6 +10,17 @@
 #include "tools/link_emulator/command_line.hpp"
 #include "tools/link_emulator/link_shell.hpp"
 
+namespace {
+
+// An error written outside the logger: in the journal format every line has the error priority,
+// as the logger's own error lines do.
+void print_error(canbridge::logging::LogFormat format, const std::string& text) {
+  std::cerr << canbridge::logging::prefix_lines(canbridge::logging::resolve(format),
+                                                spdlog::level::err, text);
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   const canbridge::emulator::CommandLine command_line =
       canbridge::emulator::parse_command_line(std::vector<std::string>(argv + 1, argv + argc));
@@ -22,8 +33,9 @@ int main(int argc, char** argv) {
     return 0;
   }
   if (!command_line.options) {
-    std::cerr << "canbridge-link-emulator: " << command_line.error
-              << "\nrun 'canbridge-link-emulator --help' for the usage\n";
+    print_error(canbridge::logging::LogFormat::automatic,
+                "canbridge-link-emulator: " + command_line.error +
+                    "\nrun 'canbridge-link-emulator --help' for the usage");
     return 2;
   }
   // stdout is for the lines tests wait for (ready, cuts, stats); diagnostics go to stderr.
@@ -34,7 +46,7 @@ int main(int argc, char** argv) {
   try {
     return canbridge::emulator::run_link_emulator(*command_line.options);
   } catch (const std::exception& e) {
-    std::cerr << "canbridge-link-emulator: " << e.what() << "\n";
+    print_error(command_line.log_format, std::string("canbridge-link-emulator: ") + e.what());
     return 1;
   }
 }
