@@ -334,8 +334,10 @@ void GatewayRemote::answer_nodes(const v1::RemoteRequest& request, TimePoint now
       row.set_nmt_state(static_cast<std::uint32_t>(record.state));
       row.set_in_loader(record.loader == LoaderState::in_loader);
       row.set_lost(record.lost);
-      row.set_heartbeat_age_ms(
-          record.last_seen == NodeTable::TimePoint{} ? -1 : age_ms(now, record.last_seen));
+      // No heartbeat since its boot-up (1017h = 0): alive, not watched, no age to show.
+      row.set_heartbeat_age_ms(!record.heartbeat_seen || record.last_seen == NodeTable::TimePoint{}
+                                   ? -1
+                                   : age_ms(now, record.last_seen));
       row.set_last_emcy_code(record.last_emcy_code);
       row.set_last_emcy_register(record.last_emcy_register);
       row.set_last_emcy_age_ms(record.last_emcy_at ? age_ms(now, *record.last_emcy_at) : -1);

@@ -200,6 +200,7 @@ void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState st
   if (!r.known) {
     r = NodeRecord{};
     r.known = true;
+    r.heartbeat_seen = true;
     r.state = state;
     r.loader = loader;
     r.last_seen = now;
@@ -231,6 +232,7 @@ void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState st
   r.state = state;
   r.loader = loader;
   r.last_seen = now;
+  r.heartbeat_seen = true;
   set_deadline(s, due(m, s));
   if (!was_lost && state == previous) return;  // the common path: no event, no allocation
   NodeEvent e = event(was_lost ? NodeEvent::Kind::recovered : NodeEvent::Kind::state_changed,
@@ -283,6 +285,7 @@ void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::K
   r.last_seen = now;
   // The node's 1017h is back at its own default: measure afresh.
   r.heartbeat_time = std::chrono::milliseconds{0};
+  r.heartbeat_seen = false;  // watched again from its first heartbeat
   forget_gaps(s);
   update_interval(s);
   s.heartbeat_off = false;
@@ -568,7 +571,8 @@ NodeTable::Duration NodeTable::lost_after(const Module& m, const NodeRecord& r) 
 
 NodeTable::TimePoint NodeTable::due(const Module& m, const Slot& s) const {
   const NodeRecord& r = s.record;
-  if (!r.known || r.lost || r.loader == LoaderState::in_loader || s.heartbeat_off) {
+  if (!r.known || r.lost || r.loader == LoaderState::in_loader || s.heartbeat_off ||
+      !r.heartbeat_seen) {
     return TimePoint::max();
   }
   return std::max(r.last_seen + lost_after(m, r), s.hold_until);

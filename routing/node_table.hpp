@@ -34,6 +34,10 @@ struct NodeRecord {
   bool known = false;
   // Silent for lost_after: kept in the table with its last state until it is heard again.
   bool lost = false;
+  // A heartbeat since the node's last boot-up. Only then is its silence watched: a node whose
+  // 1017h is 0 (CANopenNode's default) sends none after its boot-up, answers every SDO and is
+  // alive, with no heartbeat to lose; it was reported lost 3 s after every boot.
+  bool heartbeat_seen = false;
   // Last NMT state the node reported. A boot-up puts it in pre_operational (CiA 301: the node
   // enters pre-operational autonomously after its boot-up); boot_up only while in the qd loader.
   NmtState state = NmtState::boot_up;

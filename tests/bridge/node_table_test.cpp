@@ -311,12 +311,35 @@ TEST(NodeTable, DefaultLostAfterUntilTwoHeartbeats) {
   Rig rig;
   const auto m = rig.table.add_module(IdProfile::cia301);
   rig.bus(m, boot_up(2), t0);
-  EXPECT_EQ(rig.table.next_deadline(), t0 + 3s);
+  EXPECT_FALSE(rig.table.next_deadline()) << "watched from its first heartbeat, not its boot-up";
   rig.bus(m, heartbeat(2, kPreOp), t0 + 5ms);  // right after the boot-up: no interval yet
   EXPECT_EQ(rig.table.lost_after(m, 2), 3s);
   EXPECT_EQ(rig.table.next_deadline(), t0 + 5ms + 3s);
   EXPECT_TRUE(rig.tick(t0 + 5ms + 3s - 1ns).empty());
   EXPECT_EQ(kinds(rig.tick(t0 + 5ms + 3s)), std::vector<Kind>{Kind::lost});
+}
+
+// CANopenNode's nodes (1017h = 0 by default) send a boot-up and then no heartbeat at all: such a
+// node is alive as long as it answers, never lost for a heartbeat it does not send.
+TEST(NodeTable, ANodeWithoutHeartbeatIsNeverLostForItsSilence) {
+  Rig rig;
+  const auto m = rig.table.add_module(IdProfile::cia301);
+  rig.bus(m, boot_up(4), t0);
+  EXPECT_FALSE(rig.table.next_deadline());
+  EXPECT_TRUE(rig.tick(t0 + 1h).empty());
+  const NodeRecord* r = rig.table.node(m, 4);
+  ASSERT_NE(r, nullptr);
+  EXPECT_FALSE(r->lost);
+  EXPECT_FALSE(r->heartbeat_seen);
+  EXPECT_EQ(rig.table.counts(m), (NodeCounts{.pre_operational = 1}));
+  // Its first heartbeat (1017h written by a master) starts the watch.
+  rig.bus(m, heartbeat(4, kOp), t0 + 1h);
+  EXPECT_TRUE(r->heartbeat_seen);
+  EXPECT_EQ(rig.table.next_deadline(), t0 + 1h + 3s);
+  // A reboot restores the node's own 1017h: not watched until it beats again.
+  rig.bus(m, boot_up(4), t0 + 1h + 1s);
+  EXPECT_FALSE(r->heartbeat_seen);
+  EXPECT_TRUE(rig.tick(t0 + 2h).empty());
 }
 
 TEST(NodeTable, ObservedLostAfterHasAFloorButNoCeiling) {
@@ -346,6 +369,7 @@ TEST(NodeTable, ConfiguredLostAfterOverridesTheObservedRule) {
   rig.beat(m, 1, kOp, t0, 1s, 2);    // observed: 3 s
   rig.beat(m, 2, kOp, t0, 10ms, 2);  // observed: 100 ms
   rig.bus(m, boot_up(3), t0);        // no interval: 3 s
+  rig.bus(m, heartbeat(3, kPreOp), t0);
   for (NodeId n : {1, 2, 3}) EXPECT_EQ(rig.table.lost_after(m, n), 500ms) << int{n};
   EXPECT_TRUE(rig.tick(t0 + 500ms - 1ns).empty());
   const Events lost = rig.tick(t0 + 10ms + 500ms);
@@ -398,6 +422,7 @@ TEST(NodeTable, QdLoaderBootUpRecordsLoaderStateForTheNode) {
   EXPECT_EQ(r->loader, LoaderState::in_application);
   EXPECT_EQ(r->boot_count, 1u);
   EXPECT_EQ(rig.table.counts(m), (NodeCounts{.pre_operational = 1}));
+  rig.bus(m, heartbeat(5, kPreOp), t0 + 1h + 1s);  // the application's watch starts
   EXPECT_EQ(rig.table.next_deadline(), t0 + 1h + 1s + 3s);
   // Back into the loader (1F51h:01 = 0): the watch stops again, the loader count goes up.
   ASSERT_EQ(kinds(rig.bus(m, Frame::standard(0x725, {0x00}), t0 + 2h)),
@@ -561,8 +586,12 @@ TEST(NodeTable, RenameToTheSameIdIsAPlainBootUp) {
   ASSERT_EQ(kinds(e), std::vector<Kind>{Kind::booted});
   EXPECT_EQ(e[0].boot_count, 2u);
   EXPECT_EQ(e[0].previous_local, 0);
-  EXPECT_EQ(rig.table.next_deadline(), t0 + 450ms + 3s);  // a fresh boot; nothing pending
-  EXPECT_EQ(kinds(rig.tick(t0 + 10s)), std::vector<Kind>{Kind::lost});  // no unconfirmed
+  // A fresh boot with nothing pending: no unconfirmed rename, and the node is watched again
+  // from its first heartbeat.
+  EXPECT_FALSE(rig.table.next_deadline());
+  EXPECT_TRUE(rig.tick(t0 + 10s).empty());
+  rig.bus(0, heartbeat(5, kPreOp), t0 + 10s);
+  EXPECT_EQ(kinds(rig.tick(t0 + 20s)), std::vector<Kind>{Kind::lost});
 }
 
 TEST(NodeTable, RenameBySerialWithAKnownSerialNamesTheOldId) {

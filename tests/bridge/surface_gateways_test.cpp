@@ -336,15 +336,17 @@ TEST_F(SurfaceGateways, SdoValuesThatNameIdsAreSeenInSurfaceIdsBothWays) {
 
 TEST_F(SurfaceGateways, NodeTableEventsBootedAndLostReachTheSurface) {
   start_a_and_b();
-  // A boot-up, then silence: the gateway reports booted, then (after 150 ms) lost.
-  const auto booted_at = std::chrono::steady_clock::now();
+  // A boot-up, one heartbeat, then silence: the gateway reports booted, then (150 ms after the
+  // heartbeat, from which the node is watched) lost.
   ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x00})));
   ASSERT_TRUE(run_until(io, [&] { return surface.counters().node_events >= 1; }));
   const NodeRecord* record = a->gateway->node_table().node(0, kLocal);
   ASSERT_NE(record, nullptr);
   EXPECT_EQ(record->boot_count, 1u);
+  const auto beat_at = std::chrono::steady_clock::now();
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x7F})));
   ASSERT_TRUE(run_until(io, [&] { return surface.counters().node_events >= 2; }));
-  EXPECT_GE(std::chrono::steady_clock::now() - booted_at, 150ms);
+  EXPECT_GE(std::chrono::steady_clock::now() - beat_at, 150ms);
   EXPECT_TRUE(a->gateway->node_table().node(0, kLocal)->lost);
   EXPECT_EQ(a->gateway->counters().node_events, 2u);
   EXPECT_EQ(surface.counters().node_events, 2u);
