@@ -35,8 +35,8 @@ std::string check_gateway(const config::GatewayOptions& options) {
   (void)gateway_link_upgrade(options);
   std::string buses;
   for (const auto& m : options.modules) {
-    buses += (buses.empty() ? "" : ", ") + std::string("module ") + std::to_string(m.id) +
-             " on " + m.bus;
+    if (!buses.empty()) buses += ", ";
+    buses += "module " + std::to_string(m.id) + " on " + m.bus;
   }
   return "gateway " + options.name + ": " + std::to_string(options.modules.size()) +
          " module(s) (" + buses + "), auth " + auth_mode(options.auth.mode);
