@@ -89,7 +89,13 @@ bool SdoLinkGuard::can_answer(Node& n, const can::Frame& response) {
     default:
       break;
   }
-  if (first == 0x80) {  // an abort ends whatever was in flight
+  // An abort ends the transfer it names (CiA 301: the multiplexer of the transfer; some servers
+  // send none). One naming another object answers an older request, executed just before a cut
+  // and aborted toward the master: passed on, it would end the master's pending request with an
+  // answer the master cannot place (issue 27).
+  if (first == 0x80) {
+    const bool names_none = response.data[1] == 0 && response.data[2] == 0 && response.data[3] == 0;
+    if (!same_object && !names_none) return false;
     n.expect = Expect::nothing;
     return true;
   }

@@ -40,8 +40,9 @@ class SdoLinkGuard {
   // master: it answers a request the master was told had failed (aborted when the link dropped,
   // delivered once the link came back), and could be taken for the answer to a newer request.
   // Once the master has sent a request to the node, only a response that can answer it passes:
-  // an abort, or the response class of the request (download/upload initiate, segment, block)
-  // naming the same object (initiates) or carrying the same toggle (segments).
+  // an abort naming the transfer's object (or none), or the response class of the request
+  // (download/upload initiate, segment, block) naming the same object (initiates) or carrying
+  // the same toggle (segments).
   [[nodiscard]] bool on_gateway_frame(GatewayId gateway, const can::Frame& frame);
   // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
   // even before the node has sent anything through it.

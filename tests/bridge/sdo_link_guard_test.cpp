@@ -325,6 +325,21 @@ TEST_F(SdoLinkGuardStale, AnAbortAlwaysAnswersThePendingRequest) {
   EXPECT_TRUE(answer({0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x02, 0x06}));
 }
 
+// Issue 27: the node's abort of a request executed just before a cut (the master saw
+// 0x05040000) crossed once the link was back, while the master waited on a newer request, and
+// reached the master as the newer request's answer.
+TEST_F(SdoLinkGuardStale, AnAbortNamingAnotherObjectIsAnOlderRequestsAndDropped) {
+  ASSERT_TRUE(send({0x23, 0x01, 0x30, 0x07, 7, 0, 0, 0}));  // download 3001h sub 7
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);           // aborted toward the master
+  ASSERT_TRUE(send({0x40, 0x01, 0x30, 0x08, 0, 0, 0, 0}));  // upload 3001h sub 8, link back
+  EXPECT_FALSE(answer({0x80, 0x01, 0x30, 0x07, 0x00, 0x00, 0x02, 0x06}));  // the old abort
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 1u);
+  EXPECT_TRUE(answer({0x80, 0x01, 0x30, 0x08, 0x00, 0x00, 0x02, 0x06}));  // its own
+  // An abort naming no object (some servers send none) still ends the pending request.
+  ASSERT_TRUE(send({0x40, 0x01, 0x30, 0x09, 0, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x80, 0x00, 0x00, 0x00, 0x00, 0x00, 0x04, 0x05}));
+}
+
 TEST_F(SdoLinkGuardStale, ANodeTheMasterNeverAskedPassesEverything) {
   EXPECT_TRUE(answer({0x43, 0x00, 0x20, 0x00, 1, 2, 3, 4}));
   EXPECT_TRUE(answer({0x60, 0x00, 0x20, 0x00, 0, 0, 0, 0}));
