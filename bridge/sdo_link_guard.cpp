@@ -177,21 +177,33 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   return abort_for(node, n);
 }
 
-std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
+bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
+  if (options_.transfer_open_for.count() <= 0 || now - n.asked <= options_.transfer_open_for) {
+    return true;
+  }
+  ++counters_.stale_aborts_dropped;
+  return false;
+}
+
+std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::time_point now) {
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
     if (!n.owned || n.gateway != gateway || !n.pending) continue;
     n.pending = false;
+    // Aborted either way: a late answer to it must not reach the master any more than the
+    // abort may.
     n.aborted = true;
     n.expect = Expect::nothing;
+    if (!still_open(n, now)) continue;
     ++counters_.aborted_in_flight;
     aborts.push_back(abort_for(node, n));
   }
   return aborts;
 }
 
-std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& request) {
+std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& request,
+                                                             Clock::time_point now) {
   const canopen::NodeId node = request_node(request);
   if (node == 0) return std::nullopt;
   const std::uint8_t command = request.data[0] >> 5;
@@ -207,6 +219,7 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   n.pending = false;
   n.aborted = n.owned;
   if (n.owned) n.expect = Expect::nothing;
+  if (n.owned && !still_open(n, now)) return std::nullopt;
   ++counters_.aborted_discarded;
   return abort_for(node, answer);
 }

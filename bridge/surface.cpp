@@ -84,6 +84,9 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
       table_(name_, policy.gateways, policy.require_authenticated_peers),
+      // The backbone gives a request up once it is reliable_max_age old (answering its master
+      // with an abort): no master waits longer for it, so no abort comes later.
+      guard_(SdoLinkGuard::Options{.transfer_open_for = tuning.session.reliable_max_age}),
       relay_(rpdop_relay),
       deadlines_(executor_),
       writer_(
@@ -273,9 +276,12 @@ asio::awaitable<std::error_code> Surface::read_bus() {
       // RPDOP to a pdop node behind a gateway: the relay acknowledges the master and forwards
       // whole packets.
       if (relay_.on_frame(frame, now, relay_out_)) continue;
-      const auto verdict = guard_.on_surface_frame(frame, [this](SdoLinkGuard::GatewayId g) {
-        return by_id_[g] != nullptr && by_id_[g]->stream.up();
-      });
+      const auto verdict = guard_.on_surface_frame(
+          frame,
+          [this](SdoLinkGuard::GatewayId g) {
+            return by_id_[g] != nullptr && by_id_[g]->stream.up();
+          },
+          now);
       if (verdict.reply) send_to_bus(*verdict.reply);
       if (verdict.forward) forward_.push_back(frame);
     }
@@ -626,13 +632,15 @@ void Surface::on_gateway_down(Gateway& gateway) {
   gateway.stream.edit_unacked([&](std::string& payload) {
     counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload);
   });
-  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id)) send_to_bus(abort);
+  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, SdoLinkGuard::Clock::now())) {
+    send_to_bus(abort);
+  }
 }
 
 void Surface::on_frame_dropped(const can::Frame& frame, bool too_old) {
   ++(too_old ? counters_.reliable_dropped_too_old : counters_.reliable_dropped_gateway_restart);
   if (!is_sdo_request(frame)) return;
-  if (auto abort = guard_.on_request_discarded(frame)) {
+  if (auto abort = guard_.on_request_discarded(frame, SdoLinkGuard::Clock::now())) {
     ++counters_.sdo_aborted_dropped;
     send_to_bus(*abort);
   }
@@ -659,6 +667,7 @@ SurfaceCounters Surface::counters() const {
                   guard_.counters().aborted_not_forwarded;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
+  c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
@@ -732,7 +741,7 @@ std::string Surface::stats_line() const {
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}, "
-      "stale answers dropped {}), "
+      "stale answers dropped {}, stale aborts dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
       "bus-refused {}, dropped-no-gateway {}, unclaimed {}, "
@@ -746,15 +755,15 @@ std::string Surface::stats_line() const {
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted,
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
-      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.reliable_dropped_too_old,
-      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.session.stale_links_closed,
-      c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
-      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
-      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, c.from_bus,
-      c.frames_received, c.process_lost_on_line, c.outbox.batches_sent, c.outbox.queued,
-      session_counters_text(c.session), bus_counters_text(bus_->name(), b), c.bus_waited,
-      c.bus_waiting_peak, c.backbone_pauses);
+      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped,
+      c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped,
+      c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
+      c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
+      c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed,
+      c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete,
+      c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line, c.outbox.batches_sent,
+      c.outbox.queued, session_counters_text(c.session), bus_counters_text(bus_->name(), b),
+      c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),

@@ -98,6 +98,35 @@ TEST(SdoLinkGuard, ALateAnswerToAnAbortedRequestNeverReachesTheMaster) {
   EXPECT_EQ(guard.counters().late_responses_dropped, 2u);
 }
 
+// Issue 27, "a late abort": a master's upload to an absent node stayed pending and was aborted
+// 56 s later, when the link dropped, reaching a master that had long since moved on.
+TEST(SdoLinkGuard, NoAbortComesLaterThanTheTransferCouldStillBeOpen) {
+  SdoLinkGuard guard({.transfer_open_for = std::chrono::milliseconds(4000)});
+  const SdoLinkGuard::Clock::time_point t0{std::chrono::hours(1)};
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat70);
+  auto up = [](auto) { return true; };
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0).forward);  // node 34 never answers
+  const can::Frame read_70 = can::Frame::standard(0x646, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(read_70, up, t0 + std::chrono::seconds(53)).forward);
+  // The link drops 56 s after the first request, 3 s after the second: only the second's
+  // master can still be waiting.
+  const auto aborts = guard.on_gateway_down(1, t0 + std::chrono::seconds(56));
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5C6, 0x1000, 0x00));
+  EXPECT_EQ(guard.counters().aborted_in_flight, 1u);
+  EXPECT_EQ(guard.counters().stale_aborts_dropped, 1u);
+  // Its answer, should it come after all, is as late as the abort would have been.
+  EXPECT_FALSE(
+      guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4})));
+  // The same bound for a request the backbone gave up.
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0 + std::chrono::seconds(60)).forward);
+  EXPECT_FALSE(guard.on_request_discarded(kRead1018, t0 + std::chrono::seconds(65)));
+  EXPECT_EQ(guard.counters().stale_aborts_dropped, 2u);
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0 + std::chrono::seconds(70)).forward);
+  EXPECT_TRUE(guard.on_request_discarded(kRead1018, t0 + std::chrono::seconds(74)));
+}
+
 TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
   SdoLinkGuard guard;
   auto down = [](auto) { return false; };
