@@ -177,6 +177,24 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   return abort_for(node, n);
 }
 
+void SdoLinkGuard::on_request_withdrawn(const can::Frame& request) {
+  const canopen::NodeId node = request_node(request);
+  if (node == 0) return;
+  Node& n = nodes_[node];
+  if (!n.owned) {
+    ++counters_.withdrawn_untracked;
+    return;
+  }
+  // Only the master's last request to a node can be pending: one withdrawn request per pending
+  // node stands for it, any other was given up by its master when it sent a newer one.
+  if (n.pending && !n.withdrawn) {
+    n.withdrawn = true;
+    ++counters_.withdrawn_pending;
+    return;
+  }
+  ++counters_.withdrawn_answered_before;
+}
+
 bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
   if (options_.transfer_open_for.count() <= 0 || now - n.asked <= options_.transfer_open_for) {
     return true;

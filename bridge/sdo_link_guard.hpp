@@ -47,6 +47,14 @@ class SdoLinkGuard {
     std::uint64_t aborted_not_forwarded = 0;  // requests the surface could not queue
     // Aborts not sent: their request was older than Options::transfer_open_for.
     std::uint64_t stale_aborts_dropped = 0;
+    // Requests withdrawn when their gateway's link went down, each counted once: one per node
+    // with a request pending, which the abort of on_gateway_down() answers (or, if stale, drops
+    // and counts); the others, whose master had its answer already (an answer, an abort, its
+    // own abort, or a newer request it sent instead); and those to nodes the guard does not
+    // follow (no gateway claims them), whose master gets no abort from the guard.
+    std::uint64_t withdrawn_pending = 0;
+    std::uint64_t withdrawn_answered_before = 0;
+    std::uint64_t withdrawn_untracked = 0;
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
@@ -81,6 +89,10 @@ class SdoLinkGuard {
   // A frame on_surface_frame let through that the surface could not queue for its gateway: for
   // an SDO request, the abort the master gets instead of silence.
   std::optional<can::Frame> on_not_forwarded(const can::Frame& frame);
+
+  // A request the surface withdrew (never to be sent) as its gateway's link went down, before
+  // on_gateway_down(): counted by how its master gets, or got, its answer.
+  void on_request_withdrawn(const can::Frame& request);
 
   // The gateway's link went down at `now`: the aborts for every SDO request in flight to its
   // nodes that its master can still be waiting for (Options::transfer_open_for).
@@ -119,6 +131,9 @@ class SdoLinkGuard {
     Expect expect = Expect::untracked;
     std::uint8_t toggle = 0;    // segments: bit 4 of the master's segment request
     Clock::time_point asked{};  // when the pending request went out
+    // The pending request was withdrawn (on_request_withdrawn): an older one still in the
+    // queue was answered before.
+    bool withdrawn = false;
   };
   // Notes the master's request on a node the guard follows.
   static void note_request(Node& n, const can::Frame& frame);
@@ -163,6 +178,7 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   // The end of a block upload gets no answer.
   n.pending = n.expect != Expect::nothing;
   n.aborted = false;
+  n.withdrawn = false;
   n.asked = now;
   return {};
 }

@@ -628,9 +628,12 @@ void Surface::on_gateway_down(Gateway& gateway) {
   if (stopped_) return;
   // The master is told below that these requests failed: the node must never execute them
   // later, when the link returns.
-  gateway.outbox.withdraw_queued_sdo_requests();
+  // Each withdrawn request is accounted for by how its master gets its answer (the guard's
+  // withdrawn counters add up to the withdrawn ones).
+  const auto account = [this](const can::Frame& request) { guard_.on_request_withdrawn(request); };
+  gateway.outbox.withdraw_queued_sdo_requests(account);
   gateway.stream.edit_unacked([&](std::string& payload) {
-    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload);
+    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload, account);
   });
   for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, SdoLinkGuard::Clock::now())) {
     send_to_bus(abort);
@@ -668,6 +671,9 @@ SurfaceCounters Surface::counters() const {
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
   c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
+  c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;
+  c.sdo_withdrawn_answered_before = guard_.counters().withdrawn_answered_before;
+  c.sdo_withdrawn_untracked = guard_.counters().withdrawn_untracked;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
@@ -740,7 +746,8 @@ std::string Surface::stats_line() const {
   std::string s = fmt::format(
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}, "
+      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
+      "untracked {}, late answers dropped {}, "
       "stale answers dropped {}, stale aborts dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
@@ -754,16 +761,17 @@ std::string Surface::stats_line() const {
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted,
-      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
-      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped,
-      c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped,
-      c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
-      c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
-      c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed,
-      c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete,
-      c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line, c.outbox.batches_sent,
-      c.outbox.queued, session_counters_text(c.session), bus_counters_text(bus_->name(), b),
-      c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
+      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
+      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_late_responses_dropped,
+      c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old,
+      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.session.stale_links_closed,
+      c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
+      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
+      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
+      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, c.from_bus,
+      c.frames_received, c.process_lost_on_line, c.outbox.batches_sent, c.outbox.queued,
+      session_counters_text(c.session), bus_counters_text(bus_->name(), b), c.bus_waited,
+      c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),

@@ -127,6 +127,33 @@ TEST(SdoLinkGuard, NoAbortComesLaterThanTheTransferCouldStillBeOpen) {
   EXPECT_TRUE(guard.on_request_discarded(kRead1018, t0 + std::chrono::seconds(74)));
 }
 
+// Issue 27: every request withdrawn at a cut is accounted for by how its master gets its answer,
+// so that the counters prove none was withdrawn without one.
+TEST(SdoLinkGuard, EveryWithdrawnRequestIsAccountedForOnce) {
+  SdoLinkGuard guard;
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat70);
+  auto up = [](auto) { return true; };
+  // Node 34: the master gave up on one request (its own timeout) and sent another; both queued.
+  const can::Frame given_up = can::Frame::standard(0x622, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(given_up, up).forward);
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  // Node 70: its request was answered, yet still unacknowledged when the link dropped.
+  const can::Frame read_70 = can::Frame::standard(0x646, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(read_70, up).forward);
+  ASSERT_TRUE(
+      guard.on_gateway_frame(1, can::Frame::standard(0x5C6, {0x43, 0x00, 0x10, 0x00, 1, 2, 3, 4})));
+  // Node 90: no gateway claims it, so the guard does not follow it.
+  const can::Frame read_90 = can::Frame::standard(0x65A, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  for (const can::Frame& f : {given_up, kRead1018, read_70, read_90}) guard.on_request_withdrawn(f);
+  EXPECT_EQ(guard.counters().withdrawn_pending, 1u);
+  EXPECT_EQ(guard.counters().withdrawn_answered_before, 2u);
+  EXPECT_EQ(guard.counters().withdrawn_untracked, 1u);
+  // The pending one gets its abort.
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);
+  EXPECT_EQ(guard.counters().aborted_in_flight, guard.counters().withdrawn_pending);
+}
+
 TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
   SdoLinkGuard guard;
   auto down = [](auto) { return false; };

@@ -153,6 +153,16 @@ TEST_F(SdoAcrossCuts, EveryRequestIsDeliveredOrAbortedBeforeTheMastersTimeout) {
   EXPECT_EQ(delivered_not_executed, 0);
   EXPECT_EQ(master.late_answers(), 0u) << "answers to requests that had ended";
   EXPECT_EQ(master.stray_answers(), 0u);
+  // Every request the surface withdrew at a cut is accounted for once: the one pending at its
+  // node got its abort, the others had their answer before; none to a node nobody follows.
+  const long long withdrawn = counter(rig.surface_final, "withdrawn"),
+                  withdrawn_pending = counter(rig.surface_final, "withdrawn [0-9]+: pending"),
+                  answered_before = counter(rig.surface_final, "answered-before"),
+                  untracked = counter(rig.surface_final, "untracked");
+  EXPECT_GE(withdrawn, 0) << rig.surface_final;
+  EXPECT_EQ(withdrawn, withdrawn_pending + answered_before + untracked) << rig.surface_final;
+  EXPECT_EQ(untracked, 0) << rig.surface_final;
+  EXPECT_LE(withdrawn_pending, aborted) << rig.surface_final;
   // The scenario did what it is for: traffic flowed, and cuts took the link down under it.
   EXPECT_GE(cuts, kCuts - 1);
   EXPECT_GT(delivered, 500);

@@ -308,6 +308,16 @@ TEST_F(SdoOnNoisyLine, EveryRequestEndsInAnAnswerOrAnAbortAndReachesItsNodeAtMos
   // failed is never executed"). One that reached it before, and whose answer the cut took,
   // cannot be undone.
   EXPECT_EQ(aborted_executed_after, 0);
+  // Every request the surface withdrew at a cut is accounted for once: the one pending at its
+  // node got its abort, the others had their answer before; none to a node nobody follows.
+  const long long withdrawn = counter(surface_final_, "withdrawn"),
+                  withdrawn_pending = counter(surface_final_, "withdrawn [0-9]+: pending"),
+                  answered_before = counter(surface_final_, "answered-before"),
+                  untracked = counter(surface_final_, "untracked");
+  EXPECT_GE(withdrawn, 0) << surface_final_;
+  EXPECT_EQ(withdrawn, withdrawn_pending + answered_before + untracked) << surface_final_;
+  EXPECT_EQ(untracked, 0) << surface_final_;
+  EXPECT_LE(withdrawn_pending, link_aborts) << surface_final_;
   // The scenario did what it is for: traffic flowed, and cuts took links down under it.
   EXPECT_EQ(responses + other_aborts + link_aborts, static_cast<long long>(requests.size()))
       << "delivered + aborted = sent";
