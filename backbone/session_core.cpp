@@ -386,7 +386,19 @@ void SessionCore::on_hello_again(const v1::Envelope& envelope, TimePoint now) {
   // on_link_closed): what waits here behind a gap is not delivered.
   stream_->receiver_.reset(stream_->receiver_.expected());
   if (!initiator_) hello_sent_ = false;
+  // The peer ended the link this one carried (it declared it dead, or stale) before this side
+  // noticed, and acted on that end: it dropped what it held for the link (a gateway: the SDO
+  // requests waiting for its buses). For the application the link ended and a new one began,
+  // so that what the peer dropped is answered here, not left without an answer (issue 27).
+  if (ready_) link_ended_unnoticed();
   shell_.wake_writer();
+}
+
+void SessionCore::link_ended_unnoticed() {
+  spdlog::info("backbone: {} over {} started a new link: the one it replaces counts as closed",
+               describe_peer(stream_->peer_hello_), link_.peer_name);
+  if (stream_->handlers_.on_down) stream_->handlers_.on_down();
+  if (stream_->handlers_.on_up) stream_->handlers_.on_up(stream_->peer_hello_);
 }
 
 // Version and role; false (and a refusal on its way) when the peer cannot be served.
@@ -438,6 +450,19 @@ void SessionCore::become_ready() {
   ready_ = true;
   stream_->last_refusal_.clear();  // a refusal after this link is news again
   ++counters_.links;
+  // Another link still carries the stream: the peer gave up on it (a silent TCP connection it
+  // declared dead) before this side noticed. Closing it below is no news to the application
+  // (that link no longer carries the stream), so its end is told here, before the new link's
+  // start: the peer dropped what it held for it (issue 27).
+  const bool replaces_live_link = stream_->link_ != nullptr;
+  if (replaces_live_link) {
+    spdlog::info(
+        "backbone: {} started a new link while one still carried its stream: that one "
+        "counts as closed",
+        describe_peer(stream_->peer_hello_));
+    stream_->receiver_.reset(stream_->receiver_.expected());
+    if (stream_->handlers_.on_down) stream_->handlers_.on_down();
+  }
   shell_.carry(*stream_);
   if (stream_->input_paused_) shell_.pause_reading(true);
   const v1::Hello& peer = stream_->peer_hello_;

@@ -109,6 +109,8 @@ class SessionCore {
   bool check_hello(const v1::Hello& h);
   void adopt_peer_session(const v1::Hello& h);
   void become_ready();
+  // A hello again on a ready link: the peer ended the link this one carried and began anew.
+  void link_ended_unnoticed();
   void refuse(v1::Refusal::Reason reason, const std::string& detail, bool repeated = false);
   void protocol_error(const std::string& why);
   bool same_as_last_refusal(const std::string& text);

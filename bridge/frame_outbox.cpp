@@ -24,16 +24,18 @@ bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
 
-std::size_t withdraw_sdo_requests(std::string& payload) {
+std::size_t withdraw_sdo_requests(std::string& payload, const WithdrawnObserver& withdrawn) {
   v1::Payload parsed;
   std::vector<can::Frame> frames;
   if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
       decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
     return 0;
   }
-  const auto kept = std::remove_if(frames.begin(), frames.end(), is_sdo_request);
+  const auto kept = std::stable_partition(frames.begin(), frames.end(),
+                                          [](const can::Frame& f) { return !is_sdo_request(f); });
   const auto removed = static_cast<std::size_t>(frames.end() - kept);
   if (removed == 0) return 0;
+  if (withdrawn) std::for_each(kept, frames.end(), withdrawn);
   frames.erase(kept, frames.end());
   const bool timestamps = parsed.frames().timestamp_delta_us_size() != 0;
   const std::uint32_t module_id = parsed.frames().module_id();
@@ -105,9 +107,12 @@ bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
   return result != backbone::SchedulerPush::refused;
 }
 
-void FrameOutbox::withdraw_queued_sdo_requests() {
-  counters_.sdo_requests_withdrawn +=
-      queue_.erase_if([](const Entry& entry) { return is_sdo_request(entry.frame); });
+void FrameOutbox::withdraw_queued_sdo_requests(const WithdrawnObserver& withdrawn) {
+  counters_.sdo_requests_withdrawn += queue_.erase_if([&](const Entry& entry) {
+    if (!is_sdo_request(entry.frame)) return false;
+    if (withdrawn) withdrawn(entry.frame);
+    return true;
+  });
 }
 
 bool FrameOutbox::drop_front_if_too_old(Clock::time_point now) {

@@ -89,7 +89,13 @@ bool SdoLinkGuard::can_answer(Node& n, const can::Frame& response) {
     default:
       break;
   }
-  if (first == 0x80) {  // an abort ends whatever was in flight
+  // An abort ends the transfer it names (CiA 301: the multiplexer of the transfer; some servers
+  // send none). One naming another object answers an older request, executed just before a cut
+  // and aborted toward the master: passed on, it would end the master's pending request with an
+  // answer the master cannot place (issue 27).
+  if (first == 0x80) {
+    const bool names_none = response.data[1] == 0 && response.data[2] == 0 && response.data[3] == 0;
+    if (!same_object && !names_none) return false;
     n.expect = Expect::nothing;
     return true;
   }
@@ -171,21 +177,51 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   return abort_for(node, n);
 }
 
-std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway) {
+void SdoLinkGuard::on_request_withdrawn(const can::Frame& request) {
+  const canopen::NodeId node = request_node(request);
+  if (node == 0) return;
+  Node& n = nodes_[node];
+  if (!n.owned) {
+    ++counters_.withdrawn_untracked;
+    return;
+  }
+  // Only the master's last request to a node can be pending: one withdrawn request per pending
+  // node stands for it, any other was given up by its master when it sent a newer one.
+  if (n.pending && !n.withdrawn) {
+    n.withdrawn = true;
+    ++counters_.withdrawn_pending;
+    return;
+  }
+  ++counters_.withdrawn_answered_before;
+}
+
+bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
+  if (options_.transfer_open_for.count() <= 0 || now - n.asked <= options_.transfer_open_for) {
+    return true;
+  }
+  ++counters_.stale_aborts_dropped;
+  return false;
+}
+
+std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::time_point now) {
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
     if (!n.owned || n.gateway != gateway || !n.pending) continue;
     n.pending = false;
+    // Aborted either way: a late answer to it must not reach the master any more than the
+    // abort may.
     n.aborted = true;
     n.expect = Expect::nothing;
+    if (!still_open(n, now)) continue;
     ++counters_.aborted_in_flight;
     aborts.push_back(abort_for(node, n));
   }
   return aborts;
 }
 
-std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& request) {
+std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& request,
+                                                             Clock::time_point now) {
   const canopen::NodeId node = request_node(request);
   if (node == 0) return std::nullopt;
   const std::uint8_t command = request.data[0] >> 5;
@@ -201,6 +237,7 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   n.pending = false;
   n.aborted = n.owned;
   if (n.owned) n.expect = Expect::nothing;
+  if (n.owned && !still_open(n, now)) return std::nullopt;
   ++counters_.aborted_discarded;
   return abort_for(node, answer);
 }

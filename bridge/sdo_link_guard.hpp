@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <optional>
 #include <vector>
@@ -17,10 +18,22 @@ namespace canbridge::bridge {
 // The abort code a master sees for a node behind a lost link (CiA 301: SDO protocol timed out).
 inline constexpr std::uint32_t kLinkDownAbort = 0x05040000;
 
-// Pure: frames in, frames out, no clock. Gateways are small integers chosen by the caller.
+// Pure: frames and the time in, frames out. Gateways are small integers chosen by the caller.
 class SdoLinkGuard {
  public:
   using GatewayId = std::uint32_t;
+  using Clock = std::chrono::steady_clock;
+
+  struct Options {
+    // How long a master's SDO request can still be open at its master: an abort for a request
+    // older than this (a link that drops long after the request to an absent node went out)
+    // reaches a master that has moved on and cannot place it, so it is dropped and counted
+    // instead. Zero: no bound.
+    std::chrono::milliseconds transfer_open_for{0};
+  };
+
+  SdoLinkGuard() = default;
+  explicit SdoLinkGuard(Options options) : options_(options) {}
 
   struct Counters {
     std::uint64_t aborted_at_once = 0;         // requests to a node whose gateway was down
@@ -32,6 +45,16 @@ class SdoLinkGuard {
     std::uint64_t stale_responses_dropped = 0;
     std::uint64_t aborted_discarded = 0;  // requests the backbone gave up (too old, old process)
     std::uint64_t aborted_not_forwarded = 0;  // requests the surface could not queue
+    // Aborts not sent: their request was older than Options::transfer_open_for.
+    std::uint64_t stale_aborts_dropped = 0;
+    // Requests withdrawn when their gateway's link went down, each counted once: one per node
+    // with a request pending, which the abort of on_gateway_down() answers (or, if stale, drops
+    // and counts); the others, whose master had its answer already (an answer, an abort, its
+    // own abort, or a newer request it sent instead); and those to nodes the guard does not
+    // follow (no gateway claims them), whose master gets no abort from the guard.
+    std::uint64_t withdrawn_pending = 0;
+    std::uint64_t withdrawn_answered_before = 0;
+    std::uint64_t withdrawn_untracked = 0;
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,
@@ -40,8 +63,9 @@ class SdoLinkGuard {
   // master: it answers a request the master was told had failed (aborted when the link dropped,
   // delivered once the link came back), and could be taken for the answer to a newer request.
   // Once the master has sent a request to the node, only a response that can answer it passes:
-  // an abort, or the response class of the request (download/upload initiate, segment, block)
-  // naming the same object (initiates) or carrying the same toggle (segments).
+  // an abort naming the transfer's object (or none), or the response class of the request
+  // (download/upload initiate, segment, block) naming the same object (initiates) or carrying
+  // the same toggle (segments).
   [[nodiscard]] bool on_gateway_frame(GatewayId gateway, const can::Frame& frame);
   // The gateway reported the node in its node table (booted, renamed, ...): it owns the node
   // even before the node has sent anything through it.
@@ -52,26 +76,34 @@ class SdoLinkGuard {
 
   // A frame from the surface bus, while `gateway_up(g)` tells which gateways have a live link.
   // An SDO request to a node owned by a gateway that is down gets `reply` (the abort) and must
-  // not be forwarded; everything else is forwarded (and an SDO request is noted as in flight).
+  // not be forwarded; everything else is forwarded (and an SDO request is noted as in flight,
+  // sent at `now`).
   struct Verdict {
     bool forward = true;
     std::optional<can::Frame> reply;
   };
   template <typename GatewayUp>
-  Verdict on_surface_frame(const can::Frame& frame, GatewayUp&& gateway_up);
+  Verdict on_surface_frame(const can::Frame& frame, GatewayUp&& gateway_up,
+                           Clock::time_point now = {});
 
   // A frame on_surface_frame let through that the surface could not queue for its gateway: for
   // an SDO request, the abort the master gets instead of silence.
   std::optional<can::Frame> on_not_forwarded(const can::Frame& frame);
 
-  // The gateway's link went down: the aborts for every SDO request in flight to its nodes.
-  std::vector<can::Frame> on_gateway_down(GatewayId gateway);
+  // A request the surface withdrew (never to be sent) as its gateway's link went down, before
+  // on_gateway_down(): counted by how its master gets, or got, its answer.
+  void on_request_withdrawn(const can::Frame& request);
+
+  // The gateway's link went down at `now`: the aborts for every SDO request in flight to its
+  // nodes that its master can still be waiting for (Options::transfer_open_for).
+  std::vector<can::Frame> on_gateway_down(GatewayId gateway, Clock::time_point now = {});
 
   // A request forwarded earlier will never reach its node (the backbone gave it up: too old, or
   // queued for a gateway process that is gone): the abort for its master, unless the master has
   // its answer already (a response, an abort, its own abort). Requests to nodes no gateway has
   // claimed yet are not followed, so each of them gets an abort.
-  std::optional<can::Frame> on_request_discarded(const can::Frame& request);
+  std::optional<can::Frame> on_request_discarded(const can::Frame& request,
+                                                 Clock::time_point now = {});
 
   std::optional<GatewayId> owner_of(canopen::NodeId node) const;
   const Counters& counters() const { return counters_; }
@@ -97,7 +129,11 @@ class SdoLinkGuard {
     bool aborted = false;             // the guard aborted a request; no newer one went out
     std::uint8_t mux[3] = {0, 0, 0};  // index (LE) and sub-index of the transfer in progress
     Expect expect = Expect::untracked;
-    std::uint8_t toggle = 0;  // segments: bit 4 of the master's segment request
+    std::uint8_t toggle = 0;    // segments: bit 4 of the master's segment request
+    Clock::time_point asked{};  // when the pending request went out
+    // The pending request was withdrawn (on_request_withdrawn): an older one still in the
+    // queue was answered before.
+    bool withdrawn = false;
   };
   // Notes the master's request on a node the guard follows.
   static void note_request(Node& n, const can::Frame& frame);
@@ -105,16 +141,21 @@ class SdoLinkGuard {
   static bool can_answer(Node& n, const can::Frame& response);
 
   static can::Frame abort_for(canopen::NodeId node, const Node& n);
+  // Whether the master of `n`'s pending request can still be waiting for its answer at `now`;
+  // counts the abort dropped when it cannot.
+  bool still_open(const Node& n, Clock::time_point now);
   // The node of an SDO request on the default server channel (0x601..0x67F), or 0.
   static canopen::NodeId request_node(const can::Frame& frame);
 
+  Options options_;
   std::array<Node, 128> nodes_{};
   Counters counters_;
 };
 
 template <typename GatewayUp>
 SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
-                                                     GatewayUp&& gateway_up) {
+                                                     GatewayUp&& gateway_up,
+                                                     Clock::time_point now) {
   const canopen::NodeId node = request_node(frame);
   if (node == 0) return {};
   Node& n = nodes_[node];
@@ -137,6 +178,8 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   // The end of a block upload gets no answer.
   n.pending = n.expect != Expect::nothing;
   n.aborted = false;
+  n.withdrawn = false;
+  n.asked = now;
   return {};
 }
 

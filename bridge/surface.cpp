@@ -84,6 +84,9 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
       table_(name_, policy.gateways, policy.require_authenticated_peers),
+      // The backbone gives a request up once it is reliable_max_age old (answering its master
+      // with an abort): no master waits longer for it, so no abort comes later.
+      guard_(SdoLinkGuard::Options{.transfer_open_for = tuning.session.reliable_max_age}),
       relay_(rpdop_relay),
       deadlines_(executor_),
       writer_(
@@ -273,9 +276,12 @@ asio::awaitable<std::error_code> Surface::read_bus() {
       // RPDOP to a pdop node behind a gateway: the relay acknowledges the master and forwards
       // whole packets.
       if (relay_.on_frame(frame, now, relay_out_)) continue;
-      const auto verdict = guard_.on_surface_frame(frame, [this](SdoLinkGuard::GatewayId g) {
-        return by_id_[g] != nullptr && by_id_[g]->stream.up();
-      });
+      const auto verdict = guard_.on_surface_frame(
+          frame,
+          [this](SdoLinkGuard::GatewayId g) {
+            return by_id_[g] != nullptr && by_id_[g]->stream.up();
+          },
+          now);
       if (verdict.reply) send_to_bus(*verdict.reply);
       if (verdict.forward) forward_.push_back(frame);
     }
@@ -622,17 +628,22 @@ void Surface::on_gateway_down(Gateway& gateway) {
   if (stopped_) return;
   // The master is told below that these requests failed: the node must never execute them
   // later, when the link returns.
-  gateway.outbox.withdraw_queued_sdo_requests();
+  // Each withdrawn request is accounted for by how its master gets its answer (the guard's
+  // withdrawn counters add up to the withdrawn ones).
+  const auto account = [this](const can::Frame& request) { guard_.on_request_withdrawn(request); };
+  gateway.outbox.withdraw_queued_sdo_requests(account);
   gateway.stream.edit_unacked([&](std::string& payload) {
-    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload);
+    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload, account);
   });
-  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id)) send_to_bus(abort);
+  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, SdoLinkGuard::Clock::now())) {
+    send_to_bus(abort);
+  }
 }
 
 void Surface::on_frame_dropped(const can::Frame& frame, bool too_old) {
   ++(too_old ? counters_.reliable_dropped_too_old : counters_.reliable_dropped_gateway_restart);
   if (!is_sdo_request(frame)) return;
-  if (auto abort = guard_.on_request_discarded(frame)) {
+  if (auto abort = guard_.on_request_discarded(frame, SdoLinkGuard::Clock::now())) {
     ++counters_.sdo_aborted_dropped;
     send_to_bus(*abort);
   }
@@ -659,6 +670,10 @@ SurfaceCounters Surface::counters() const {
                   guard_.counters().aborted_not_forwarded;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
+  c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
+  c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;
+  c.sdo_withdrawn_answered_before = guard_.counters().withdrawn_answered_before;
+  c.sdo_withdrawn_untracked = guard_.counters().withdrawn_untracked;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {
@@ -731,8 +746,9 @@ std::string Surface::stats_line() const {
   std::string s = fmt::format(
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}, late answers dropped {}, "
-      "stale answers dropped {}), "
+      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
+      "untracked {}, late answers dropped {}, "
+      "stale answers dropped {}, stale aborts dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
       "echoes-dropped {}, "
       "bus-refused {}, dropped-no-gateway {}, unclaimed {}, "
@@ -745,8 +761,9 @@ std::string Surface::stats_line() const {
       c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted,
-      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
-      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.reliable_dropped_too_old,
+      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
+      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_late_responses_dropped,
+      c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old,
       c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.session.stale_links_closed,
       c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
       c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,

@@ -56,6 +56,12 @@ struct SurfaceCounters {
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
   std::uint64_t sdo_late_responses_dropped = 0;   // answers to requests the master saw aborted
   std::uint64_t sdo_stale_responses_dropped = 0;  // answers that cannot answer the pending request
+  // Link-down aborts not sent: the request was older than its master can still be waiting.
+  std::uint64_t sdo_stale_aborts_dropped = 0;
+  // The withdrawn SDO requests by how their master gets its answer (SdoLinkGuard::Counters).
+  std::uint64_t sdo_withdrawn_pending = 0;
+  std::uint64_t sdo_withdrawn_answered_before = 0;
+  std::uint64_t sdo_withdrawn_untracked = 0;
   // Reliable frames for a gateway given up before it acknowledged them, by reason (queued ones
   // and sent ones); SDO requests among them were answered with an abort if still open.
   std::uint64_t reliable_dropped_too_old = 0;

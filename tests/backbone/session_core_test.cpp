@@ -591,6 +591,25 @@ TEST_F(SessionCoreTest, AReconnectOfTheSameProcessResumes) {
   EXPECT_EQ(gateway.counters.reliable_resent, 3u);
 }
 
+// Issue 27: the gateway declared the link dead (and dropped the SDO requests waiting for its
+// buses) and starts anew on the same serial line before the surface noticed anything. The
+// surface must see the old link end, or it answers none of those requests.
+TEST_F(SessionCoreTest, APeersNewHelloOnALiveLineEndsTheLinkItReplaces) {
+  connect();
+  ASSERT_TRUE(ready());
+  gateway.send(1, 2);
+  exchange();
+  gateway.open_link(true, now);  // the gateway reopened its end; the surface's stays open
+  exchange();
+  ASSERT_TRUE(ready());
+  EXPECT_EQ(gateway.downs, 1);
+  EXPECT_EQ(surface.downs, 1);
+  EXPECT_EQ(surface.ups, 2);
+  gateway.send(3, 3);  // and the stream goes on, exactly once
+  exchange();
+  EXPECT_EQ(surface.received, range(1, 3));
+}
+
 // What the receiver holds behind a gap when the link ends is not delivered later: the peer still
 // has it unacknowledged, may withdraw some of it meanwhile (an SDO request its master was told
 // had failed becomes a tombstone), and resends only what it still means on the next link.

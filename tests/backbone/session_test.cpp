@@ -379,6 +379,27 @@ TEST_F(SessionTest, GatewayReopeningItsSerialPortIsAnsweredOnTheSurfacesOldLink)
   EXPECT_TRUE(exactly_once_in_order(gateway.received, 600));
   EXPECT_EQ(gateway.counters.protocol_errors + surface.counters.protocol_errors, 0u);
   EXPECT_EQ(surface.counters.dead_links, 0u);
+  // The gateway's link ended (its users dropped what they held for it): so did the surface's,
+  // for its users, though its line stayed open (issue 27).
+  EXPECT_EQ(surface.downs, 1);
+  EXPECT_EQ(surface.ups, 2);
+}
+
+// Issue 27: the gateway gave up on a silent TCP connection and connects anew while the surface
+// still holds the old one. The old link ends for the surface's users before the new one carries
+// the stream, as it did for the gateway's, so both ends agree on what the cut took.
+TEST_F(SessionTest, ANewTcpLinkWhileTheOldOneStillCarriesTheStreamEndsTheOldOne) {
+  connect_tcp();
+  ASSERT_TRUE(run_until(io, [&] { return both_up(); }));
+  gateway.send_up_to(300);
+  ASSERT_TRUE(run_until(io, [&] { return surface.received.size() == 300; }));
+  connect_tcp();  // the old connection is still open on both ends
+  gateway.send_up_to(600);
+  ASSERT_TRUE(run_until(io, [&] { return both_up() && surface.received.size() == 600; }));
+  EXPECT_TRUE(exactly_once_in_order(surface.received, 600));
+  EXPECT_EQ(surface.downs, 1);
+  EXPECT_EQ(surface.ups, 2);
+  EXPECT_EQ(gateway.downs, 1);
 }
 
 // A clock for one end that can jump ahead: time that end did not see pass (it was stopped).

@@ -302,7 +302,9 @@ TEST(FrameOutbox, WithdrawnSdoRequestsAreNeverSentAndLaterOnesAre) {
   ASSERT_TRUE(outbox.push(1, nmt, kConflate, kNow));
   ASSERT_TRUE(outbox.push(1, response, kConflate, kNow));
   ASSERT_TRUE(outbox.push(1, old_request_2, kConflate, kNow));
-  outbox.withdraw_queued_sdo_requests();
+  std::vector<can::Frame> seen;  // each withdrawn request, for its sender's accounting
+  outbox.withdraw_queued_sdo_requests([&](const can::Frame& f) { seen.push_back(f); });
+  EXPECT_EQ(seen, (std::vector{old_request, old_request_2}));
   EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 2u);
   EXPECT_EQ(outbox.size(), 2u);  // gone at once: the NMT no longer waits behind a request
   const can::Frame new_request = can::Frame::standard(0x625, {0x40, 0x18, 0x10, 0x01, 0, 0, 0, 0});
@@ -378,7 +380,9 @@ TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
   ASSERT_TRUE(drain(outbox, sink));
   ASSERT_EQ(sink.sent.size(), 1u);
   std::string payload = sink.sent[0].bytes;
-  EXPECT_EQ(withdraw_sdo_requests(payload), 1u);
+  std::vector<can::Frame> seen;
+  EXPECT_EQ(withdraw_sdo_requests(payload, [&](const can::Frame& f) { seen.push_back(f); }), 1u);
+  EXPECT_EQ(seen, std::vector{request});
   FakeSink edited;
   edited.sent.push_back({payload, true, 0});
   const auto batches = decode(edited);

@@ -98,6 +98,62 @@ TEST(SdoLinkGuard, ALateAnswerToAnAbortedRequestNeverReachesTheMaster) {
   EXPECT_EQ(guard.counters().late_responses_dropped, 2u);
 }
 
+// Issue 27, "a late abort": a master's upload to an absent node stayed pending and was aborted
+// 56 s later, when the link dropped, reaching a master that had long since moved on.
+TEST(SdoLinkGuard, NoAbortComesLaterThanTheTransferCouldStillBeOpen) {
+  SdoLinkGuard guard({.transfer_open_for = std::chrono::milliseconds(4000)});
+  const SdoLinkGuard::Clock::time_point t0{std::chrono::hours(1)};
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat70);
+  auto up = [](auto) { return true; };
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0).forward);  // node 34 never answers
+  const can::Frame read_70 = can::Frame::standard(0x646, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(read_70, up, t0 + std::chrono::seconds(53)).forward);
+  // The link drops 56 s after the first request, 3 s after the second: only the second's
+  // master can still be waiting.
+  const auto aborts = guard.on_gateway_down(1, t0 + std::chrono::seconds(56));
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5C6, 0x1000, 0x00));
+  EXPECT_EQ(guard.counters().aborted_in_flight, 1u);
+  EXPECT_EQ(guard.counters().stale_aborts_dropped, 1u);
+  // Its answer, should it come after all, is as late as the abort would have been.
+  EXPECT_FALSE(
+      guard.on_gateway_frame(1, can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4})));
+  // The same bound for a request the backbone gave up.
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0 + std::chrono::seconds(60)).forward);
+  EXPECT_FALSE(guard.on_request_discarded(kRead1018, t0 + std::chrono::seconds(65)));
+  EXPECT_EQ(guard.counters().stale_aborts_dropped, 2u);
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up, t0 + std::chrono::seconds(70)).forward);
+  EXPECT_TRUE(guard.on_request_discarded(kRead1018, t0 + std::chrono::seconds(74)));
+}
+
+// Issue 27: every request withdrawn at a cut is accounted for by how its master gets its answer,
+// so that the counters prove none was withdrawn without one.
+TEST(SdoLinkGuard, EveryWithdrawnRequestIsAccountedForOnce) {
+  SdoLinkGuard guard;
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  (void)guard.on_gateway_frame(1, kHeartbeat70);
+  auto up = [](auto) { return true; };
+  // Node 34: the master gave up on one request (its own timeout) and sent another; both queued.
+  const can::Frame given_up = can::Frame::standard(0x622, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(given_up, up).forward);
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, up).forward);
+  // Node 70: its request was answered, yet still unacknowledged when the link dropped.
+  const can::Frame read_70 = can::Frame::standard(0x646, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  ASSERT_TRUE(guard.on_surface_frame(read_70, up).forward);
+  ASSERT_TRUE(
+      guard.on_gateway_frame(1, can::Frame::standard(0x5C6, {0x43, 0x00, 0x10, 0x00, 1, 2, 3, 4})));
+  // Node 90: no gateway claims it, so the guard does not follow it.
+  const can::Frame read_90 = can::Frame::standard(0x65A, {0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0});
+  for (const can::Frame& f : {given_up, kRead1018, read_70, read_90}) guard.on_request_withdrawn(f);
+  EXPECT_EQ(guard.counters().withdrawn_pending, 1u);
+  EXPECT_EQ(guard.counters().withdrawn_answered_before, 2u);
+  EXPECT_EQ(guard.counters().withdrawn_untracked, 1u);
+  // The pending one gets its abort.
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);
+  EXPECT_EQ(guard.counters().aborted_in_flight, guard.counters().withdrawn_pending);
+}
+
 TEST(SdoLinkGuard, UnknownNodesAndOtherFramesPassUntouched) {
   SdoLinkGuard guard;
   auto down = [](auto) { return false; };
@@ -323,6 +379,21 @@ TEST_F(SdoLinkGuardStale, AnAnswerNamingAnotherObjectIsDropped) {
 TEST_F(SdoLinkGuardStale, AnAbortAlwaysAnswersThePendingRequest) {
   ASSERT_TRUE(send({0x23, 0x00, 0x20, 0x00, 7, 0, 0, 0}));
   EXPECT_TRUE(answer({0x80, 0x00, 0x20, 0x00, 0x00, 0x00, 0x02, 0x06}));
+}
+
+// Issue 27: the node's abort of a request executed just before a cut (the master saw
+// 0x05040000) crossed once the link was back, while the master waited on a newer request, and
+// reached the master as the newer request's answer.
+TEST_F(SdoLinkGuardStale, AnAbortNamingAnotherObjectIsAnOlderRequestsAndDropped) {
+  ASSERT_TRUE(send({0x23, 0x01, 0x30, 0x07, 7, 0, 0, 0}));  // download 3001h sub 7
+  ASSERT_EQ(guard.on_gateway_down(1).size(), 1u);           // aborted toward the master
+  ASSERT_TRUE(send({0x40, 0x01, 0x30, 0x08, 0, 0, 0, 0}));  // upload 3001h sub 8, link back
+  EXPECT_FALSE(answer({0x80, 0x01, 0x30, 0x07, 0x00, 0x00, 0x02, 0x06}));  // the old abort
+  EXPECT_EQ(guard.counters().stale_responses_dropped, 1u);
+  EXPECT_TRUE(answer({0x80, 0x01, 0x30, 0x08, 0x00, 0x00, 0x02, 0x06}));  // its own
+  // An abort naming no object (some servers send none) still ends the pending request.
+  ASSERT_TRUE(send({0x40, 0x01, 0x30, 0x09, 0, 0, 0, 0}));
+  EXPECT_TRUE(answer({0x80, 0x00, 0x00, 0x00, 0x00, 0x00, 0x04, 0x05}));
 }
 
 TEST_F(SdoLinkGuardStale, ANodeTheMasterNeverAskedPassesEverything) {

@@ -1,6 +1,7 @@
 #include "tests/system_sdo_noisy/sdo_load_master.hpp"
 
 #include <algorithm>
+#include <string>
 
 #include "tests/support/raw_can.hpp"
 
@@ -19,27 +20,47 @@ std::uint32_t little_endian_u32(const can::Frame& f, std::size_t at) {
          static_cast<std::uint32_t>(f.data[at + 3]) << 24;
 }
 
-bool names_object(const can::Frame& f, const SdoLoadOptions& o) {
-  return f.data[1] == static_cast<std::uint8_t>(o.index) &&
-         f.data[2] == static_cast<std::uint8_t>(o.index >> 8) && f.data[3] == o.sub;
+bool names_object(const can::Frame& f, SdoObject object) {
+  return f.data[1] == static_cast<std::uint8_t>(object.index) &&
+         f.data[2] == static_cast<std::uint8_t>(object.index >> 8) && f.data[3] == object.sub;
+}
+
+constexpr std::uint16_t kNumberedBase = 0x3000;
+
+// The request a numbered object names, if it is one.
+std::optional<std::uint32_t> numbered_seq(const can::Frame& f) {
+  const auto index = static_cast<std::uint16_t>(f.data[1] | f.data[2] << 8);
+  if (index < kNumberedBase || index >= kNumberedBase + 0x1000) return std::nullopt;
+  return static_cast<std::uint32_t>(index - kNumberedBase) << 8 | f.data[3];
 }
 
 }  // namespace
 
+SdoObject numbered_object(std::uint32_t seq) {
+  return {static_cast<std::uint16_t>(kNumberedBase + (seq >> 8)),
+          static_cast<std::uint8_t>(seq & 0xFF)};
+}
+
+SdoObject SdoLoadMaster::object_of(std::uint32_t seq) const {
+  return options_.numbered_objects ? numbered_object(seq) : SdoObject{options_.index, options_.sub};
+}
+
 std::optional<std::uint32_t> load_request_seq(const can::Frame& frame, const SdoLoadOptions& o) {
-  if (frame.is_extended() || frame.is_remote() || frame.len != 8 || !names_object(frame, o)) {
-    return std::nullopt;
-  }
+  if (frame.is_extended() || frame.is_remote() || frame.len != 8) return std::nullopt;
   // 0x23: initiate download, expedited, 4 bytes; 0x40: initiate upload.
   if (frame.data[0] != 0x23 && frame.data[0] != 0x40) return std::nullopt;
-  return little_endian_u32(frame, 4);
+  const std::uint32_t seq = little_endian_u32(frame, 4);
+  const SdoObject object = o.numbered_objects ? numbered_object(seq) : SdoObject{o.index, o.sub};
+  if (!names_object(frame, object)) return std::nullopt;
+  return seq;
 }
 
 can::Frame SdoLoadMaster::request_frame(std::uint32_t seq, bool download, std::uint8_t node) const {
+  const SdoObject object = object_of(seq);
   return can::Frame::standard(
       kSdoRx + node,
-      {static_cast<std::uint8_t>(download ? 0x23 : 0x40), static_cast<std::uint8_t>(options_.index),
-       static_cast<std::uint8_t>(options_.index >> 8), options_.sub, static_cast<std::uint8_t>(seq),
+      {static_cast<std::uint8_t>(download ? 0x23 : 0x40), static_cast<std::uint8_t>(object.index),
+       static_cast<std::uint8_t>(object.index >> 8), object.sub, static_cast<std::uint8_t>(seq),
        static_cast<std::uint8_t>(seq >> 8), static_cast<std::uint8_t>(seq >> 16),
        static_cast<std::uint8_t>(seq >> 24)});
 }
@@ -49,8 +70,32 @@ void SdoLoadMaster::on_answer(const can::Frame& frame, Clock::time_point now,
   const auto slot = std::find(options_.nodes.begin(), options_.nodes.end(),
                               static_cast<std::uint8_t>(frame.id - kSdoTx));
   const auto i = static_cast<std::size_t>(slot - options_.nodes.begin());
-  if (slot == options_.nodes.end() || !outstanding[i] || frame.len != 8 ||
-      !names_object(frame, options_)) {
+  if (slot == options_.nodes.end() || frame.len != 8) {
+    ++stray_answers_;
+    return;
+  }
+  if (options_.numbered_objects) {
+    // An answer naming an earlier request of this node, ended already: late (or a second one).
+    const auto seq = numbered_seq(frame);
+    if (seq && *seq < requests_.size() && requests_[*seq].node == *slot &&
+        (!outstanding[i] || *outstanding[i] != *seq)) {
+      if (++late_answers_ <= 10) {
+        const SdoRequestRecord& ended = requests_[*seq];
+        const char* ends[] = {"pending", "response", "abort", "none"};
+        late_answer_list_ +=
+            " #" + std::to_string(*seq) + " (" +
+            (frame.data[0] >> 5 == 4 ? "abort " + std::to_string(little_endian_u32(frame, 4))
+                                     : std::string("response")) +
+            " after its " + ends[static_cast<int>(ended.end)] + " " +
+            std::to_string(ended.abort_code) + ", " +
+            std::to_string(
+                std::chrono::duration_cast<std::chrono::milliseconds>(now - ended.sent).count()) +
+            " ms after it was sent)";
+      }
+      return;
+    }
+  }
+  if (!outstanding[i] || !names_object(frame, object_of(requests_[*outstanding[i]].seq))) {
     ++stray_answers_;
     return;
   }

@@ -22,7 +22,19 @@ struct SdoLoadOptions {
   std::chrono::milliseconds answer_bound{6000};  // no answer by then: the request vanished
   std::uint16_t index = 0x2000;                  // an rw UNSIGNED32 on every node
   std::uint8_t sub = 0;
+  // Each request to an object of its own (numbered_object(seq)), so that every answer, an abort
+  // included, names the request it answers; the nodes answer these with their own abort
+  // (object does not exist), which shows the request reached them.
+  bool numbered_objects = false;
 };
+
+// The object (index, sub-index) of request `seq` when SdoLoadOptions::numbered_objects is set:
+// 3000h + seq / 256, sub-index seq % 256.
+struct SdoObject {
+  std::uint16_t index = 0;
+  std::uint8_t sub = 0;
+};
+SdoObject numbered_object(std::uint32_t seq);
 
 struct SdoRequestRecord {
   enum class End { pending, response, abort, none };
@@ -53,9 +65,15 @@ class SdoLoadMaster {
   std::size_t stray_answers() const { return stray_answers_; }
   // Periods in which every node still had its request outstanding (the rate fell behind).
   std::size_t all_busy() const { return all_busy_; }
+  // numbered_objects: answers naming a request of this master that had ended already (its
+  // answer came, or the master gave up on it): an answer the master cannot place.
+  std::size_t late_answers() const { return late_answers_; }
+  // The first few of them: "#seq (code, after End, ms after it ended)", for failure messages.
+  const std::string& late_answer_list() const { return late_answer_list_; }
 
  private:
   can::Frame request_frame(std::uint32_t seq, bool download, std::uint8_t node) const;
+  SdoObject object_of(std::uint32_t seq) const;
   // Ends the outstanding request of the node that sent `frame`, or counts a stray.
   void on_answer(const can::Frame& frame, std::chrono::steady_clock::time_point now,
                  std::vector<std::optional<std::size_t>>& outstanding);
@@ -65,6 +83,8 @@ class SdoLoadMaster {
   std::vector<SdoRequestRecord> requests_;
   std::size_t stray_answers_ = 0;
   std::size_t all_busy_ = 0;
+  std::size_t late_answers_ = 0;
+  std::string late_answer_list_;
 };
 
 }  // namespace canbridge::test

@@ -1,0 +1,173 @@
+// Every SDO request a master sends ends in the answer its node gave or in an abort, before the
+// master's own timeout, across backbone cuts (issue 27, item 1): real processes (surface on vcan0,
+// gateway on vcan1, canbridge-link-emulator between them on TCP cutting the backbone 5 times for
+// 0.7..3 s), the 24 silent devices of rig.yaml, and a master sending 100 requests/s, one
+// outstanding per node, each to an object of its own so that every answer, an abort included,
+// names its request. The nodes answer each request that reaches them with their own abort
+// (object does not exist): that answer is "delivered"; 0x05040000 is the surface's "aborted".
+// Asserted: delivered + aborted = sent, none unanswered within the master's timeout, none
+// reaching vcan1 twice or after its abort, no answer the master cannot place (late).
+// CANBRIDGE_SDO_CUTS_SEED (default 5) picks the cuts; the summary line carries the numbers.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <iostream>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "tests/support/bus_log.hpp"
+#include "tests/support/rig_processes.hpp"
+#include "tests/system_sdo_noisy/sdo_load_master.hpp"
+
+namespace canbridge {
+namespace {
+
+using namespace std::chrono_literals;
+using test::SdoRequestRecord;
+using Clock = std::chrono::steady_clock;
+
+const std::string kDir = std::string(CANBRIDGE_SOURCE_DIR) + "/tests/system_sdo_noisy/";
+constexpr auto kEvent = 20s;  // upper bound of one awaited event in the slow UML guest
+constexpr std::uint32_t kLinkDownAbort = 0x05040000;
+// The master's SDO timeout: the session's default dead_after_ms (2000) plus a second
+// (docs/sdo-timing.md: such a master always gets the answer or the abort). A TCP cut closes
+// the connection, so the surface knows of it at once.
+constexpr auto kMasterTimeout = 3000ms;
+constexpr int kCuts = 5;
+constexpr int kCutWindowStartS = 4;  // every process is up by then
+constexpr int kCutWindowEndS = 19;
+// Arrival times come from two sockets read by two threads of a slow guest.
+constexpr auto kClockSlack = 100ms;
+constexpr std::uint8_t kLocalNodes = 24;  // rig.yaml: module 1's nodes 1..24 = surface 33..56
+constexpr std::uint8_t kSurfaceOffset = 32;
+
+int env_int(const char* name, int fallback) {
+  const char* v = std::getenv(name);
+  return v != nullptr && *v != '\0' ? std::atoi(v) : fallback;
+}
+
+// The number after `label` in a counter line ("withdrawn 3"), or -1.
+long long counter(const std::string& line, const std::string& label) {
+  std::smatch m;
+  if (!std::regex_search(line, m, std::regex(label + " ([0-9]+)"))) return -1;
+  return std::stoll(m[1].str());
+}
+
+long long count_of(const std::string& text, const std::string& needle) {
+  long long n = 0;
+  for (auto at = text.find(needle); at != std::string::npos; at = text.find(needle, at + 1)) ++n;
+  return n;
+}
+
+test::RigOptions rig_options(int seed) {
+  const std::string window =
+      std::to_string(kCutWindowStartS) + ":" + std::to_string(kCutWindowEndS);
+  return {.canbridge = CANBRIDGE_BIN,
+          .sim = CANBRIDGE_SIM_BIN,
+          .link_emulator = CANBRIDGE_LINK_EMULATOR_BIN,
+          .link_emulator_args = {"--seed", std::to_string(seed), "--cuts", std::to_string(kCuts),
+                                 "--cut-ms", "700:3000", "--cut-gap-ms", "1000", "--cut-window-s",
+                                 window},
+          .config_dir = kDir,
+          .port_placeholder = "${LINK_PORT}",
+          .surface_name = "cuts-surface",
+          .gateway_name = "cuts-gateway",
+          .sim_ready = "ready 24 nodes on 1 buses",
+          .event_timeout = kEvent};
+}
+
+class SdoAcrossCuts : public ::testing::Test {
+ protected:
+  void TearDown() override {
+    rig.stop();
+    rig.print_logs(HasFailure());
+  }
+  test::RigProcesses rig{rig_options(env_int("CANBRIDGE_SDO_CUTS_SEED", 5))};
+  test::BusLog module_bus{"vcan1"};  // reading long before the traffic
+};
+
+TEST_F(SdoAcrossCuts, EveryRequestIsDeliveredOrAbortedBeforeTheMastersTimeout) {
+  ASSERT_NO_FATAL_FAILURE(rig.start());
+  test::SdoLoadOptions load;
+  for (std::uint8_t n = 1; n <= kLocalNodes; ++n) load.nodes.push_back(kSurfaceOffset + n);
+  load.answer_bound = kMasterTimeout;
+  load.numbered_objects = true;
+  test::SdoLoadMaster master("vcan0", load);
+  master.run(rig.emulator_ready + std::chrono::seconds(kCutWindowEndS + 1));
+  ASSERT_NO_FATAL_FAILURE(rig.expect_running());
+  const long long cuts = count_of(rig.emulator->output(), " begins");
+  rig.stop();
+
+  // What reached the module bus, by request.
+  std::map<std::uint32_t, std::vector<Clock::time_point>> executed;
+  for (const auto& e : module_bus.entries()) {
+    if (e.frame.id <= 0x600 || e.frame.id > 0x600u + kLocalNodes) continue;
+    if (auto seq = test::load_request_seq(e.frame, load)) executed[*seq].push_back(e.at);
+  }
+  long long delivered = 0, aborted = 0, neither = 0, twice = 0, executed_after_abort = 0;
+  long long aborted_executed_before = 0, delivered_not_executed = 0;
+  std::ostringstream neither_list, after_list;
+  for (const SdoRequestRecord& r : master.requests()) {
+    const auto it = executed.find(r.seq);
+    const std::size_t times = it == executed.end() ? 0 : it->second.size();
+    if (times > 1) ++twice;
+    const bool link_abort = r.end == SdoRequestRecord::End::abort && r.abort_code == kLinkDownAbort;
+    if (r.end == SdoRequestRecord::End::response ||
+        (r.end == SdoRequestRecord::End::abort && !link_abort)) {
+      ++delivered;  // the node's own answer
+      if (times == 0) ++delivered_not_executed;
+    } else if (link_abort) {
+      ++aborted;
+      if (times > 0 && it->second.front() <= r.answered + kClockSlack) ++aborted_executed_before;
+      if (times > 0 && it->second.front() > r.answered + kClockSlack) {
+        if (++executed_after_abort <= 10) after_list << " #" << r.seq;
+      }
+    } else {
+      if (++neither <= 10) {
+        neither_list << " #" << r.seq << " (node " << int{r.node} << ", reached vcan1 " << times
+                     << "x)";
+      }
+    }
+  }
+  const long long sent = static_cast<long long>(master.requests().size());
+  std::cout << "[  rig     ] " << cuts << " cuts: sent " << sent << ", delivered " << delivered
+            << ", aborted " << aborted << " (executed before the abort " << aborted_executed_before
+            << "), neither " << neither << ", executed after abort " << executed_after_abort
+            << ", reached vcan1 twice " << twice << ", late answers " << master.late_answers()
+            << ", stray answers " << master.stray_answers() << ", all nodes busy "
+            << master.all_busy() << "\n";
+  std::cout << "[  rig     ] surface: withdrawn " << counter(rig.surface_final, "withdrawn") << "; "
+            << rig.surface_final << "\n";
+  std::cout << "[  rig     ] gateway: " << rig.gateway_final << "\n";
+
+  EXPECT_EQ(neither, 0) << "no answer within " << kMasterTimeout.count()
+                        << " ms:" << neither_list.str();
+  EXPECT_EQ(delivered + aborted, sent);
+  EXPECT_EQ(twice, 0);
+  EXPECT_EQ(executed_after_abort, 0) << after_list.str();
+  EXPECT_EQ(delivered_not_executed, 0);
+  EXPECT_EQ(master.late_answers(), 0u) << "answers to requests that had ended";
+  EXPECT_EQ(master.stray_answers(), 0u);
+  // Every request the surface withdrew at a cut is accounted for once: the one pending at its
+  // node got its abort, the others had their answer before; none to a node nobody follows.
+  const long long withdrawn = counter(rig.surface_final, "withdrawn"),
+                  withdrawn_pending = counter(rig.surface_final, "withdrawn [0-9]+: pending"),
+                  answered_before = counter(rig.surface_final, "answered-before"),
+                  untracked = counter(rig.surface_final, "untracked");
+  EXPECT_GE(withdrawn, 0) << rig.surface_final;
+  EXPECT_EQ(withdrawn, withdrawn_pending + answered_before + untracked) << rig.surface_final;
+  EXPECT_EQ(untracked, 0) << rig.surface_final;
+  EXPECT_LE(withdrawn_pending, aborted) << rig.surface_final;
+  // The scenario did what it is for: traffic flowed, and cuts took the link down under it.
+  EXPECT_GE(cuts, kCuts - 1);
+  EXPECT_GT(delivered, 500);
+  EXPECT_GT(aborted, 0);
+}
+
+}  // namespace
+}  // namespace canbridge
