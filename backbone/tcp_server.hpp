@@ -97,7 +97,7 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
 
   boost::asio::awaitable<void> accept_loop();
   // Takes one accepted socket under admission control and starts serve() on it.
-  void take(boost::asio::ip::tcp::socket socket);
+  void take(boost::asio::ip::tcp::socket socket, const boost::asio::ip::tcp::endpoint& peer);
   // Waits until a silent peer speaks, upgrades the socket, hands the link over and waits until it
   // closes.
   boost::asio::awaitable<void> serve(std::shared_ptr<Connection> connection,
@@ -125,6 +125,7 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   bool warned_evicted_ = false;  // each said once, then only counted
   bool warned_timeout_ = false;
   bool warned_link_cap_ = false;
+  bool warned_source_ = false;
   std::uint16_t port_ = 0;
   bool started_ = false;
   bool stopped_ = false;
