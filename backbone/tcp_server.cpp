@@ -1,6 +1,9 @@
 #include "backbone/tcp_server.hpp"
 
 #include <spdlog/spdlog.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
@@ -25,6 +28,10 @@ using Clock = AdmissionControl::Clock;
 // run every few milliseconds (on the rig's slow syscalls, 256 at a time held them up for tens
 // of milliseconds, and seconds on a loaded host). A refused connection costs accept and close.
 constexpr int kAcceptBatch = 16;
+// Handshakes (TLS contexts, buffers, coroutine frames) are freed in an order that leaves glibc's
+// heap full of holes it does not give back by itself; after this many connections, the next time
+// nothing is pending, the free pages go back to the system (TcpServer::release_freed_memory).
+constexpr std::uint64_t kConnectionsBetweenTrims = 256;
 
 // Who a connection comes from, for the per-source throttle: the address's bytes, an IPv6
 // address cut to its /64 (one host or site usually holds a whole /64), a v4-mapped one as v4.
@@ -304,6 +311,7 @@ asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, t
 void TcpServer::connection_done(const Connection& connection, const std::string& failure) {
   admission_.on_closed(connection.id, Clock::now());
   connections_.erase(connection.id);
+  if (admission_.pending() == 0) release_freed_memory();
   if (failure.empty()) return;
   if (connection.cancelled) {
     // A coroutine cancelled before it ran ends with operation_aborted at its first co_await.
@@ -331,6 +339,16 @@ asio::awaitable<void> TcpServer::deadline_loop() {
     for (ConnectionId id : expired) end_connection(id);
     deadline_timer_.expires_at(admission_.next_deadline().value_or(Clock::time_point::max()));
   }
+}
+
+void TcpServer::release_freed_memory() {
+  // Only after many connections: one trim walks the whole heap.
+  if (next_id_ - connections_at_last_trim_ < kConnectionsBetweenTrims) return;
+  connections_at_last_trim_ = next_id_;
+  ++counters_.heap_trims;
+#if defined(__GLIBC__)
+  ::malloc_trim(0);
+#endif
 }
 
 void TcpServer::arm_deadline() {

@@ -253,5 +253,19 @@ TEST_F(TcpAdmission, ManyShortConnectionsLeaveNothingBehind) {
   EXPECT_EQ(server->counters().admission.evicted_pending, 46u);
 }
 
+TEST_F(TcpAdmission, AfterManyConnectionsTheFreedHeapIsGivenBackOnceNothingIsPending) {
+  start({4, 60s, 10});
+  for (int i = 0; i < 300; ++i) connect(i % 2 == 0);
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->counters().accepted == 300; }, 5s));
+  // Evictions kept 4 pending all along: no trim while a flood still runs.
+  EXPECT_EQ(server->counters().heap_trims, 0u);
+  clients.clear();
+  accepted.clear();
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 0; }, 5s));
+  EXPECT_EQ(server->counters().heap_trims, 1u);  // once, not once per connection
+}
+
 }  // namespace
 }  // namespace canbridge::backbone
