@@ -34,19 +34,31 @@ AdmissionControl::Accepted AdmissionControl::on_accepted_from(const Source& sour
   }
   const bool timed = limits_.handshake_timeout > std::chrono::milliseconds::zero();
   pending_.emplace(id, Pending{timed ? now + limits_.handshake_timeout : Clock::time_point::max(),
-                               talking, source});
+                               talking, false, source});
   counters_.pending_peak = std::max<std::uint64_t>(counters_.pending_peak, pending_.size());
   return {false, evicted};
 }
 
 void AdmissionControl::leave_pending(PendingMap::iterator it, bool admitted,
                                      Clock::time_point now) {
-  per_source_.ended(it->second.source, admitted, now);
+  using Outcome = SourceThrottle::Outcome;
+  if (!it->second.upgraded) {
+    per_source_.ended(it->second.source, admitted ? Outcome::admitted : Outcome::failed, now);
+  } else if (admitted) {
+    per_source_.bound_after_proof(it->second.source);
+  }
   pending_.erase(it);
 }
 
 void AdmissionControl::on_talking(ConnectionId id) {
   if (auto it = pending_.find(id); it != pending_.end()) it->second.talking = true;
+}
+
+void AdmissionControl::on_upgraded(ConnectionId id, Clock::time_point now) {
+  const auto it = pending_.find(id);
+  if (it == pending_.end() || it->second.upgraded) return;
+  it->second.upgraded = true;
+  per_source_.ended(it->second.source, SourceThrottle::Outcome::proven, now);
 }
 
 AdmissionControl::Admission AdmissionControl::on_admitted(ConnectionId id) {

@@ -73,6 +73,10 @@ class AdmissionControl {
                             bool talking = false);
   // The pending connection's peer has sent something.
   void on_talking(ConnectionId id);
+  // The pending connection's handshake (TLS) completed: its peer holds a configured key, so it
+  // no longer counts against its source's budget, and if it ends unbound (a hello refused for
+  // its claims) that is no failure of its source. It stays pending until admitted or closed.
+  void on_upgraded(ConnectionId id, Clock::time_point now);
 
   enum class Admission {
     admitted,     // counted against max_links until on_closed
@@ -104,10 +108,12 @@ class AdmissionControl {
   struct Pending {
     Clock::time_point deadline;
     bool talking = false;
+    bool upgraded = false;
     Source source;
   };
   using PendingMap = std::map<ConnectionId, Pending>;
-  // Takes a connection out of pending; charges its source a failure unless `admitted`.
+  // Takes a connection out of pending; charges its source a failure unless `admitted` or its
+  // handshake had completed (on_upgraded settled its source's account then).
   void leave_pending(PendingMap::iterator it, bool admitted, Clock::time_point now);
   // Pending, by id: ids grow in accept order, so begin() is the oldest (and earliest deadline:
   // every deadline is its accept time plus the same timeout).

@@ -40,21 +40,29 @@ bool SourceThrottle::try_start(const Source& source, Clock::time_point now) {
   return true;
 }
 
-void SourceThrottle::ended(const Source& source, bool admitted, Clock::time_point now) {
+void SourceThrottle::ended(const Source& source, Outcome outcome, Clock::time_point now) {
   if (!enabled() || source.empty()) return;
   const auto it = sources_.find(source);
   if (it == sources_.end()) return;  // let in untracked
   Record& record = it->second;
   if (record.pending > 0) --record.pending;
-  if (admitted) {
+  if (outcome == Outcome::admitted) {
     // A peer that proved itself from here: its earlier failures were its own retries, or
     // someone else's behind the same address; either way the source is in good standing.
     record.forgiven_at = Clock::time_point{};
-  } else {
+  } else if (outcome == Outcome::failed) {
     ++counters_.failures;
     record.forgiven_at = std::max(record.forgiven_at, now) + limits_.refill_period;
   }
   if (record.pending == 0 && record.forgiven_at <= now) sources_.erase(it);
+}
+
+void SourceThrottle::bound_after_proof(const Source& source) {
+  if (!enabled() || source.empty()) return;
+  const auto it = sources_.find(source);
+  if (it == sources_.end()) return;
+  it->second.forgiven_at = Clock::time_point{};
+  if (it->second.pending == 0) sources_.erase(it);
 }
 
 }  // namespace canbridge::backbone

@@ -43,9 +43,17 @@ class SourceThrottle {
   // forgiven and its pending connections, has room; the connection then counts as pending for
   // the source until ended(). False: refuse it (counted).
   bool try_start(const Source& source, Clock::time_point now);
-  // A connection try_start let in ended: `admitted` (its peer proved itself and was bound) clears
-  // the source's record; otherwise it is one failure of the source.
-  void ended(const Source& source, bool admitted, Clock::time_point now);
+  enum class Outcome {
+    admitted,  // its peer proved itself and was bound: clears the source's record
+    proven,    // its peer completed the handshake but was not bound (e.g. a hello refused for
+               // its claims): no failure, since only a holder of a configured key gets there
+    failed,    // the handshake failed, timed out or was evicted, or the peer left: one failure
+  };
+  // A connection try_start let in no longer counts against its source's budget.
+  void ended(const Source& source, Outcome outcome, Clock::time_point now);
+  // A connection whose `proven` end was reported was bound after all: clears the record as an
+  // `admitted` end would.
+  void bound_after_proof(const Source& source);
 
   std::size_t sources() const noexcept { return sources_.size(); }
   const SourceThrottleCounters& counters() const noexcept { return counters_; }

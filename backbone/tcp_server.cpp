@@ -298,6 +298,7 @@ asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, t
     co_return;
   }
   std::shared_ptr<StreamLink> link = std::move(result.link);
+  admission_.on_upgraded(connection->id, Clock::now());
   connection->link = link;
   spdlog::debug("backbone: accepted {}", link->peer_name());
   if (on_accepted_) on_accepted_(link);

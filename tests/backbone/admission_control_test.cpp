@@ -153,5 +153,26 @@ TEST(AdmissionControl, AnAdmittedConnectionPutsItsSourceInGoodStanding) {
   EXPECT_FALSE(admission.on_accepted_from("gateway", 3, t0).refused);
 }
 
+TEST(AdmissionControl, AConnectionWhoseHandshakeCompletedIsNoFailureOfItsSourceWhenLeftUnbound) {
+  // A configured gateway's hello refused for its claims, again and again (system.surface_policy):
+  // its host must still be let in, for the real gateway behind the same address.
+  AdmissionControl admission({4, 2000ms, 10, {1, 10s, 1024}});
+  for (AdmissionControl::ConnectionId id = 1; id <= 5; ++id) {
+    ASSERT_FALSE(admission.on_accepted_from("host", id, t0, true).refused) << id;
+    admission.on_upgraded(id, t0);
+    admission.on_closed(id, t0);
+  }
+  // Nor does a proven one, left pending, hold its source's budget.
+  ASSERT_FALSE(admission.on_accepted_from("host", 10, t0, true).refused);
+  admission.on_upgraded(10, t0);
+  ASSERT_FALSE(admission.on_accepted_from("host", 6, t0, true).refused);
+  admission.on_closed(6, t0);  // this one failed before its handshake completed
+  EXPECT_TRUE(admission.on_accepted_from("host", 7, t0, true).refused);
+  EXPECT_EQ(admission.counters().per_source.failures, 1u);
+  // Bound after all: the source is in good standing again.
+  EXPECT_EQ(admission.on_admitted(10), Admission::admitted);
+  EXPECT_FALSE(admission.on_accepted_from("host", 8, t0, true).refused);
+}
+
 }  // namespace
 }  // namespace canbridge::backbone

@@ -168,6 +168,18 @@ TEST_F(TcpAdmission, ASourceBeyondItsBudgetIsClosedAtAcceptWhileAnotherSourceIsS
   EXPECT_EQ(server->connections(), 3u);  // nothing was kept of the refused one
 }
 
+TEST_F(TcpAdmission, AConnectionPastItsHandshakeNoLongerHoldsItsSourcesBudget) {
+  // Plain: the upgrade completes at once; the links stay pending (never admitted).
+  start({32, 10s, 10, {1, 10s, 1024}});
+  SilentClient& first = connect(true, "127.0.0.2");
+  ASSERT_TRUE(accepted_count(1));
+  SilentClient& second = connect(true, "127.0.0.2");
+  ASSERT_TRUE(accepted_count(2));
+  EXPECT_FALSE(first.closed_by_server());
+  EXPECT_FALSE(second.closed_by_server());
+  EXPECT_EQ(server->counters().admission.per_source.refused, 0u);
+}
+
 TEST_F(TcpAdmission, AConnectionThatSaysNothingIsClosedAtTheDeadlineAndNothingIsKept) {
   start({32, 300ms, 10});
   const auto connected_at = Clock::now();
