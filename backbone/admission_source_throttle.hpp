@@ -1,8 +1,8 @@
 // Per source address, how many handshakes a listener still lets a peer start, without sockets:
-// every connection that ends without being admitted spends one of a refilling budget, pending
-// ones reserve one, so a source that keeps failing (a flood, a scanner, a misconfigured peer) is
-// refused at accept, before it costs a TLS handshake or a pending slot, and cannot hold more than
-// its budget of pending slots at once.
+// every connection that ends before its handshake completed spends one of a refilling budget,
+// handshakes in progress reserve one, so a source that keeps failing (a flood, a scanner, a
+// misconfigured peer) is refused at accept, before it costs a TLS handshake or a pending slot,
+// and cannot hold more than its budget of pending slots at once.
 #pragma once
 
 #include <chrono>
