@@ -2,6 +2,8 @@
 // (backbone::AdmissionControl), so that backbone/ never sees config/.
 #pragma once
 
+#include <algorithm>
+#include <chrono>
 #include <cstddef>
 
 #include "backbone/admission_control.hpp"
@@ -14,6 +16,13 @@ namespace canbridge::bridge {
 constexpr std::size_t kLinksPerGateway = 4;
 // And a few more, so a surface with few gateways still takes a reconnect storm.
 constexpr std::size_t kSpareLinks = 8;
+// One source address may hold at most this share of the pending handshakes (failures not yet
+// forgiven included), so one flooding host can never fill them and evict a configured gateway's
+// handshake; at the default 32 pending, 8.
+constexpr std::size_t kPendingShareOfOneSource = 4;
+// A source's failure is forgiven after this: a host that keeps failing gets about two
+// handshakes a second, and a fixed key gets through within a few seconds.
+constexpr std::chrono::milliseconds kSourceFailureForgiven{500};
 
 inline backbone::AdmissionLimits admission_limits(const config::SurfaceOptions& options) {
   backbone::AdmissionLimits limits;
@@ -22,6 +31,9 @@ inline backbone::AdmissionLimits admission_limits(const config::SurfaceOptions& 
   limits.max_links = options.admission.max_links != 0
                          ? options.admission.max_links
                          : kLinksPerGateway * options.gateways.size() + kSpareLinks;
+  limits.per_source.failure_budget =
+      std::max<std::size_t>(1, limits.max_pending_handshakes / kPendingShareOfOneSource);
+  limits.per_source.refill_period = kSourceFailureForgiven;
   return limits;
 }
 

@@ -1,6 +1,9 @@
 #include "backbone/tcp_server.hpp"
 
 #include <spdlog/spdlog.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
@@ -20,8 +23,33 @@ using asio::ip::tcp;
 namespace {
 using coro::kNoError;
 using Clock = AdmissionControl::Clock;
-// Connections taken from the kernel's queue per wake-up; then the loop yields to other work.
-constexpr int kAcceptBatch = 256;
+// Connections taken from the kernel's queue per wake-up; then the loop yields to other work, so
+// that under a flood of connects the established sessions' reads, writes and keepalives still
+// run every few milliseconds (on the rig's slow syscalls, 256 at a time held them up for tens
+// of milliseconds, and seconds on a loaded host). A refused connection costs accept and close.
+constexpr int kAcceptBatch = 16;
+// Handshakes (TLS contexts, buffers, coroutine frames) are freed in an order that leaves glibc's
+// heap full of holes it does not give back by itself; after this many connections, the next time
+// nothing is pending, the free pages go back to the system (TcpServer::release_freed_memory).
+constexpr std::uint64_t kConnectionsBetweenTrims = 256;
+
+// Who a connection comes from, for the per-source throttle: the address's bytes, an IPv6
+// address cut to its /64 (one host or site usually holds a whole /64), a v4-mapped one as v4.
+AdmissionControl::Source source_of(const tcp::endpoint& peer) {
+  const auto address = peer.address();
+  if (address.is_unspecified()) return {};
+  if (address.is_v4()) {
+    const auto bytes = address.to_v4().to_bytes();
+    return {bytes.begin(), bytes.end()};
+  }
+  const auto v6 = address.to_v6();
+  if (v6.is_v4_mapped()) {
+    const auto bytes = asio::ip::make_address_v4(asio::ip::v4_mapped, v6).to_bytes();
+    return {bytes.begin(), bytes.end()};
+  }
+  const auto bytes = v6.to_bytes();
+  return {bytes.begin(), bytes.begin() + 8};
+}
 }  // namespace
 
 std::shared_ptr<TcpServer> TcpServer::create(asio::any_io_executor executor,
@@ -94,8 +122,9 @@ void TcpServer::stop() {
   retry_timer_.cancel();
   deadline_timer_.cancel();
   // Each connection's coroutine ends on its own once cancelled or its link closed, and erases it.
+  const auto now = Clock::now();
   for (auto& [id, connection] : std::unordered_map(connections_)) {
-    admission_.on_closed(id);
+    admission_.on_closed(id, now);
     cancel(*connection);
   }
 }
@@ -155,12 +184,13 @@ asio::awaitable<void> TcpServer::accept_loop() {
     std::tie(ec) = co_await acceptor_.async_wait(tcp::acceptor::wait_read, kNoError);
     for (int taken = 0; !stopped_ && !ec && taken < kAcceptBatch; ++taken) {
       tcp::socket socket(executor_);
-      acceptor_.accept(socket, ec);
+      tcp::endpoint peer;  // from accept itself: no getpeername per connection
+      acceptor_.accept(socket, peer, ec);
       if (ec == asio::error::would_block || ec == asio::error::try_again) {
         ec = {};
         break;
       }
-      if (!ec) take(std::move(socket));
+      if (!ec) take(std::move(socket), peer);
     }
     if (stopped_) break;
     if (ec) {
@@ -174,16 +204,32 @@ asio::awaitable<void> TcpServer::accept_loop() {
   on_accepted_ = nullptr;  // drops anything the handler captured, e.g. the server itself
 }
 
-void TcpServer::take(tcp::socket socket) {
+void TcpServer::take(tcp::socket socket, const tcp::endpoint& peer) {
   ++counters_.accepted;
-  auto connection = std::make_shared<Connection>();
-  connection->id = ++next_id_;
-  connections_.emplace(connection->id, connection);
+  const ConnectionId id = next_id_ + 1;
   // A real peer speaks at once (TLS ClientHello, session hello): usually its bytes are here
   // before we accept it, which protects it from eviction by connections that only hold a slot.
   boost::system::error_code ignored;
   const bool talking = socket.available(ignored) > 0;
-  if (const auto evicted = admission_.on_accepted(connection->id, Clock::now(), talking)) {
+  const auto accepted = admission_.on_accepted_from(source_of(peer), id, Clock::now(), talking);
+  if (accepted.refused) {
+    // Closed before anything was read or allocated for it: a source that keeps failing costs
+    // an accept and a close, never a handshake or a pending slot.
+    if (!warned_source_) {
+      warned_source_ = true;
+      spdlog::warn(
+          "backbone: {} keeps failing handshakes on port {}: its connections are closed at "
+          "accept until it has been quiet a while; further refusals are only counted",
+          peer.address().to_string(), port_);
+    }
+    socket.close(ignored);
+    return;
+  }
+  next_id_ = id;
+  auto connection = std::make_shared<Connection>();
+  connection->id = id;
+  connections_.emplace(connection->id, connection);
+  if (const auto evicted = accepted.evicted) {
     if (!warned_evicted_) {
       warned_evicted_ = true;
       spdlog::warn(
@@ -252,6 +298,7 @@ asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, t
     co_return;
   }
   std::shared_ptr<StreamLink> link = std::move(result.link);
+  admission_.on_upgraded(connection->id, Clock::now());
   connection->link = link;
   spdlog::debug("backbone: accepted {}", link->peer_name());
   if (on_accepted_) on_accepted_(link);
@@ -263,8 +310,9 @@ asio::awaitable<void> TcpServer::serve(std::shared_ptr<Connection> connection, t
 }
 
 void TcpServer::connection_done(const Connection& connection, const std::string& failure) {
-  admission_.on_closed(connection.id);
+  admission_.on_closed(connection.id, Clock::now());
   connections_.erase(connection.id);
+  if (admission_.pending() == 0) release_freed_memory();
   if (failure.empty()) return;
   if (connection.cancelled) {
     // A coroutine cancelled before it ran ends with operation_aborted at its first co_await.
@@ -292,6 +340,16 @@ asio::awaitable<void> TcpServer::deadline_loop() {
     for (ConnectionId id : expired) end_connection(id);
     deadline_timer_.expires_at(admission_.next_deadline().value_or(Clock::time_point::max()));
   }
+}
+
+void TcpServer::release_freed_memory() {
+  // Only after many connections: one trim walks the whole heap.
+  if (next_id_ - connections_at_last_trim_ < kConnectionsBetweenTrims) return;
+  connections_at_last_trim_ = next_id_;
+  ++counters_.heap_trims;
+#if defined(__GLIBC__)
+  ::malloc_trim(0);
+#endif
 }
 
 void TcpServer::arm_deadline() {

@@ -8,6 +8,8 @@
 //   canbridge-backbone-flood --connect 127.0.0.1:7000 --bad-handshakes 1100 [--concurrency 1]
 //       [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms 500] [--cycle --duration 10]
 //       [--psk-name NAME]
+//   either with [--bind ADDRESS]: connect from this local address (e.g. 127.0.0.2, any of
+//   127/8 on Linux), so the flood comes from another source than a real peer on the same host
 //
 // --kind psk runs a real TLS 1.3 handshake (OpenSSL, as a gateway does) offering a fresh random
 // key: every even one under --psk-name (a configured gateway's name: a wrong key), every odd one
@@ -18,6 +20,9 @@
 // "backbone-flood: started" for handshakes), a progress line every --report-ms, and a final line
 // "backbone-flood: done ..." with the counts and the elapsed time. Ends after --duration seconds
 // (idle) or once every handshake ran, or at SIGINT/SIGTERM.
+#include <netinet/in.h>
+#include <sys/socket.h>
+
 #include <array>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/connect.hpp>
@@ -32,6 +37,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 #include <random>
 #include <span>
 #include <string>
@@ -54,6 +60,7 @@ using namespace asio::experimental::awaitable_operators;
 struct Options {
   std::string host = "127.0.0.1";
   std::string port;
+  std::string bind;  // local address to connect from; empty: the kernel picks
   std::size_t idle = 0;
   std::size_t bad_handshakes = 0;
   std::size_t concurrency = 0;  // 0: idle: all at once; handshakes: 1 (one after another)
@@ -87,7 +94,7 @@ void usage() {
          "  [--concurrency C] [--rate CONNECTS_PER_S] [--duration S] [--no-reopen]\n"
          "  [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms MS] [--report-ms MS] "
          "[--cycle]\n"
-         "  [--psk-name NAME]\n";
+         "  [--psk-name NAME] [--bind LOCAL_ADDRESS]\n";
 }
 
 bool parse(int argc, char** argv, Options& o) {
@@ -103,6 +110,8 @@ bool parse(int argc, char** argv, Options& o) {
       if (colon == std::string::npos) throw std::invalid_argument("--connect wants HOST:PORT");
       o.host = v.substr(0, colon);
       o.port = v.substr(colon + 1);
+    } else if (arg == "--bind") {
+      o.bind = value();
     } else if (arg == "--idle") {
       o.idle = std::stoul(value());
     } else if (arg == "--bad-handshakes") {
@@ -198,6 +207,13 @@ class Flood {
       return 2;
     }
     endpoint_ = *results.begin();
+    if (!options_.bind.empty()) {
+      bind_address_ = asio::ip::make_address(options_.bind, ec);
+      if (ec) {
+        std::cerr << "backbone-flood: --bind " << options_.bind << ": " << ec.message() << "\n";
+        return 2;
+      }
+    }
     asio::signal_set signals(io_, SIGINT, SIGTERM);
     signals.async_wait([this](boost::system::error_code e, int) {
       if (!e) stop();
@@ -262,6 +278,7 @@ class Flood {
     // Registered before connecting: when the server's accept queue is full the SYN waits for
     // minutes, and stop() must be able to end such a connect as well.
     open_.push_back(&socket);
+    if (bind_address_) bind_local(socket);
     auto [ec] = co_await socket.async_connect(endpoint_, kNoError);
     if (ec) {
       std::erase(open_, &socket);
@@ -275,6 +292,23 @@ class Flood {
       print("holding");
     }
     co_return true;
+  }
+
+  // Binds the socket to --bind; the port is left to connect() (IP_BIND_ADDRESS_NO_PORT), which
+  // picks it per destination, so thousands of short connections do not run out of ports.
+  void bind_local(tcp::socket& socket) {
+    boost::system::error_code ec;
+    socket.open(endpoint_.protocol(), ec);
+    if (!ec && bind_address_->is_v4()) {
+      const int on = 1;
+      ::setsockopt(socket.native_handle(), IPPROTO_IP, IP_BIND_ADDRESS_NO_PORT, &on, sizeof on);
+    }
+    if (!ec) socket.bind(tcp::endpoint(*bind_address_, 0), ec);
+    if (ec && !warned_bind_) {
+      warned_bind_ = true;
+      std::cerr << "backbone-flood: cannot bind to " << options_.bind << ": " << ec.message()
+                << "\n";
+    }
   }
 
   void forget(tcp::socket& socket) {
@@ -404,6 +438,8 @@ class Flood {
   std::uint64_t next_handshake_ = 0;
   bool stopped_ = false;
   bool announced_ = false;
+  bool warned_bind_ = false;
+  std::optional<asio::ip::address> bind_address_;
   std::array<std::shared_ptr<canbridge::backbone::TlsUpgrade>, 2> psk_;  // psk: wrong key, stranger
 };
 

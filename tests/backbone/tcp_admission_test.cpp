@@ -23,8 +23,14 @@ using Clock = std::chrono::steady_clock;
 class SilentClient {
  public:
   // `talk`: sends one byte after connecting (then nothing more), as a peer starting a handshake.
-  SilentClient(asio::io_context& io, std::uint16_t port, bool talk = false)
+  // `from`: the local address to connect from (another host, as far as the server can tell).
+  SilentClient(asio::io_context& io, std::uint16_t port, bool talk = false,
+               const char* from = nullptr)
       : state_(std::make_shared<State>(io)) {
+    if (from) {
+      state_->socket.open(tcp::v4());
+      state_->socket.bind(tcp::endpoint(asio::ip::make_address(from), 0));
+    }
     state_->socket.connect(tcp::endpoint(asio::ip::address_v4::loopback(), port));
     if (talk) asio::write(state_->socket, asio::buffer("\x00", 1));
     local_port = state_->socket.local_endpoint().port();
@@ -92,8 +98,8 @@ class TcpAdmission : public ::testing::Test {
     accepted.clear();
     EXPECT_TRUE(testing::drains_within(io, 2s)) << "a connection's coroutine did not end";
   }
-  SilentClient& connect(bool talk = false) {
-    clients.push_back(std::make_unique<SilentClient>(io, server->port(), talk));
+  SilentClient& connect(bool talk = false, const char* from = nullptr) {
+    clients.push_back(std::make_unique<SilentClient>(io, server->port(), talk, from));
     return *clients.back();
   }
   // Waits until the server has handed `n` links over.
@@ -143,6 +149,35 @@ TEST_F(TcpAdmission, AConnectionWhosePeerSpokeOutlivesSilentOnesBeyondTheCap) {
   EXPECT_FALSE(speaking.closed_by_server());
   EXPECT_TRUE(accepted[0]->is_open());
   EXPECT_EQ(server->counters().admission.evicted_talking, 0u);
+}
+
+TEST_F(TcpAdmission, ASourceBeyondItsBudgetIsClosedAtAcceptWhileAnotherSourceIsServed) {
+  start({32, 10s, 10, {2, 10s, 1024}}, stuck.upgrade());
+  SilentClient& first = connect(true, "127.0.0.2");
+  SilentClient& second = connect(true, "127.0.0.2");
+  SilentClient& third = connect(true, "127.0.0.2");
+  ASSERT_TRUE(run_until(
+      io, [&] { return third.closed_by_server(); }, 5s));
+  SilentClient& other_host = connect(true, "127.0.0.1");
+  ASSERT_TRUE(run_until(
+      io, [&] { return stuck.started == 3; }, 5s));
+  EXPECT_FALSE(first.closed_by_server());
+  EXPECT_FALSE(second.closed_by_server());
+  EXPECT_FALSE(other_host.closed_by_server());
+  EXPECT_EQ(server->counters().admission.per_source.refused, 1u);
+  EXPECT_EQ(server->connections(), 3u);  // nothing was kept of the refused one
+}
+
+TEST_F(TcpAdmission, AConnectionPastItsHandshakeNoLongerHoldsItsSourcesBudget) {
+  // Plain: the upgrade completes at once; the links stay pending (never admitted).
+  start({32, 10s, 10, {1, 10s, 1024}});
+  SilentClient& first = connect(true, "127.0.0.2");
+  ASSERT_TRUE(accepted_count(1));
+  SilentClient& second = connect(true, "127.0.0.2");
+  ASSERT_TRUE(accepted_count(2));
+  EXPECT_FALSE(first.closed_by_server());
+  EXPECT_FALSE(second.closed_by_server());
+  EXPECT_EQ(server->counters().admission.per_source.refused, 0u);
 }
 
 TEST_F(TcpAdmission, AConnectionThatSaysNothingIsClosedAtTheDeadlineAndNothingIsKept) {
@@ -228,6 +263,20 @@ TEST_F(TcpAdmission, ManyShortConnectionsLeaveNothingBehind) {
   ASSERT_TRUE(run_until(
       io, [&] { return server->connections() == 0; }, 5s));
   EXPECT_EQ(server->counters().admission.evicted_pending, 46u);
+}
+
+TEST_F(TcpAdmission, AfterManyConnectionsTheFreedHeapIsGivenBackOnceNothingIsPending) {
+  start({4, 60s, 10});
+  for (int i = 0; i < 300; ++i) connect(i % 2 == 0);
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->counters().accepted == 300; }, 5s));
+  // Evictions kept 4 pending all along: no trim while a flood still runs.
+  EXPECT_EQ(server->counters().heap_trims, 0u);
+  clients.clear();
+  accepted.clear();
+  ASSERT_TRUE(run_until(
+      io, [&] { return server->connections() == 0; }, 5s));
+  EXPECT_EQ(server->counters().heap_trims, 1u);  // once, not once per connection
 }
 
 }  // namespace
