@@ -6,6 +6,7 @@
 #include <ostream>
 
 #include "app/cli_reply.hpp"
+#include "config/loader.hpp"
 
 namespace canbridge::cli {
 
@@ -14,7 +15,8 @@ std::string resolve_endpoint(const CommonOptions& options, std::string& problem)
   if (options.config.empty()) return kDefaultEndpoint;
   try {
     // Only this one key: the client must not need the rest of a valid surface configuration.
-    const YAML::Node root = YAML::LoadFile(options.config);
+    // Read through the loader's bounds, so that -c /dev/zero is refused, not read forever.
+    const YAML::Node root = YAML::Load(config::read_config_text(options.config));
     const YAML::Node socket = root["command_endpoint"]["unix_socket"];
     if (!socket) return kDefaultEndpoint;  // the surface's default too
     const std::string path = socket.as<std::string>();
@@ -25,6 +27,9 @@ std::string resolve_endpoint(const CommonOptions& options, std::string& problem)
     return path;
   } catch (const YAML::Exception& e) {
     problem = options.config + ": " + e.what();
+    return {};
+  } catch (const config::ConfigError& e) {
+    problem = e.problems().front().to_string();
     return {};
   }
 }

@@ -116,7 +116,7 @@ void read_certificate_files(YamlReader& in, const YAML::Node& auth, const YAML::
       }
       continue;
     }
-    auto path = in.string(auth, f.key, "backbone.auth", false);
+    auto path = in.file_path(auth, f.key, "backbone.auth", false);
     if (!path) continue;
     out.*f.field = *path;
     if (f.private_key) {
@@ -366,7 +366,7 @@ void read_accepted_gateway(YamlReader& in, const YAML::Node& item, std::size_t i
                      (item["surface_nodes"] ? "" : " (here: the default ids of its modules)"));
     }
   }
-  if (auto key_file = in.string(item, "key_file", path, false)) {
+  if (auto key_file = in.file_path(item, "key_file", path, false)) {
     g.key_file = *key_file;
     check_key_file(in, item["key_file"], path + ".key_file", *key_file);
   }
@@ -509,7 +509,7 @@ void read_gateway_auth(YamlReader& in, const YAML::Node& root, GatewayOptions& o
   read_mac_tag_bytes(in, *auth, out.auth);
   const bool tcp = !out.connect.host.empty();
   read_certificate_files(in, *auth, auth_key, mode == AuthMode::certificates && tcp, out.auth);
-  if (auto key_file = in.string(*auth, "key_file", "backbone.auth", false)) {
+  if (auto key_file = in.file_path(*auth, "key_file", "backbone.auth", false)) {
     out.auth.key_file = *key_file;
     check_key_file(in, (*auth)["key_file"], "backbone.auth.key_file", *key_file);
   } else if (!(*auth)["key_file"] &&

@@ -67,7 +67,7 @@ void read_client(YamlReader& in, const YAML::Node& item, const std::string& path
   } else {
     ok = false;
   }
-  const auto file = in.string(item, "token_file", path, true);
+  const auto file = in.file_path(item, "token_file", path, true);
   if (file) {
     TokenFileResult token = read_token_file(*file);
     if (!token.problem.empty()) {
