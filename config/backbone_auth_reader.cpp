@@ -70,11 +70,19 @@ void check_key_file(YamlReader& in, const YAML::Node& value, const std::string& 
   in.problem(value, field, message);
 }
 
-// A certificate or CA file: there and readable. Its content is for TLS to judge at startup.
+// A certificate or CA file: there, readable, and a regular file of at most 1 MiB (TLS reads it
+// whole at startup: /dev/zero would never end, a FIFO would wait for a writer). Its content is for
+// TLS to judge.
 void check_readable(YamlReader& in, const YAML::Node& value, const std::string& field,
                     const std::string& path) {
-  if (::access(path.c_str(), R_OK) != 0) {
+  struct stat status {};
+  if (::access(path.c_str(), R_OK) != 0 || ::stat(path.c_str(), &status) != 0) {
     in.problem(value, field, path + ": cannot be read (" + std::strerror(errno) + ")");
+  } else if (!S_ISREG(status.st_mode) ||
+             static_cast<std::uint64_t>(status.st_size) > kMaxConfigFileBytes) {
+    in.problem(value, field,
+               path + ": must be a regular file of at most 1 MiB (" +
+                   std::to_string(kMaxConfigFileBytes) + " bytes)");
   }
 }
 

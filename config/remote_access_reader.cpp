@@ -224,7 +224,9 @@ void read_networks(YamlReader& in, const YAML::Node& root, SurfaceOptions& out) 
 }  // namespace
 
 TokenFileResult read_token_file(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  // O_NONBLOCK: a FIFO opens at once and is refused as no regular file, instead of holding
+  // startup until something writes to it.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) {
     return {{},
             path + ": cannot be read (" + std::strerror(errno) +

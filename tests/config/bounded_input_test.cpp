@@ -187,6 +187,51 @@ TEST(BoundedInput, PathsBeyondPathMaxOrWithANulAreRefusedAtLoad) {
   EXPECT_TRUE(has(nul, 4, "backbone.serial.device", "contains a NUL byte")) << dump(nul);
 }
 
+// The other files a config names are read at load too: a FIFO or a device there must not hold
+// startup either. Each refusal names the field's line.
+TEST(BoundedInput, KeyTokenAndCertificateFilesThatAreNoRegularFilesAreRefusedPromptly) {
+  test::TempKeyDir dir;
+  const std::string fifo = dir.path() + "/fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const Refusal key = refusal_of([&] {
+    parse_gateway(
+        "role: gateway\nbackbone:\n  connect: 10.0.0.1:7000\n"
+        "  auth: {mode: psk, key_file: " +
+            fifo + "}\nmodules: [{id: 1, bus: vcan1}]\n",
+        "g.yaml");
+  });
+  EXPECT_TRUE(has(key.problems, 4, "backbone.auth.key_file", "not a regular file"))
+      << dump(key.problems);
+  EXPECT_LT(key.took, kPromptly);
+  const Refusal token = refusal_of([&] {
+    parse_surface(
+        "role: surface\nbus: vcan0\n"
+        "backbone: {listen: 127.0.0.1:7000, auth: {mode: plain}}\n"
+        "gateways: [{name: gateway, modules: [1]}]\n"
+        "command_endpoint:\n  tcp_port: 7001\n"
+        "  clients: [{name: op, role: control, token_file: " +
+            fifo + "}]\n",
+        "s.yaml");
+  });
+  EXPECT_TRUE(has(token.problems, 7, "command_endpoint.clients[0].token_file", "regular file"))
+      << dump(token.problems);
+  EXPECT_LT(token.took, kPromptly);
+  const std::string key_pem = dir.key("surface.key.pem");
+  const std::string crt = write_file(dir, "surface.crt", "-----BEGIN CERTIFICATE-----\n");
+  const Refusal ca = refusal_of([&] {
+    parse_surface(
+        "role: surface\nbus: vcan0\nbackbone:\n  listen: 0.0.0.0:7000\n"
+        "  auth: {mode: certificates, certificate: " +
+            crt + ", private_key: " + key_pem +
+            ", ca: /dev/zero}\ngateways: [{name: tool, modules: [1]}]\n",
+        "s.yaml");
+  });
+  EXPECT_TRUE(
+      has(ca.problems, 5, "backbone.auth.ca", "/dev/zero: must be a regular file of at most 1 MiB"))
+      << dump(ca.problems);
+  EXPECT_LT(ca.took, kPromptly);
+}
+
 // The CLI reads -c for its command endpoint: through the same bounds.
 TEST(BoundedInput, TheCliRefusesDevZeroAsItsConfig) {
   std::ostringstream out;
