@@ -61,12 +61,14 @@ void ProgressPrinter::update(const Progress& p, std::chrono::steady_clock::time_
   const std::uint64_t tenth = p.total == 0 ? 0 : p.done * 10 / p.total;
   if (new_step || tenth + 1 > printed_tenth_) {
     printed_tenth_ = tenth + 1;
-    out_ << format_progress_line(p, rate) << "\n";
+    // Flushed: on a pipe or a file stdout is block-buffered, and a supervising script would see
+    // no progress at all until the download ended.
+    out_ << format_progress_line(p, rate) << "\n" << std::flush;
   }
 }
 
 void ProgressPrinter::finish() {
-  if (drawn_) out_ << "\n";
+  if (drawn_) out_ << "\n" << std::flush;
   drawn_ = false;
 }
 

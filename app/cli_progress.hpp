@@ -1,5 +1,6 @@
 // Progress of a firmware download as the operator sees it: a bar with bytes/s and time left on a
-// terminal, a plain line per step and per tenth otherwise (logs and pipes get no control codes).
+// terminal, a plain line per step and per tenth otherwise (logs and pipes get no control codes),
+// each flushed as it is printed.
 #pragma once
 
 #include <chrono>

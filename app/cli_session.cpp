@@ -6,6 +6,7 @@
 #include <ostream>
 
 #include "app/cli_reply.hpp"
+#include "config/loader.hpp"
 
 namespace canbridge::cli {
 
@@ -14,7 +15,8 @@ std::string resolve_endpoint(const CommonOptions& options, std::string& problem)
   if (options.config.empty()) return kDefaultEndpoint;
   try {
     // Only the endpoint's keys: the client must not need the rest of a valid configuration.
-    const YAML::Node root = YAML::LoadFile(options.config);
+    // Read through the loader's bounds, so that -c /dev/zero is refused, not read forever.
+    const YAML::Node root = YAML::Load(config::read_config_text(options.config));
     const bool gateway = root.IsMap() && root["role"] && root["role"].IsScalar() &&
                          root["role"].as<std::string>() == "gateway";
     if (gateway) {
@@ -41,6 +43,9 @@ std::string resolve_endpoint(const CommonOptions& options, std::string& problem)
     return path;
   } catch (const YAML::Exception& e) {
     problem = options.config + ": " + e.what();
+    return {};
+  } catch (const config::ConfigError& e) {
+    problem = e.problems().front().to_string();
     return {};
   }
 }

@@ -3,8 +3,6 @@
 #include <spdlog/spdlog.h>
 
 #include <csignal>
-#include <fstream>
-#include <iterator>
 #include <optional>
 
 #include "config/loader.hpp"  // config::ConfigError
@@ -14,10 +12,15 @@ namespace canbridge::bridge {
 
 namespace {
 
-std::optional<std::string> read_text(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return std::nullopt;
-  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+// Through the loader's bounds: a config replaced by a FIFO or a huge file must not hang or
+// swell the running process at a SIGHUP. What is wrong is logged by the caller.
+std::optional<std::string> read_text(const std::string& path, std::string* problem = nullptr) {
+  try {
+    return config::read_config_text(path);
+  } catch (const config::ConfigError& e) {
+    if (problem) *problem = e.problems().front().message;
+    return std::nullopt;
+  }
 }
 
 }  // namespace
@@ -49,12 +52,10 @@ void ReloadOnHangup::reload() {
     spdlog::warn("SIGHUP: no config file to re-read");
     return;
   }
-  const std::optional<std::string> text = read_text(file);
+  std::string problem;
+  const std::optional<std::string> text = read_text(file, &problem);
   if (!text) {
-    spdlog::error(
-        "config reload from {} failed, keeping the running settings: cannot open the "
-        "file",
-        file);
+    spdlog::error("config reload from {} failed, keeping the running settings: {}", file, problem);
     return;
   }
   config::LogOptions reloaded;

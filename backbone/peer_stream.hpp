@@ -73,7 +73,12 @@ struct SessionCounters {
   // for longer than the peer's patience (frozen, not scheduled): the peer may have declared the
   // link dead and withdrawn what it sent, so that input was not delivered and the link closed.
   std::uint64_t stale_links_closed = 0;
-  std::uint64_t reliable_dropped_too_old = 0;       // tombstoned: older than reliable_max_age
+  // Older than reliable_max_age before it was ever sent: dropped, the peer never had it.
+  std::uint64_t reliable_dropped_too_old = 0;
+  // Older than reliable_max_age after it was sent, unacknowledged: tombstoned, but the peer may
+  // have it (only its ack was late). Not a drop count: the peer's tombstones_received counts the
+  // ones that did not arrive.
+  std::uint64_t reliable_expired_unacked = 0;
   std::uint64_t reliable_dropped_peer_restart = 0;  // tombstoned: meant for the peer's old process
   std::uint64_t tombstones_received = 0;            // empty reliable payloads, not delivered
   std::uint64_t unreliable_lost = 0;  // gaps in a peer's unreliable sequence: lost on the line
@@ -101,8 +106,9 @@ struct SessionLogMemory {
 
 // Why a reliable payload was dropped before its peer acknowledged it.
 enum class ReliableDrop {
-  too_old,       // older than SessionOptions::reliable_max_age
-  peer_restart,  // the peer is a new process: it never asked for what the old one was sent
+  too_old,          // older than SessionOptions::reliable_max_age, never sent: the peer lacks it
+  too_old_unacked,  // ... after it was sent, unacknowledged: the peer may have it
+  peer_restart,     // the peer is a new process: it never asked for what the old one was sent
 };
 
 class SessionLink;

@@ -153,7 +153,9 @@ std::optional<KeyFileProblem> check_key_file_permissions(const struct stat& stat
 }
 
 KeyFileResult load_key_file(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  // O_NONBLOCK: a FIFO named as the key file opens at once (and is refused as no regular file
+  // below) instead of holding startup until something writes to it.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) {
     const int e = errno;
     return refuse(KeyFileError::cannot_open, 0,

@@ -146,8 +146,10 @@ class ReliableSender {
 
   // Turns every unacknowledged payload born before `cutoff` into a tombstone: the payload is
   // emptied, its seq stays (the peer's receiver may be waiting for it, so the stream stays
-  // contiguous) and an empty reliable payload is never delivered. `dropped(const std::string&)`
-  // sees each payload before it is emptied. Returns how many were dropped.
+  // contiguous) and an empty reliable payload is never delivered. `dropped(const std::string&,
+  // bool sent)` sees each payload before it is emptied; `sent`: it was handed out on some link
+  // before, so the peer may have it already (only its ack is missing), and the tombstone then
+  // stands for nothing lost. Returns how many were tombstoned.
   template <typename Dropped>
   std::size_t drop_older_than(TimePoint cutoff, Dropped&& dropped) {
     if (oldest_born_ >= cutoff) return 0;  // the common case: nothing that old is held
@@ -160,7 +162,7 @@ class ReliableSender {
         oldest = std::min(oldest, held.born);
         continue;
       }
-      dropped(static_cast<const std::string&>(held.payload));
+      dropped(static_cast<const std::string&>(held.payload), seq <= highest_sent_);
       tombstone(held);
       ++count;
     }

@@ -908,9 +908,12 @@ void SessionCore::close_stale(const char* why, TimePoint now) {
 void SessionCore::drop_too_old(TimePoint now) {
   if (options_.reliable_max_age.count() <= 0) return;
   auto& dropped = stream_->handlers_.on_reliable_dropped;
-  counters_.reliable_dropped_too_old +=
-      stream_->sender_.drop_older_than(now - options_.reliable_max_age, [&](const std::string& p) {
-        if (dropped) dropped(p, ReliableDrop::too_old);
+  // A payload sent before it expired may have arrived, its ack merely late: counted apart, or a
+  // slow ack would count as a drop a frame the peer delivered.
+  stream_->sender_.drop_older_than(
+      now - options_.reliable_max_age, [&](const std::string& p, bool sent) {
+        ++(sent ? counters_.reliable_expired_unacked : counters_.reliable_dropped_too_old);
+        if (dropped) dropped(p, sent ? ReliableDrop::too_old_unacked : ReliableDrop::too_old);
       });
 }
 

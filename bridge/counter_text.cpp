@@ -17,14 +17,16 @@ std::string bus_counters_text(const std::string& name, const can::BusCounters& c
 std::string session_counters_text(const backbone::SessionCounters& c) {
   return fmt::format(
       "session links {} protocol-errors {} before-hello {} keepalives {} resend-requests {} "
-      "peer-restarts {} reliable delivered {} duplicates {}, unreliable sent {} delivered {} "
+      "peer-restarts {} reliable delivered {} duplicates {} tombstones {}, unreliable sent {} "
+      "delivered {} "
       "lost-on-line {}, auth ok {} refused key/proof/malformed/unauthenticated {}/{}/{}/{} "
       "restarts {} rejected truncated/bad-tag/replay {}/{}/{}",
       c.links, c.protocol_errors, c.before_hello, c.keepalives_sent, c.resend_requests,
-      c.peer_restarts, c.reliable_delivered, c.reliable_duplicates, c.unreliable_sent,
-      c.unreliable_delivered, c.unreliable_lost, c.auth_established, c.auth_failed_unknown_key,
-      c.auth_failed_bad_proof, c.auth_failed_malformed, c.auth_failed_unauthenticated,
-      c.auth_restarts, c.rejected_truncated, c.rejected_bad_tag, c.rejected_replay);
+      c.peer_restarts, c.reliable_delivered, c.reliable_duplicates, c.tombstones_received,
+      c.unreliable_sent, c.unreliable_delivered, c.unreliable_lost, c.auth_established,
+      c.auth_failed_unknown_key, c.auth_failed_bad_proof, c.auth_failed_malformed,
+      c.auth_failed_unauthenticated, c.auth_restarts, c.rejected_truncated, c.rejected_bad_tag,
+      c.rejected_replay);
 }
 
 std::string framing_counters_text(const backbone::DeframerCounters& c) {

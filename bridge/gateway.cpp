@@ -120,7 +120,30 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
           },
           [this] { on_link_dead(); },
           // A new surface process: what was queued for the old one is not replayed.
-          [this](const v1::Hello&) { outbox_.discard_queued(); }};
+          [this](const v1::Hello&) { outbox_.discard_queued(); },
+          [this](const std::string& payload, backbone::ReliableDrop why) {
+            on_payload_dropped(payload, why);
+          }};
+}
+
+void Gateway::on_payload_dropped(const std::string& payload, backbone::ReliableDrop why) {
+  v1::Payload parsed;
+  std::vector<can::Frame> frames;
+  if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
+      decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
+    return;  // node events, PDO Packets: no frames of a bus
+  }
+  switch (why) {
+    case backbone::ReliableDrop::too_old:
+      counters_.session_frames_too_old += frames.size();
+      break;
+    case backbone::ReliableDrop::too_old_unacked:
+      counters_.session_frames_expired_unacked += frames.size();
+      break;
+    case backbone::ReliableDrop::peer_restart:
+      counters_.session_frames_peer_restart += frames.size();
+      break;
+  }
 }
 
 void Gateway::add_module_bus(std::size_t m) {
@@ -699,10 +722,11 @@ RoleStatistics Gateway::statistics() const {
   s.drops.push_back({"conflated", c.outbox.conflated});
   s.drops.push_back({"process-dropped", c.outbox.process_dropped});
   s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});
+  // Frames, each counted once: dropped while queued (outbox) or in a payload never sent
+  // (session); the session's own counts are payloads.
+  s.drops.push_back({"reliable-too-old", c.outbox.reliable_too_old + c.session_frames_too_old});
   s.drops.push_back(
-      {"reliable-too-old", c.outbox.reliable_too_old + c.session.reliable_dropped_too_old});
-  s.drops.push_back({"reliable-peer-restart",
-                     c.outbox.discarded_peer_restart + c.session.reliable_dropped_peer_restart});
+      {"reliable-peer-restart", c.outbox.discarded_peer_restart + c.session_frames_peer_restart});
   s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
   s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
   s.drops.push_back({"unknown-module", c.unknown_module});
@@ -722,16 +746,17 @@ std::string Gateway::stats_line() const {
       "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
       "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
       "bus-refused {}, echoes-dropped {}, sdo-values rewritten {} unmapped {}, stale-links {}, "
-      "reliable dropped too-old {} surface-restart {}, sdo-requests-withdrawn {}",
+      "reliable dropped too-old {} surface-restart {} expired-unacked {}, "
+      "sdo-requests-withdrawn {}",
       name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
       dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
       c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
       sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
       c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped, c.session.stale_links_closed,
-      c.outbox.reliable_too_old + c.session.reliable_dropped_too_old,
-      c.outbox.discarded_peer_restart + c.session.reliable_dropped_peer_restart,
-      c.sdo_requests_withdrawn);
+      c.outbox.reliable_too_old + c.session_frames_too_old,
+      c.outbox.discarded_peer_restart + c.session_frames_peer_restart,
+      c.session_frames_expired_unacked, c.sdo_requests_withdrawn);
   s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
                    to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
                    c.backbone_tx_bytes, lanes_summary(c.outbox));

@@ -67,6 +67,13 @@ struct GatewayCounters {
   std::uint64_t process_lost_on_line = 0;  // process frames the surface sent that never arrived
   backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
   std::uint64_t echoes_dropped = 0;        // frames this gateway wrote, read back from a bus
+  // Frames in the reliable payloads the session gave up on, by backbone::ReliableDrop (the
+  // session counts payloads, which hold many frames): too old before they were ever sent, for a
+  // surface process that is gone, and too old after they were sent (the surface may have them;
+  // not a drop count).
+  std::uint64_t session_frames_too_old = 0;
+  std::uint64_t session_frames_peer_restart = 0;
+  std::uint64_t session_frames_expired_unacked = 0;
   // SDO requests from the surface still waiting for a bus when the link died (the master was
   // told they failed): never written.
   std::uint64_t sdo_requests_withdrawn = 0;
@@ -163,6 +170,8 @@ class Gateway {
   void write_to_buses(std::optional<std::size_t> only);
   // The surface declared the link dead (its master saw every SDO transfer aborted).
   void on_link_dead();
+  // A reliable payload the session gave up on: its frames counted by why.
+  void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Node table events go to the surface as reliable payloads; the deadline driver re-arms.
   void after_node_input();
   // Moves renamed nodes in the live map (rename_follower.hpp), for the events not yet followed:

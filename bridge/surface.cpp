@@ -48,7 +48,9 @@ struct Surface::Gateway {
                      surface.on_payload_dropped(payload, why);
                    }}) {
     outbox.on_discard([&surface](std::uint32_t, const can::Frame& frame, FrameOutbox::Discard why) {
-      surface.on_frame_dropped(frame, why == FrameOutbox::Discard::too_old);
+      surface.on_frame_dropped(frame, why == FrameOutbox::Discard::too_old
+                                          ? backbone::ReliableDrop::too_old
+                                          : backbone::ReliableDrop::peer_restart);
     });
   }
 
@@ -640,8 +642,18 @@ void Surface::on_gateway_down(Gateway& gateway) {
   }
 }
 
-void Surface::on_frame_dropped(const can::Frame& frame, bool too_old) {
-  ++(too_old ? counters_.reliable_dropped_too_old : counters_.reliable_dropped_gateway_restart);
+void Surface::on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop why) {
+  switch (why) {
+    case backbone::ReliableDrop::too_old:
+      ++counters_.reliable_dropped_too_old;
+      break;
+    case backbone::ReliableDrop::too_old_unacked:
+      ++counters_.reliable_expired_unacked;
+      break;
+    case backbone::ReliableDrop::peer_restart:
+      ++counters_.reliable_dropped_gateway_restart;
+      break;
+  }
   if (!is_sdo_request(frame)) return;
   if (auto abort = guard_.on_request_discarded(frame, SdoLinkGuard::Clock::now())) {
     ++counters_.sdo_aborted_dropped;
@@ -656,7 +668,7 @@ void Surface::on_payload_dropped(const std::string& payload, backbone::ReliableD
       decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
     return;  // RPDOP packets: the relay times them out and answers the master
   }
-  for (const can::Frame& f : frames) on_frame_dropped(f, why == backbone::ReliableDrop::too_old);
+  for (const can::Frame& f : frames) on_frame_dropped(f, why);
 }
 
 SurfaceCounters Surface::counters() const {
@@ -749,7 +761,8 @@ std::string Surface::stats_line() const {
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
       "untracked {}, late answers dropped {}, "
       "stale answers dropped {}, stale aborts dropped {}), "
-      "reliable dropped too-old {} gateway-restart {} (sdo aborted {}), stale-links {}, "
+      "reliable dropped too-old {} gateway-restart {} (sdo aborted {}) expired-unacked {}, "
+      "stale-links {}, "
       "echoes-dropped {}, "
       "bus-refused {}, dropped-no-gateway {}, unclaimed {}, "
       "malformed {}, unknown-module {}, node-events {}; "
@@ -764,14 +777,14 @@ std::string Surface::stats_line() const {
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
       c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_late_responses_dropped,
       c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old,
-      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.session.stale_links_closed,
-      c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
-      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
-      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, c.from_bus,
-      c.frames_received, c.process_lost_on_line, c.outbox.batches_sent, c.outbox.queued,
-      session_counters_text(c.session), bus_counters_text(bus_->name(), b), c.bus_waited,
-      c.bus_waiting_peak, c.backbone_pauses);
+      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.reliable_expired_unacked,
+      c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
+      c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
+      c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed,
+      c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete,
+      c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line, c.outbox.batches_sent,
+      c.outbox.queued, session_counters_text(c.session), bus_counters_text(bus_->name(), b),
+      c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),

@@ -64,8 +64,11 @@ struct SurfaceCounters {
   std::uint64_t sdo_withdrawn_untracked = 0;
   // Reliable frames for a gateway given up before it acknowledged them, by reason (queued ones
   // and sent ones); SDO requests among them were answered with an abort if still open.
-  std::uint64_t reliable_dropped_too_old = 0;
+  std::uint64_t reliable_dropped_too_old = 0;  // never sent: the gateway never had them
   std::uint64_t reliable_dropped_gateway_restart = 0;
+  // Sent, then too old before an ack came: the gateway may have them (not a drop count; its
+  // session's tombstones-received says how many payloads did not arrive).
+  std::uint64_t reliable_expired_unacked = 0;
   std::uint64_t sdo_aborted_dropped = 0;
   // PDO Packets (docs/pdop.md).
   std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
@@ -188,7 +191,7 @@ class Surface {
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
   // A frame meant for `gateway` that will never be sent: counted, an open SDO request aborted.
-  void on_frame_dropped(const can::Frame& frame, bool too_old);
+  void on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop why);
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Every frame for the surface bus goes here, in order (BusWriter).
   // Queues a surface frame for one gateway; an SDO request it cannot take is aborted.

@@ -70,11 +70,19 @@ void check_key_file(YamlReader& in, const YAML::Node& value, const std::string& 
   in.problem(value, field, message);
 }
 
-// A certificate or CA file: there and readable. Its content is for TLS to judge at startup.
+// A certificate or CA file: there, readable, and a regular file of at most 1 MiB (TLS reads it
+// whole at startup: /dev/zero would never end, a FIFO would wait for a writer). Its content is for
+// TLS to judge.
 void check_readable(YamlReader& in, const YAML::Node& value, const std::string& field,
                     const std::string& path) {
-  if (::access(path.c_str(), R_OK) != 0) {
+  struct stat status {};
+  if (::access(path.c_str(), R_OK) != 0 || ::stat(path.c_str(), &status) != 0) {
     in.problem(value, field, path + ": cannot be read (" + std::strerror(errno) + ")");
+  } else if (!S_ISREG(status.st_mode) ||
+             static_cast<std::uint64_t>(status.st_size) > kMaxConfigFileBytes) {
+    in.problem(value, field,
+               path + ": must be a regular file of at most 1 MiB (" +
+                   std::to_string(kMaxConfigFileBytes) + " bytes)");
   }
 }
 
@@ -116,7 +124,7 @@ void read_certificate_files(YamlReader& in, const YAML::Node& auth, const YAML::
       }
       continue;
     }
-    auto path = in.string(auth, f.key, "backbone.auth", false);
+    auto path = in.file_path(auth, f.key, "backbone.auth", false);
     if (!path) continue;
     out.*f.field = *path;
     if (f.private_key) {
@@ -366,7 +374,7 @@ void read_accepted_gateway(YamlReader& in, const YAML::Node& item, std::size_t i
                      (item["surface_nodes"] ? "" : " (here: the default ids of its modules)"));
     }
   }
-  if (auto key_file = in.string(item, "key_file", path, false)) {
+  if (auto key_file = in.file_path(item, "key_file", path, false)) {
     g.key_file = *key_file;
     check_key_file(in, item["key_file"], path + ".key_file", *key_file);
   }
@@ -509,7 +517,7 @@ void read_gateway_auth(YamlReader& in, const YAML::Node& root, GatewayOptions& o
   read_mac_tag_bytes(in, *auth, out.auth);
   const bool tcp = !out.connect.host.empty();
   read_certificate_files(in, *auth, auth_key, mode == AuthMode::certificates && tcp, out.auth);
-  if (auto key_file = in.string(*auth, "key_file", "backbone.auth", false)) {
+  if (auto key_file = in.file_path(*auth, "key_file", "backbone.auth", false)) {
     out.auth.key_file = *key_file;
     check_key_file(in, (*auth)["key_file"], "backbone.auth.key_file", *key_file);
   } else if (!(*auth)["key_file"] &&

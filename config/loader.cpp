@@ -66,7 +66,7 @@ class Reader : public YamlReader {
     }
     SerialLineOptions line;
     bool ok = true;
-    if (auto device = string(node, "device", path, true)) {
+    if (auto device = file_path(node, "device", path, true)) {
       line.device = *device;
     } else {
       ok = false;
@@ -384,14 +384,11 @@ bool read_module_profile(Reader& in, const YAML::Node& m, const std::string& pat
   return false;
 }
 
-// One bus per module, and a bus is a SocketCAN interface name (IFNAMSIZ - 1 characters).
+// One bus per module (that it is an interface name the kernel takes is checked as it is read).
 void check_module_bus(Reader& in, const YAML::Node& m, const std::string& path,
                       const std::string& bus, std::set<std::string>& buses) {
   if (!buses.insert(bus).second) {
     in.problem(m["bus"], path + ".bus", "bus '" + bus + "' is used by two modules");
-  }
-  if (bus.size() >= 16) {
-    in.problem(m["bus"], path + ".bus", "interface names are at most 15 characters");
   }
 }
 
@@ -435,7 +432,7 @@ std::optional<ModuleOptions> read_module(Reader& in, const YAML::Node& m, const 
                {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "pdop"});
   ModuleOptions module;
   auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
-  auto bus = in.string(m, "bus", path, true);
+  auto bus = in.interface_name(m, "bus", path, true);
   const bool profile_ok = read_module_profile(in, m, path, module);
   if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
   if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
@@ -728,7 +725,7 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
                 "networks", "can", "log", "metrics"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
-  if (auto bus = in.string(root, "bus", "", true)) out.bus = *bus;
+  if (auto bus = in.interface_name(root, "bus", "", true)) out.bus = *bus;
   read_surface_backbone(in, root, out);
   read_surface_auth(in, root, out);
   read_surface_pdop(in, root, out.rpdop_relay);
@@ -748,6 +745,10 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   in.metrics_options(root, out.metrics);
   in.finish();
   return out;
+}
+
+std::string read_config_text(const std::string& path) {
+  return read_config_file(path);
 }
 
 GatewayOptions load_gateway(const std::string& path) {

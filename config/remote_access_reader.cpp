@@ -67,7 +67,7 @@ void read_client(YamlReader& in, const YAML::Node& item, const std::string& path
   } else {
     ok = false;
   }
-  const auto file = in.string(item, "token_file", path, true);
+  const auto file = in.file_path(item, "token_file", path, true);
   if (file) {
     TokenFileResult token = read_token_file(*file);
     if (!token.problem.empty()) {
@@ -224,7 +224,9 @@ void read_networks(YamlReader& in, const YAML::Node& root, SurfaceOptions& out) 
 }  // namespace
 
 TokenFileResult read_token_file(const std::string& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  // O_NONBLOCK: a FIFO opens at once and is refused as no regular file, instead of holding
+  // startup until something writes to it.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) {
     return {{},
             path + ": cannot be read (" + std::strerror(errno) +

@@ -64,7 +64,6 @@ constexpr int kMaxQdTpdos = 34;
 constexpr int kMaxStandardPdos = 4;
 constexpr int kMaxPdoBits = 64;
 constexpr std::size_t kMaxPdopPacketBytes = 524280;  // docs/pdop.md section 5
-constexpr std::size_t kMaxInterfaceName = 15;        // IFNAMSIZ - 1
 
 // "6000:01", as objects are written in PDO maps and counters.
 std::string object_name(std::uint16_t index, std::uint8_t sub) {
@@ -280,14 +279,7 @@ class RigReader {
     BusSpec bus;
     in_.only_keys(b, path, {"name", "interface", "nodes"});
     if (auto name = in_.string(b, "name", path, true)) bus.name = *name;
-    if (auto itf = in_.string(b, "interface", path, false)) {
-      if (itf->size() > kMaxInterfaceName) {
-        in_.problem(b["interface"], path + ".interface",
-                    "interface names are at most 15 characters");
-      } else {
-        bus.interface = *itf;
-      }
-    }
+    if (auto itf = in_.interface_name(b, "interface", path, false)) bus.interface = *itf;
     auto nodes = in_.list(b, "nodes", path);
     if (!nodes) return bus;
     std::vector<NodeRead> read;

@@ -1,10 +1,18 @@
 #include "yaml/yaml_reader.hpp"
 
+#include <fcntl.h>
+#include <linux/limits.h>
+#include <net/if.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
 #include <charconv>
 #include <cstdio>
-#include <fstream>
+#include <cstring>
 #include <map>
-#include <sstream>
 
 namespace canbridge::config {
 
@@ -69,12 +77,73 @@ YAML::Node parse_document(std::string_view yaml, const std::string& file) {
   return root;
 }
 
+static_assert(kMaxInterfaceNameBytes == IFNAMSIZ - 1);
+static_assert(kMaxPathBytes == PATH_MAX - 1);
+
+namespace {
+
+const std::string kFileRule = "a configuration file must be a regular file of at most 1 MiB (" +
+                              std::to_string(kMaxConfigFileBytes) + " bytes)";
+
+[[noreturn]] void refuse_file(const std::string& path, const std::string& message) {
+  throw ConfigError({{path, 0, "", message}});
+}
+
+const char* file_kind(mode_t mode) {
+  if (S_ISDIR(mode)) return "a directory";
+  if (S_ISCHR(mode)) return "a character device";
+  if (S_ISBLK(mode)) return "a block device";
+  if (S_ISFIFO(mode)) return "a FIFO";
+  if (S_ISSOCK(mode)) return "a socket";
+  return "not a regular file";
+}
+
+void check_file_status(const std::string& path, const struct stat& status) {
+  if (!S_ISREG(status.st_mode)) {
+    refuse_file(path, std::string("is ") + file_kind(status.st_mode) + ": " + kFileRule);
+  }
+  if (static_cast<std::uint64_t>(status.st_size) > kMaxConfigFileBytes) {
+    refuse_file(path, "is " + std::to_string(status.st_size) + " bytes: " + kFileRule);
+  }
+}
+
+// Closes the descriptor however read_config_file leaves.
+struct FileDescriptor {
+  int fd;
+  ~FileDescriptor() { ::close(fd); }
+};
+
+}  // namespace
+
 std::string read_config_file(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) throw ConfigError({{path, 0, "", "cannot open the file"}});
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+  // Checked before the open too: opening a device can have effects of its own (a tape rewinds).
+  struct stat status {};
+  if (::stat(path.c_str(), &status) != 0) {
+    refuse_file(path, std::string("cannot open the file: ") + std::strerror(errno));
+  }
+  check_file_status(path, status);
+  // O_NONBLOCK: should the path have become a FIFO since, the open returns instead of waiting
+  // for a writer; the fstat below then refuses it.
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_NOCTTY | O_CLOEXEC);
+  if (fd < 0) refuse_file(path, std::string("cannot open the file: ") + std::strerror(errno));
+  const FileDescriptor closer{fd};
+  if (::fstat(fd, &status) != 0) {
+    refuse_file(path, std::string("cannot read the file: ") + std::strerror(errno));
+  }
+  check_file_status(path, status);
+  // One byte beyond the bound: a file that grew since the fstat is refused, not cut short.
+  std::string text(kMaxConfigFileBytes + 1, '\0');
+  std::size_t filled = 0;
+  while (filled < text.size()) {
+    const ssize_t n = ::read(fd, text.data() + filled, text.size() - filled);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) refuse_file(path, std::string("cannot read the file: ") + std::strerror(errno));
+    if (n == 0) break;
+    filled += static_cast<std::size_t>(n);
+  }
+  if (filled > kMaxConfigFileBytes) refuse_file(path, "grew while read: " + kFileRule);
+  text.resize(filled);
+  return text;
 }
 
 void YamlReader::problem(const YAML::Node& at, const std::string& field,
@@ -180,6 +249,48 @@ std::optional<bool> YamlReader::boolean(const YAML::Node& map, const char* key,
     return std::nullopt;
   }
   return v;
+}
+
+std::optional<std::string> YamlReader::interface_name(const YAML::Node& map, const char* key,
+                                                      const std::string& path, bool required) {
+  auto name = string(map, key, path, required);
+  if (!name) return std::nullopt;
+  const std::string field = join_path(path, key);
+  if (name->size() > kMaxInterfaceNameBytes) {
+    problem(map[key], field,
+            "'" + *name + "' is " + std::to_string(name->size()) +
+                " bytes: SocketCAN interface names are at most " +
+                std::to_string(kMaxInterfaceNameBytes) + " characters (IFNAMSIZ - 1)");
+    return std::nullopt;
+  }
+  const bool bad_character = std::any_of(name->begin(), name->end(), [](char c) {
+    return c == '/' || c == ':' || c == '\0' || std::isspace(static_cast<unsigned char>(c));
+  });
+  if (bad_character || *name == "." || *name == "..") {
+    problem(map[key], field,
+            "'" + *name +
+                "' is no interface name the kernel takes (no '/', ':', space or NUL; not . or ..)");
+    return std::nullopt;
+  }
+  return name;
+}
+
+std::optional<std::string> YamlReader::file_path(const YAML::Node& map, const char* key,
+                                                 const std::string& path, bool required) {
+  auto text = string(map, key, path, required);
+  if (!text) return std::nullopt;
+  const std::string field = join_path(path, key);
+  if (text->size() > kMaxPathBytes) {
+    problem(map[key], field,
+            "is " + std::to_string(text->size()) + " bytes: paths are at most " +
+                std::to_string(kMaxPathBytes) + " (PATH_MAX - 1)");
+    return std::nullopt;
+  }
+  if (text->find('\0') != std::string::npos) {
+    problem(map[key], field, "contains a NUL byte, which no path can hold");
+    return std::nullopt;
+  }
+  return text;
 }
 
 void YamlReader::finish() const {

@@ -39,9 +39,18 @@ struct Integer {
 // Decimal or 0x hexadecimal, with an optional sign.
 std::optional<Integer> parse_integer(std::string_view s);
 
+// The largest configuration file read. The biggest real one is a few KiB; without a bound, a
+// path to /dev/zero or a huge file would be read until memory ran out.
+inline constexpr std::size_t kMaxConfigFileBytes = std::size_t{1} << 20;
+// The longest SocketCAN interface name: IFNAMSIZ less its terminating NUL.
+inline constexpr std::size_t kMaxInterfaceNameBytes = 15;
+// The longest filesystem path: PATH_MAX less its terminating NUL.
+inline constexpr std::size_t kMaxPathBytes = 4095;
+
 // The root mapping of a document; ConfigError for a syntax error or a root that is no mapping.
 YAML::Node parse_document(std::string_view yaml, const std::string& file);
-// The whole file; ConfigError naming it when it cannot be read.
+// The whole file, which must be a regular file of at most kMaxConfigFileBytes; ConfigError naming
+// it otherwise, or when it cannot be read. Never blocks on a FIFO nor reads a device.
 std::string read_config_file(const std::string& path);
 
 // Walks a document collecting problems. Every accessor reports what is wrong with the value it
@@ -70,6 +79,14 @@ class YamlReader {
                                       const std::string& path, std::int64_t min, std::int64_t max,
                                       bool required = false);
   std::optional<bool> boolean(const YAML::Node& map, const char* key, const std::string& path);
+  // A SocketCAN interface name the kernel accepts (dev_valid_name: 1..15 bytes, not "." or "..",
+  // no '/', ':', whitespace or NUL): a bad one would otherwise fail only when the bus is opened.
+  std::optional<std::string> interface_name(const YAML::Node& map, const char* key,
+                                            const std::string& path, bool required);
+  // A filesystem path the kernel accepts: at most kMaxPathBytes, no NUL byte (which the system
+  // call would silently cut the path at).
+  std::optional<std::string> file_path(const YAML::Node& map, const char* key,
+                                       const std::string& path, bool required);
 
   const std::vector<ConfigProblem>& problems() const { return problems_; }
   // Throws ConfigError with every problem found, if there is any.

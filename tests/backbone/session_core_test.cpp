@@ -112,7 +112,11 @@ struct End {
 
   void produce(PayloadSink& sink) {
     while (!to_send.empty() && sink.room() > 0 && sink.reliable_room(8)) {
-      sink.send_reliable(number(to_send.front()));
+      if (born) {
+        sink.send_reliable_since(number(to_send.front()), *born);
+      } else {
+        sink.send_reliable(number(to_send.front()));
+      }
       to_send.pop_front();
     }
     for (; !to_send_unreliable.empty(); to_send_unreliable.pop_front()) {
@@ -133,6 +137,7 @@ struct End {
   PeerStream stream;
   std::optional<SessionCore> core;
   std::deque<std::uint64_t> to_send;
+  std::optional<TimePoint> born;  // when what to_send holds came into being; unset: now
   std::deque<std::uint64_t> to_send_unreliable;
   std::vector<std::uint64_t> received;
   std::vector<std::uint64_t> unreliable;
@@ -549,12 +554,49 @@ TEST_F(SessionCoreTest, ReliablePayloadsOlderThanMaxAgeBecomeTombstones) {
   advance(o.retransmit_timeout + gateway.core->tick_period());
   EXPECT_EQ(surface.received, std::vector<std::uint64_t>{1});  // 2 and 3 were never delivered
   EXPECT_EQ(surface.counters.tombstones_received, 2u);
-  EXPECT_EQ(gateway.counters.reliable_dropped_too_old, 2u);
+  // Both had been sent: whether they arrived only the surface knows (its tombstones).
+  EXPECT_EQ(gateway.counters.reliable_expired_unacked, 2u);
+  EXPECT_EQ(gateway.counters.reliable_dropped_too_old, 0u);
   ASSERT_EQ(gateway.dropped.size(), 2u);
-  EXPECT_EQ(gateway.dropped[0], std::make_pair(std::uint64_t{2}, ReliableDrop::too_old));
+  EXPECT_EQ(gateway.dropped[0], std::make_pair(std::uint64_t{2}, ReliableDrop::too_old_unacked));
   gateway.send(4, 4);  // the stream goes on after the tombstones
   exchange();
   EXPECT_EQ(surface.received, (std::vector<std::uint64_t>{1, 4}));
+}
+
+// Issue 27: a too-old counter reported drops in a run where every frame arrived. A payload the
+// surface delivered whose ack came too late is no drop; one never sent is. Five payloads: 1 and 2
+// arrive (their acks are lost until all three sent ones are too old), 3 is lost on the way, 4 and
+// 5 are too old before they are ever sent.
+TEST_F(SessionCoreTest, OnlyWhatNeverArrivedIsCountedDroppedTooOld) {
+  SessionOptions o = test_options();
+  o.reliable_max_age = 300ms;
+  o.retransmit_timeout = 400ms;  // no resend before they are too old
+  gateway.options = o;
+  connect();
+  bool lossy = true;
+  lose_to_surface = [&](const v1::Envelope& e) { return lossy && is_data(e) && e.seq() == 3; };
+  lose_to_gateway = [&](const v1::Envelope&) { return lossy; };  // every ack
+  gateway.send(1, 3);
+  exchange();
+  ASSERT_EQ(surface.received, (std::vector<std::uint64_t>{1, 2}));
+  advance(o.reliable_max_age + 2 * gateway.core->tick_period());
+  lossy = false;
+  gateway.born = now - o.reliable_max_age - 1ms;
+  gateway.send(4, 5);
+  gateway.stream.wake();
+  // The ack of 2 restarts the retransmission timer; 3 goes again, as a tombstone, one rto later.
+  advance(2 * o.retransmit_timeout + 2 * gateway.core->tick_period());
+  EXPECT_EQ(surface.received, (std::vector<std::uint64_t>{1, 2}));
+  EXPECT_EQ(surface.counters.tombstones_received, 1u);       // 3: the one sent payload lost
+  EXPECT_EQ(gateway.counters.reliable_dropped_too_old, 2u);  // 4 and 5
+  EXPECT_EQ(gateway.counters.reliable_expired_unacked, 3u);  // 1, 2 and 3
+  EXPECT_EQ(gateway.dropped,
+            (std::vector<std::pair<std::uint64_t, ReliableDrop>>{{1, ReliableDrop::too_old_unacked},
+                                                                 {2, ReliableDrop::too_old_unacked},
+                                                                 {3, ReliableDrop::too_old_unacked},
+                                                                 {4, ReliableDrop::too_old},
+                                                                 {5, ReliableDrop::too_old}}));
 }
 
 TEST_F(SessionCoreTest, APeerRestartDropsWhatTheOldProcessWasSent) {

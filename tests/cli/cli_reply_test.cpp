@@ -1,9 +1,14 @@
 // The pure pieces of the client: response lines, exit codes, progress text, endpoint addresses.
 #include "app/cli_reply.hpp"
 
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <unistd.h>
 
+#include <cstdio>
+#include <ext/stdio_sync_filebuf.h>
 #include <sstream>
+#include <string>
 
 #include "app/cli_endpoint_client.hpp"
 #include "app/cli_progress.hpp"
@@ -91,6 +96,33 @@ TEST(CliProgress, RateIsMeasuredOverTheStep) {
   EXPECT_EQ(out.str(),
             "download: 0/100000 bytes (0%)\n"
             "download: 51200/100000 bytes (51%), 25.0 KiB/s, 0:02 left\n");
+}
+
+// What a supervising script reads from `canbridge flash | ...`: stdout to a pipe is block-buffered
+// by stdio, so a line not flushed would reach the script only when the command exits. The stream
+// here is std::cout's own kind (a stdio_sync_filebuf) over a stdio FILE on a real pipe.
+TEST(CliProgress, EachPlainLineReachesAPipeAtOnce) {
+  int fds[2];
+  ASSERT_EQ(::pipe2(fds, O_CLOEXEC | O_NONBLOCK), 0);
+  FILE* const file = ::fdopen(fds[1], "w");  // a pipe: fully buffered, as stdout would be
+  ASSERT_NE(file, nullptr);
+  __gnu_cxx::stdio_sync_filebuf<char> buffer(file);
+  std::ostream out(&buffer);
+  ProgressPrinter printer(out, false);
+  const auto read_now = [&] {
+    std::string got;
+    char chunk[512];
+    for (ssize_t n; (n = ::read(fds[0], chunk, sizeof chunk)) > 0;) got.append(chunk, n);
+    return got;
+  };
+  const auto t0 = std::chrono::steady_clock::time_point{};
+  printer.update({"download", 0, 100000}, t0);
+  EXPECT_EQ(read_now(), "download: 0/100000 bytes (0%)\n");
+  printer.update({"download", 51200, 100000}, t0 + std::chrono::seconds(2));
+  EXPECT_EQ(read_now(), "download: 51200/100000 bytes (51%), 25.0 KiB/s, 0:02 left\n");
+  printer.finish();
+  ::fclose(file);
+  ::close(fds[0]);
 }
 
 TEST(CliEndpointAddress, PathsAndHostPorts) {

@@ -683,7 +683,7 @@ TEST(Config, WrongRoleSyntaxErrorAndMissingFile) {
   EXPECT_NE(syntax[0].message.find("YAML syntax error"), std::string::npos);
   auto missing = problems_of([] { load_surface("/nonexistent/surface.yaml"); });
   ASSERT_EQ(missing.size(), 1u);
-  EXPECT_EQ(missing[0].message, "cannot open the file");
+  EXPECT_EQ(missing[0].message, "cannot open the file: No such file or directory");
   auto empty = problems_of([] { parse_surface("role: surface\n", "z.yaml"); });
   EXPECT_EQ(empty.size(), 3u) << dump(empty);  // bus, backbone and gateways
   EXPECT_TRUE(has(empty, 0, "backbone", "'listen: host:port' (TCP), 'serial:' lines, or both"))
