@@ -103,7 +103,8 @@ class EndpointServer : public std::enable_shared_from_this<EndpointServer<Accept
       // client and is logged; the other clients and the accept loop go on.
       coro::spawn_owned(acceptor_.get_executor(), serve_(client),
                         [self, client](const std::string& why) {
-                          if (!why.empty()) spdlog::error("{}: a client failed: {}", self->name_, why);
+                          if (!why.empty())
+                            spdlog::error("{}: a client failed: {}", self->name_, why);
                           close_client(*client);
                           self->clients_.remove(client);
                         });

@@ -86,8 +86,8 @@ std::optional<int> load(const Options& options, sim::RigSpec& rig) {
   for (const auto& b : rig.buses) names += (names.empty() ? "" : ", ") + b.name;
   for (const auto& name : options.buses) {
     if (!known(name)) {
-      return usage_error(options, "rig " + rig.name + " has no bus " + name + " (it has " + names +
-                                      ")");
+      return usage_error(options,
+                         "rig " + rig.name + " has no bus " + name + " (it has " + names + ")");
     }
   }
   // An --interface for a bus the rig does not have would be ignored, and the bus it was meant

@@ -69,7 +69,8 @@ TEST(ConfigCheck, AMissingKeyFileIsNamed) {
 }
 
 TEST(ConfigCheck, EveryProblemOfABadFileIsReportedWithItsLine) {
-  const std::string bad = std::string(CANBRIDGE_SOURCE_DIR) + "/tests/config/fixtures/gateway_bad.yaml";
+  const std::string bad =
+      std::string(CANBRIDGE_SOURCE_DIR) + "/tests/config/fixtures/gateway_bad.yaml";
   const auto result = check(bad);
   EXPECT_EQ(result.status, 2);
   EXPECT_THAT(result.err, HasSubstr(bad + ":"));

@@ -96,8 +96,9 @@ class CliStatsConfig : public ::testing::Test {
 
 TEST_F(CliStatsConfig, StatsReadsAGatewaysStatsEndpoint) {
   FakeEndpoint endpoint(Script{{"[1] stats", {"[1] {\"role\":\"gateway\"}", "[1] OK"}}});
-  const auto config = file("gateway.yaml", "role: gateway\nname: g\nstats_endpoint: " +
-                                               endpoint.address() + "\nmodules: []\n");
+  const auto config =
+      file("gateway.yaml",
+           "role: gateway\nname: g\nstats_endpoint: " + endpoint.address() + "\nmodules: []\n");
   const auto run = run_cli({"stats", "-c", config.string()});
   EXPECT_EQ(run.rc, exit_code::ok) << run.err;
   EXPECT_EQ(run.out, "{\"role\":\"gateway\"}\n");
