@@ -120,7 +120,21 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
           },
           [this] { on_link_dead(); },
           // A new surface process: what was queued for the old one is not replayed.
-          [this](const v1::Hello&) { outbox_.discard_queued(); }};
+          [this](const v1::Hello&) { outbox_.discard_queued(); },
+          [this](const std::string& payload, backbone::ReliableDrop why) {
+            on_reliable_dropped(payload, why);
+          }};
+}
+
+// A remote result is never too old to deliver: it reports what was done and commands nothing,
+// and the surface waits for it past a stall or a cut (bridge/remote_request_ledger.hpp). Given up
+// for its age, a write that was done would be reported as failed: it goes again, as a new
+// payload. Frames stay dropped: a late command does harm.
+void Gateway::on_reliable_dropped(const std::string& payload, backbone::ReliableDrop why) {
+  if (why != backbone::ReliableDrop::too_old) return;  // a new surface never asked for it
+  v1::Payload parsed;
+  if (!parsed.ParseFromString(payload) || !parsed.has_remote_result()) return;
+  remote_.resend_result(std::move(*parsed.mutable_remote_result()));
 }
 
 void Gateway::add_module_bus(std::size_t m) {

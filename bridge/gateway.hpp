@@ -135,6 +135,7 @@ class Gateway {
 
  private:
   backbone::PeerStream::Handlers stream_handlers();
+  void on_reliable_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Module `m`'s node table, bus writer, announcement and LSS route.
   void add_module_bus(std::size_t m);
   // Returns the bus's error when the bus ends (closed, or gone for good).
