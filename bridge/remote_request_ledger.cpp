@@ -26,8 +26,7 @@ bool RemoteRequestLedger::on_progress(RequestId id, GatewayId from, TimePoint no
   return true;
 }
 
-std::optional<RemoteRequestLedger::End> RemoteRequestLedger::on_result(RequestId id,
-                                                                       GatewayId from,
+std::optional<RemoteRequestLedger::End> RemoteRequestLedger::on_result(RequestId id, GatewayId from,
                                                                        Result result) {
   const auto it = requests_.find(id);
   if (it == requests_.end() || it->second.gateway != from) return std::nullopt;
@@ -69,8 +68,8 @@ RemoteRequestLedger::Due RemoteRequestLedger::on_time(TimePoint now) {
   return due;
 }
 
-std::vector<RemoteRequestLedger::Ended> RemoteRequestLedger::on_gateway_session(
-    GatewayId gateway, SessionId session) {
+std::vector<RemoteRequestLedger::Ended> RemoteRequestLedger::on_gateway_session(GatewayId gateway,
+                                                                                SessionId session) {
   std::vector<Ended> ended;
   if (session == 0) return ended;
   for (const auto& [id, request] : requests_) {
