@@ -361,7 +361,8 @@ TEST_F(CommandEndpointTest, SessionSettingsDefaultsAndErrors) {
   client->send("[14] w 0x6000 1 u8 1\n");
   ASSERT_EQ(calls_soon(7), 7u);
   remote.complete(6, RemoteOutcome{make_error_code(RemoteEnd::outcome_unknown), {}, "read back"});
-  EXPECT_EQ(line(*client, 13), "[14] ERROR:108 #Outcome unknown, may have been executed. read back");
+  EXPECT_EQ(line(*client, 13),
+            "[14] ERROR:108 #Outcome unknown, may have been executed. read back");
   const auto counters = endpoint->counters();
   EXPECT_EQ(counters.commands, 14u);
   EXPECT_EQ(counters.errors, 9u);
