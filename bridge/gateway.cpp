@@ -131,7 +131,8 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
 // for its age, a write that was done would be reported as failed: it goes again, as a new
 // payload. Frames stay dropped: a late command does harm.
 void Gateway::on_reliable_dropped(const std::string& payload, backbone::ReliableDrop why) {
-  if (why != backbone::ReliableDrop::too_old) return;  // a new surface never asked for it
+  // Given up for its age, sent or not (the surface waits for it); a new surface never asked.
+  if (why == backbone::ReliableDrop::peer_restart) return;
   v1::Payload parsed;
   if (!parsed.ParseFromString(payload) || !parsed.has_remote_result()) return;
   remote_.resend_result(std::move(*parsed.mutable_remote_result()));
