@@ -439,7 +439,8 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
   app.footer(
       "Each command takes --endpoint, --token-file, -c, --net and --timeout, before or after its "
       "name; 'canbridge COMMAND --help' lists them. Exit status: 0 done, 1 refused or failed "
-      "(SDO abort), 2 usage, 3 unknown network or node, 4 time-out, 5 endpoint unreachable.");
+      "(SDO abort), 2 usage, 3 unknown network or node, 4 time-out, 5 endpoint unreachable, "
+      "6 outcome unknown (it may have been executed: read the object back).");
 
   std::vector<std::string> ordered;
   try {

@@ -4,6 +4,7 @@
 #include <cstdio>
 
 #include "can/candump_log.hpp"
+#include "canopen/ascii_command.hpp"
 #include "canopen/sdo_abort.hpp"
 
 namespace canbridge::cli {
@@ -62,6 +63,9 @@ int exit_code_for(const ErrorReply& error) {
   if (error.sdo_abort) {
     return error.code == static_cast<std::uint32_t>(canopen::SdoAbort::timeout) ? exit_code::timeout
                                                                                 : exit_code::abort;
+  }
+  if (error.code == static_cast<std::uint32_t>(canopen::AsciiError::outcome_unknown)) {
+    return exit_code::outcome_unknown;
   }
   switch (error.code) {
     case 106:  // unsupported net

@@ -21,6 +21,8 @@ inline constexpr int usage = 2;        // bad arguments, unreadable files
 inline constexpr int unknown = 3;      // unknown node or network
 inline constexpr int timeout = 4;      // no answer in time (endpoint, gateway or node)
 inline constexpr int unreachable = 5;  // endpoint unreachable, refused, or it closed on us
+// The request may have been executed, its answer lost (309-3 error 108): read the object back.
+inline constexpr int outcome_unknown = 6;
 }  // namespace exit_code
 
 // The rest of `line` after "[<seq>] " when it answers request `seq`; nullopt otherwise.
@@ -35,8 +37,8 @@ struct ErrorReply {
 std::optional<ErrorReply> parse_error(std::string_view rest);
 
 // The exit code an error stands for: 106/107 unknown net/node -> 3; 103 and abort 0x05040000
-// (timeouts) -> 4; 401/403 (refused) and 201 (the node's gateway is not connected) -> 5;
-// anything else -> 1.
+// (timeouts) -> 4; 401/403 (refused) and 201 (the node's gateway is not connected) -> 5; 108
+// (outcome unknown) -> 6; anything else -> 1.
 int exit_code_for(const ErrorReply& error);
 // "SDO abort 0x06020000: <the endpoint's text>", or without a text "SDO abort: <canopen::SdoAbort's
 // message, which names the code>"; "error 107: <text>" for CiA 309-3 errors.

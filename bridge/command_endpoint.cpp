@@ -162,6 +162,9 @@ std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& 
     return canopen::ascii_error(seq, AsciiError::lost_connection, detail);
   }
   if (error == std::errc::timed_out) return canopen::ascii_error(seq, AsciiError::timeout, detail);
+  if (error == make_error_code(RemoteEnd::outcome_unknown)) {
+    return canopen::ascii_error(seq, AsciiError::outcome_unknown, detail);
+  }
   if (error == std::errc::permission_denied) {
     return canopen::ascii_error(seq, AsciiError::request_not_supported, detail);
   }

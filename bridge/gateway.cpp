@@ -126,11 +126,22 @@ backbone::PeerStream::Handlers Gateway::stream_handlers() {
           }};
 }
 
+// A remote result is never too old to deliver: it reports what was done and commands nothing,
+// and the surface waits for it past a stall or a cut (bridge/remote_request_ledger.hpp). Given up
+// for its age (sent or not: the surface waits for it), a write that was done would be reported
+// as failed: it goes again, as a new payload; a new surface never asked. Frames stay dropped
+// (a late command does harm) and are counted, in frames, by why.
 void Gateway::on_payload_dropped(const std::string& payload, backbone::ReliableDrop why) {
   v1::Payload parsed;
+  if (!parsed.ParseFromString(payload)) return;
+  if (parsed.has_remote_result()) {
+    if (why != backbone::ReliableDrop::peer_restart) {
+      remote_.resend_result(std::move(*parsed.mutable_remote_result()));
+    }
+    return;
+  }
   std::vector<can::Frame> frames;
-  if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
-      decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
+  if (!parsed.has_frames() || decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
     return;  // node events, PDO Packets: no frames of a bus
   }
   switch (why) {

@@ -170,7 +170,8 @@ class Gateway {
   void write_to_buses(std::optional<std::size_t> only);
   // The surface declared the link dead (its master saw every SDO transfer aborted).
   void on_link_dead();
-  // A reliable payload the session gave up on: its frames counted by why.
+  // A reliable payload the session gave up on: a remote result goes again, frames are counted
+  // by why.
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Node table events go to the surface as reliable payloads; the deadline driver re-arms.
   void after_node_input();

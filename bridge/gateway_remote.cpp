@@ -150,9 +150,11 @@ void GatewayRemote::on_cancel(const v1::RemoteCancel& cancel, TimePoint now) {
   for (auto& [key, lane] : lanes_) {
     auto queued = std::find_if(lane.queue.begin(), lane.queue.end(),
                                [id](const Job& job) { return job.request.request_id() == id; });
+    auto when = v1::RemoteResult::BEFORE_START;
     if (queued != lane.queue.end()) {
       lane.queue.erase(queued);  // never executed
     } else if (lane.running && lane.running->id == id) {
+      when = v1::RemoteResult::WHILE_RUNNING;  // what it wrote before the abort stays written
       const auto cancelled = canopen::make_error_code(SdoAbort::local_control);
       if (lane.running->sdo) lane.running->sdo->abort(cancelled, frames_for(key.first));
       if (lane.running->flash) {
@@ -165,6 +167,7 @@ void GatewayRemote::on_cancel(const v1::RemoteCancel& cancel, TimePoint now) {
     }
     ++counters_.cancelled;
     answer(id, kLocalControl, "cancelled");
+    results_.back().set_cancelled(when);
     pump(now);
     return;
   }

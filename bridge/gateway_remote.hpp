@@ -52,6 +52,9 @@ class GatewayRemote {
     std::uint64_t duplicates = 0;         // repeated request ids: answered with nothing
     std::uint64_t waited_for_master = 0;  // transfers that waited for a master's transfer
     std::uint64_t sdo_frames_taken = 0;   // node responses that went to the runner
+    // Results the session gave up for their age (a long cut or stall), queued again: the
+    // surface still waits for them (bridge/remote_request_ledger.hpp).
+    std::uint64_t results_resent = 0;
   };
 
   // Flash progress goes at most this often (and at every step change): it is unreliable anyway.
@@ -83,6 +86,11 @@ class GatewayRemote {
   bool has_results() const { return !results_.empty(); }
   const v1::RemoteResult& front_result() const { return results_.front(); }
   void pop_result() { results_.pop_front(); }
+  // A result sent before and given up by the session (too old): sent again, after what waits.
+  void resend_result(v1::RemoteResult result) {
+    results_.push_back(std::move(result));
+    ++counters_.results_resent;
+  }
   // The latest progress of each request that made some since the last call (unreliable).
   std::vector<v1::RemoteProgress> take_progress();
 

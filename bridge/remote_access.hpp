@@ -52,11 +52,37 @@ enum class NmtCommand : std::uint8_t {
   reset_communication = 0x82,
 };
 
+// Ends of a request that are neither CANopen failures nor std::errc ones.
+enum class RemoteEnd {
+  // The request may have been executed and no answer can come any more (its gateway went away or
+  // restarted without one): not a failure, the operator reads the object back.
+  outcome_unknown = 1,
+};
+
+inline const std::error_category& remote_end_category() {
+  struct Category final : std::error_category {
+    const char* name() const noexcept override { return "remote access"; }
+    std::string message(int value) const override {
+      return value == static_cast<int>(RemoteEnd::outcome_unknown)
+                 ? "outcome unknown: it may have been executed"
+                 : "remote access error";
+    }
+  };
+  static const Category category;
+  return category;
+}
+
+inline std::error_code make_error_code(RemoteEnd end) {
+  return {static_cast<int>(end), remote_end_category()};
+}
+
 // The end of a request: success, or an error. SDO abort codes (canopen::SdoAbort, received or
-// decided by the gateway) for CANopen failures; std::errc for the rest: no_such_device_or_address
-// (unknown network or node), host_unreachable (its gateway is not connected), timed_out (no
-// result in time), operation_canceled (cancel()), permission_denied (not allowed, e.g. LSS on a
-// module without it), invalid_argument.
+// decided by the gateway) for CANopen failures; RemoteEnd::outcome_unknown when it may have run
+// and no answer can come (bridge/remote_request_ledger.hpp); std::errc for the rest:
+// no_such_device_or_address (unknown network or node), host_unreachable (its gateway is not
+// connected), timed_out (no result in time, and it did not run or changes nothing),
+// operation_canceled (cancel()), permission_denied (not allowed, e.g. LSS on a module without
+// it), invalid_argument.
 struct RemoteOutcome {
   std::error_code error;
   std::vector<std::uint8_t> data;  // SDO upload: the value; LSS inquiries: the answer

@@ -42,6 +42,7 @@ struct Surface::Gateway {
                    // again as it hears them).
                    [this, &surface](const v1::Hello&) {
                      outbox.discard_queued();
+                     discard_queued_remote_payloads();
                      surface.node_states_.forget(id);
                    },
                    [&surface](const std::string& payload, backbone::ReliableDrop why) {
@@ -51,6 +52,17 @@ struct Surface::Gateway {
       surface.on_frame_dropped(frame, why == FrameOutbox::Discard::too_old
                                           ? backbone::ReliableDrop::too_old
                                           : backbone::ReliableDrop::peer_restart);
+    });
+  }
+
+  // Remote requests and cancels queued for the old process (its link went down before they
+  // left) are not the new one's: it would run a request the surface has given up, seconds late.
+  // The surface's remote access ends them (bridge/remote_request_ledger.hpp).
+  void discard_queued_remote_payloads() {
+    std::erase_if(rpdop_out, [](const std::string& payload) {
+      v1::Payload parsed;
+      return parsed.ParseFromString(payload) &&
+             (parsed.has_remote_request() || parsed.has_remote_cancel());
     });
   }
 

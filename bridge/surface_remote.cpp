@@ -74,6 +74,7 @@ SurfaceRemote::SurfaceRemote(asio::any_io_executor executor, Surface& surface,
       gateways_(std::move(gateways)),
       options_(std::move(options)),
       next_id_(first_id ? *first_id : static_cast<RequestId>(unix_us_now())),
+      ledger_(RemoteRequestLedger::Options{.resend_window = options_.resend_window}),
       timer_(executor_) {
   surface_.on_remote_payload(
       [this](GatewayId from, const v1::Payload& payload) { on_remote_payload(from, payload); });
@@ -233,21 +234,25 @@ RemoteAccess::RequestId SurfaceRemote::refuse(Done done, std::error_code error,
 }
 
 RemoteAccess::RequestId SurfaceRemote::send(GatewayId gateway, v1::RemoteRequest request,
-                                            std::chrono::milliseconds within, Done done,
+                                            Effect effect, std::chrono::milliseconds within,
+                                            Done done,
                                             std::function<void(const FlashProgress&)> progress,
                                             std::shared_ptr<Group> group) {
   const RequestId id = next_id_++;
   request.set_request_id(id);
   v1::Payload payload;
   *payload.mutable_remote_request() = std::move(request);
+  check_gateway_sessions();  // what a restarted gateway was asked ends before it is asked more
   // A gateway that is down would get the request when it returns, long after the operator
   // was told: refused now instead.
-  if (stopped_ || !connected(gateway) ||
-      !surface_.send_to_gateway(gateway, payload.SerializeAsString())) {
+  const bool handed_over = !stopped_ && connected(gateway) &&
+                           surface_.send_to_gateway(gateway, payload.SerializeAsString());
+  if (ledger_.open(id, gateway, handed_over ? session_of(gateway) : 0, effect, Clock::now(),
+                   within)) {
     ++counters_.refused_at_once;
     if (group) {
       // Counted as one failed member of the group.
-      pending_[id] = Pending{gateway, Clock::now(), nullptr, nullptr, std::move(group)};
+      pending_[id] = Pending{gateway, nullptr, nullptr, std::move(group)};
       finish(id, {errc(std::errc::host_unreachable), {}, "gateway not connected"});
     } else {
       post(std::move(done), {errc(std::errc::host_unreachable),
@@ -257,16 +262,13 @@ RemoteAccess::RequestId SurfaceRemote::send(GatewayId gateway, v1::RemoteRequest
     return id;
   }
   ++counters_.requests;
-  const TimePoint deadline = Clock::now() + within;
-  pending_[id] =
-      Pending{gateway, deadline, std::move(done), std::move(progress), std::move(group), within};
-  deadlines_.emplace(deadline, id);
+  pending_[id] = Pending{gateway, std::move(done), std::move(progress), std::move(group)};
   arm_timer();
   return id;
 }
 
 RemoteAccess::RequestId SurfaceRemote::route_and_send(
-    RemoteTarget target, bool node_zero_allowed, v1::RemoteRequest request,
+    RemoteTarget target, bool node_zero_allowed, v1::RemoteRequest request, Effect effect,
     std::chrono::milliseconds within, Done done,
     std::function<void(const FlashProgress&)> progress) {
   Resolved r = resolve(target, node_zero_allowed);
@@ -274,7 +276,8 @@ RemoteAccess::RequestId SurfaceRemote::route_and_send(
   request.set_module_id(r.route->module_id);
   request.set_local_node(r.route->local_node);
   request.set_surface_node(r.route->surface_node);
-  return send(r.route->gateway, std::move(request), within, std::move(done), std::move(progress));
+  return send(r.route->gateway, std::move(request), effect, within, std::move(done),
+              std::move(progress));
 }
 
 RemoteAccess::RequestId SurfaceRemote::sdo(RemoteSdo sdo, Done done) {
@@ -291,6 +294,7 @@ RemoteAccess::RequestId SurfaceRemote::sdo(RemoteSdo sdo, Done done) {
   // restarting the wait.
   const auto crossing = std::chrono::milliseconds(sdo.data.size());
   return route_and_send(sdo.target, false, std::move(request),
+                        sdo.upload ? Effect::none : Effect::changes_node,
                         sdo.timeout + options_.answer_slack + crossing, std::move(done));
 }
 
@@ -298,7 +302,8 @@ RemoteAccess::RequestId SurfaceRemote::nmt(RemoteTarget target, NmtCommand comma
   v1::RemoteRequest request;
   request.mutable_nmt()->set_command(static_cast<std::uint32_t>(command));
   if (target.net != 0 || target.node != 0) {
-    return route_and_send(target, true, std::move(request), options_.answer_slack, std::move(done));
+    return route_and_send(target, true, std::move(request), Effect::changes_node,
+                          options_.answer_slack, std::move(done));
   }
   // Every node of the default network: every module of every configured gateway, each told
   // once; one failure (a gateway down) fails the whole, after the others were told.
@@ -316,8 +321,8 @@ RemoteAccess::RequestId SurfaceRemote::nmt(RemoteTarget target, NmtCommand comma
   for (const auto& [gateway, module] : modules) {
     v1::RemoteRequest r = request;
     r.set_module_id(module);
-    const RequestId id =
-        send(gateway, std::move(r), options_.answer_slack, nullptr, nullptr, group);
+    const RequestId id = send(gateway, std::move(r), Effect::changes_node, options_.answer_slack,
+                              nullptr, nullptr, group);
     if (first == 0) first = id;
   }
   return first;
@@ -332,8 +337,8 @@ RemoteAccess::RequestId SurfaceRemote::set_node_id(RemoteTarget target, canopen:
   v1::RemoteRequest request;
   request.mutable_nmt()->set_command(0xE0);
   request.mutable_nmt()->set_new_node(new_node);
-  return route_and_send(target, false, std::move(request), options_.answer_slack + kBootWait,
-                        std::move(done));
+  return route_and_send(target, false, std::move(request), Effect::changes_node,
+                        options_.answer_slack + kBootWait, std::move(done));
 }
 
 RemoteAccess::RequestId SurfaceRemote::flash(RemoteTarget target, std::vector<std::uint8_t> image,
@@ -341,8 +346,8 @@ RemoteAccess::RequestId SurfaceRemote::flash(RemoteTarget target, std::vector<st
                                              Done done) {
   v1::RemoteRequest request;
   request.mutable_flash()->set_image(image.data(), image.size());
-  return route_and_send(target, false, std::move(request), options_.flash_limit, std::move(done),
-                        std::move(progress));
+  return route_and_send(target, false, std::move(request), Effect::changes_node,
+                        options_.flash_limit, std::move(done), std::move(progress));
 }
 
 RemoteAccess::RequestId SurfaceRemote::lss(NetworkNumber net, std::string command,
@@ -354,8 +359,8 @@ RemoteAccess::RequestId SurfaceRemote::lss(NetworkNumber net, std::string comman
   v1::RemoteRequest request;
   request.mutable_lss()->set_command(std::move(command));
   for (std::uint32_t a : args) request.mutable_lss()->add_args(a);
-  return route_and_send({net, 0}, true, std::move(request), options_.answer_slack + kLssWait,
-                        std::move(done));
+  return route_and_send({net, 0}, true, std::move(request), Effect::changes_node,
+                        options_.answer_slack + kLssWait, std::move(done));
 }
 
 void SurfaceRemote::cancel(RequestId id) {
@@ -400,40 +405,44 @@ void SurfaceRemote::nodes(NetworkNumber net,
     v1::RemoteRequest request;
     request.set_module_id(module);
     request.mutable_nodes();
-    send(gateway, std::move(request), options_.answer_slack, nullptr, nullptr, group);
+    send(gateway, std::move(request), Effect::none, options_.answer_slack, nullptr, nullptr, group);
   }
 }
 
 void SurfaceRemote::on_remote_payload(GatewayId from, const v1::Payload& payload) {
-  if (payload.has_remote_result()) {
-    const auto it = pending_.find(payload.remote_result().request_id());
-    if (it == pending_.end() || it->second.gateway != from) {
-      ++counters_.unknown_results;
-      return;
-    }
-    return on_result(payload.remote_result());
-  }
+  if (payload.has_remote_result()) return on_result(from, payload.remote_result());
   if (payload.has_remote_progress()) {
     const v1::RemoteProgress& p = payload.remote_progress();
     const auto it = pending_.find(p.request_id());
-    if (it == pending_.end() || it->second.gateway != from) {
+    if (it == pending_.end() || !ledger_.on_progress(p.request_id(), from, Clock::now())) {
       ++counters_.unknown_results;
       return;
     }
-    Pending& pending = it->second;
-    const TimePoint later = Clock::now() + pending.within;
-    if (later > pending.deadline) {
-      deadlines_.erase({pending.deadline, p.request_id()});
-      pending.deadline = later;
-      deadlines_.emplace(later, p.request_id());
-      arm_timer();
-    }
-    if (pending.progress) pending.progress({p.step(), p.bytes_done(), p.bytes_total()});
+    arm_timer();
+    if (it->second.progress) it->second.progress({p.step(), p.bytes_done(), p.bytes_total()});
   }
 }
 
-void SurfaceRemote::on_result(const v1::RemoteResult& result) {
+void SurfaceRemote::on_result(GatewayId from, const v1::RemoteResult& result) {
+  const bool was_overdue = ledger_.overdue(result.request_id());
+  using Result = RemoteRequestLedger::Result;
+  const Result kind =
+      result.cancelled() == v1::RemoteResult::BEFORE_START    ? Result::cancelled_not_started
+      : result.cancelled() == v1::RemoteResult::WHILE_RUNNING ? Result::cancelled_running
+                                                              : Result::done;
+  const std::optional<RemoteRequestLedger::End> end =
+      ledger_.on_result(result.request_id(), from, kind);
+  if (!end || !pending_.contains(result.request_id())) {
+    ++counters_.unknown_results;
+    return;
+  }
   ++counters_.results;
+  if (*end != RemoteRequestLedger::End::answered) {
+    // The gateway's answer to the surface's own cancel at the deadline: the client is told
+    // whether the request ran, not that it was "cancelled", which it never asked for.
+    return end_unanswered({result.request_id(), *end});
+  }
+  if (was_overdue) ++counters_.late_answers;
   Pending& p = pending_.at(result.request_id());
   if (p.group && p.group->nodes_done) {
     const std::string name = gateway_name(p.gateway);
@@ -455,7 +464,7 @@ void SurfaceRemote::finish(RequestId id, RemoteOutcome outcome) {
   if (it == pending_.end()) return;
   Pending p = std::move(it->second);
   pending_.erase(it);
-  deadlines_.erase({p.deadline, id});
+  ledger_.cancel(id);  // ended here (stop(), cancel()): the ledger holds it no more
   if (!p.group) return post(std::move(p.done), std::move(outcome));
   Group& g = *p.group;
   if (!outcome.ok()) {
@@ -479,8 +488,9 @@ void SurfaceRemote::finish(RequestId id, RemoteOutcome outcome) {
 }
 
 void SurfaceRemote::arm_timer() {
-  if (deadlines_.empty() || stopped_) return;
-  const TimePoint first = deadlines_.begin()->first;
+  const std::optional<TimePoint> next = ledger_.next_deadline();
+  if (!next || stopped_) return;
+  const TimePoint first = *next;
   if (first >= armed_until_) return;  // a wake-up at or before it is set already
   armed_until_ = first;
   timer_.expires_at(first);
@@ -493,21 +503,57 @@ void SurfaceRemote::arm_timer() {
       });
 }
 
-// No answer in time: the gateway is gone, restarting, or its link down for longer than the
-// answer may take. The request must never run late: a cancel follows it (the session delivers
-// it after the request, whenever the link returns).
+// No answer in time: the surface stalled, the link was cut, or the gateway is gone. The request
+// must never run late: a cancel follows it (the session delivers it after the request, whenever
+// the link returns), and the gateway's answer, whichever it is, still ends the request for the
+// ledger's resend window.
 void SurfaceRemote::on_deadlines() {
-  const TimePoint now = Clock::now();
-  while (!deadlines_.empty() && deadlines_.begin()->first <= now) {
-    const RequestId id = deadlines_.begin()->second;
-    const GatewayId gateway = pending_.at(id).gateway;
+  check_gateway_sessions();
+  const RemoteRequestLedger::Due due = ledger_.on_time(Clock::now());
+  for (const auto& [id, gateway] : due.cancels) {
     v1::Payload payload;
     payload.mutable_remote_cancel()->set_request_id(id);
     surface_.send_to_gateway(gateway, payload.SerializeAsString());
-    ++counters_.timed_out;
-    finish(
-        id,
-        {errc(std::errc::timed_out), {}, "no answer from gateway '" + gateway_name(gateway) + "'"});
+    ++counters_.overdue;
+  }
+  for (const RemoteRequestLedger::Ended& ended : due.ended) end_unanswered(ended);
+}
+
+void SurfaceRemote::end_unanswered(const RemoteRequestLedger::Ended& ended) {
+  const auto it = pending_.find(ended.id);
+  if (it == pending_.end()) return;
+  const std::string gateway = "gateway '" + gateway_name(it->second.gateway) + "'";
+  switch (ended.end) {
+    case RemoteRequestLedger::End::outcome_unknown:
+      ++counters_.outcome_unknown;
+      return finish(ended.id, {make_error_code(RemoteEnd::outcome_unknown),
+                               {},
+                               "no answer from " + gateway +
+                                   ", which may have executed it: read the object back"});
+    case RemoteRequestLedger::End::timed_out:
+      ++counters_.timed_out;
+      return finish(ended.id, {errc(std::errc::timed_out), {}, "no answer from " + gateway});
+    case RemoteRequestLedger::End::not_sent:
+      return finish(ended.id,
+                    {errc(std::errc::host_unreachable), {}, gateway + " is not connected"});
+    case RemoteRequestLedger::End::answered:
+      return;  // not unanswered
+  }
+}
+
+RemoteRequestLedger::SessionId SurfaceRemote::session_of(GatewayId gateway) const {
+  const auto& entries = surface_.gateway_table().gateways();
+  return gateway < entries.size() && entries[gateway].connected ? entries[gateway].session_id : 0;
+}
+
+void SurfaceRemote::check_gateway_sessions() {
+  if (ledger_.open_requests() == 0) return;
+  for (std::size_t g = 0; g < gateways_.size(); ++g) {
+    const auto gateway = static_cast<GatewayId>(g);
+    for (const RemoteRequestLedger::Ended& ended :
+         ledger_.on_gateway_session(gateway, session_of(gateway))) {
+      end_unanswered(ended);
+    }
   }
 }
 

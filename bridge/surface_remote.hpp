@@ -1,6 +1,8 @@
 // The surface's remote access (bridge/remote_access.hpp): routes an operator's request to the
 // gateway that owns the node, carries it over the backbone as one RemoteRequest, and completes
-// it with that gateway's RemoteResult or, when none comes in time, with timed_out.
+// it with that gateway's RemoteResult, also one resent late after a stall or a cut; when none can
+// come, with timed_out or, for a request that may have changed the node, outcome_unknown
+// (bridge/remote_request_ledger.hpp decides which).
 #pragma once
 
 #include <boost/asio/any_io_executor.hpp>
@@ -20,6 +22,7 @@
 
 #include "bridge/accepted_gateway.hpp"
 #include "bridge/remote_access.hpp"
+#include "bridge/remote_request_ledger.hpp"
 #include "bridge/surface.hpp"
 #include "bridge/surface_remote_options.hpp"
 
@@ -29,7 +32,10 @@ struct SurfaceRemoteCounters {
   std::uint64_t requests = 0;         // sent to a gateway
   std::uint64_t refused_at_once = 0;  // unknown net/node, gateway not connected, bad argument
   std::uint64_t results = 0;          // answered by a gateway
-  std::uint64_t timed_out = 0;        // no answer in time: completed with timed_out, cancelled
+  std::uint64_t overdue = 0;          // past the answer deadline: cancel sent, still waiting
+  std::uint64_t late_answers = 0;     // ... and then answered by the gateway (its result)
+  std::uint64_t timed_out = 0;        // completed with timed_out: never ran, or changes nothing
+  std::uint64_t outcome_unknown = 0;  // completed with outcome_unknown: it may have run
   std::uint64_t cancelled = 0;        // cancel() of an open request
   // Results and progress for ids this surface process has no open request for: an answer to a
   // request that timed out or was cancelled, or to a surface process before this one.
@@ -92,16 +98,14 @@ class SurfaceRemote final : public RemoteAccess {
   };
   // Several requests answered as one (nodes(), NMT to every node of net 0).
   struct Group;
+  // A request handed to a gateway; its deadlines are the ledger's.
   struct Pending {
     GatewayId gateway = 0;
-    TimePoint deadline;
     Done done;
     std::function<void(const FlashProgress&)> progress;
     std::shared_ptr<Group> group;
-    // The wait for an answer, restarted by each progress report: a long transfer that moves
-    // never times out at the surface, a stalled one does.
-    std::chrono::milliseconds within{0};
   };
+  using Effect = RemoteRequestLedger::Effect;
 
   Resolved resolve(RemoteTarget target, bool node_zero_allowed) const;
   // The configured gateway serving `module_id`; nullopt: none.
@@ -112,20 +116,27 @@ class SurfaceRemote final : public RemoteAccess {
   std::string gateway_name(GatewayId gateway) const;
 
   // Sends the request (its route and `op` already in `request`) and keeps it open until its
-  // result or `answer_within` from now.
-  RequestId send(GatewayId gateway, v1::RemoteRequest request, std::chrono::milliseconds within,
-                 Done done, std::function<void(const FlashProgress&)> progress = nullptr,
+  // result, `within` from now or, overdue, the ledger's resend window after that (a progress
+  // report restarts the wait: a long transfer that moves never times out, a stalled one does).
+  RequestId send(GatewayId gateway, v1::RemoteRequest request, Effect effect,
+                 std::chrono::milliseconds within, Done done,
+                 std::function<void(const FlashProgress&)> progress = nullptr,
                  std::shared_ptr<Group> group = nullptr);
   // Completes `done` later, on the executor, never inside the caller's call.
   void post(Done done, RemoteOutcome outcome);
   RequestId refuse(Done done, std::error_code error, std::string detail);
   RequestId route_and_send(RemoteTarget target, bool node_zero_allowed, v1::RemoteRequest request,
-                           std::chrono::milliseconds within, Done done,
+                           Effect effect, std::chrono::milliseconds within, Done done,
                            std::function<void(const FlashProgress&)> progress = nullptr);
 
   void on_remote_payload(GatewayId from, const v1::Payload& payload);
-  void on_result(const v1::RemoteResult& result);
+  void on_result(GatewayId from, const v1::RemoteResult& result);
+  // A request the ledger ended without the gateway's result.
+  void end_unanswered(const RemoteRequestLedger::Ended& ended);
   void finish(RequestId id, RemoteOutcome outcome);
+  // The gateway's session now (0: not connected); a new one ends what the old one was asked.
+  RemoteRequestLedger::SessionId session_of(GatewayId gateway) const;
+  void check_gateway_sessions();
   void on_deadlines();
   void arm_timer();
   void on_monitor(std::span<const can::Frame> frames, std::uint32_t module_id, bool to_bus);
@@ -136,7 +147,7 @@ class SurfaceRemote final : public RemoteAccess {
   SurfaceRemoteOptions options_;
   RequestId next_id_;
   std::unordered_map<RequestId, Pending> pending_;
-  std::set<std::pair<TimePoint, RequestId>> deadlines_;
+  RemoteRequestLedger ledger_;
   boost::asio::steady_timer timer_;
   TimePoint armed_until_ = TimePoint::max();
   // Handlers that outlive this object (the timer's) see it expired and do nothing.

@@ -17,6 +17,10 @@ struct SurfaceRemoteOptions {
   std::chrono::milliseconds answer_slack{5000};
   // A flash request ends at the latest after this long.
   std::chrono::milliseconds flash_limit{std::chrono::minutes(10)};
+  // After a request's deadline, how long the surface still waits for the gateway's answer
+  // (RemoteRequestLedger::Options::resend_window): a result the gateway resends once a stalled
+  // surface or a cut link is back is the answer, not a time-out.
+  std::chrono::milliseconds resend_window{10000};
 };
 
 }  // namespace canbridge::bridge

@@ -406,6 +406,8 @@ std::string_view ascii_error_text(AsciiError error) {
       return "Unsupported net.";
     case AsciiError::unsupported_node:
       return "Unsupported node.";
+    case AsciiError::outcome_unknown:
+      return "Outcome unknown, may have been executed.";
     case AsciiError::lost_connection:
       return "Lost connection.";
     case AsciiError::authentication_required:

@@ -24,6 +24,10 @@ enum class AsciiError : std::uint16_t {
   no_default_node = 105,
   unsupported_net = 106,
   unsupported_node = 107,
+  // canbridge, in the internal-error range 309-3 leaves free: the request may have been executed
+  // and its answer cannot come any more (the gateway went away without one). Not a failure: the
+  // operator reads the object back (docs/remote-access.md).
+  outcome_unknown = 108,
   lost_connection = 201,
   authentication_required = 401,  // canbridge: TCP before `auth`
   not_permitted = 403,            // canbridge: the client's role does not allow the request

@@ -357,9 +357,15 @@ TEST_F(CommandEndpointTest, SessionSettingsDefaultsAndErrors) {
   EXPECT_EQ(line(*client, 11).rfind("[12] ERROR:103 #Time-out.", 0), 0u);
   EXPECT_EQ(line(*client, 12),
             "[13] ERROR:0x08000020 #Data cannot be transferred or stored to application. verify");
+  // A write whose answer can never come (its gateway died): its own answer, not a time-out.
+  client->send("[14] w 0x6000 1 u8 1\n");
+  ASSERT_EQ(calls_soon(7), 7u);
+  remote.complete(6, RemoteOutcome{make_error_code(RemoteEnd::outcome_unknown), {}, "read back"});
+  EXPECT_EQ(line(*client, 13),
+            "[14] ERROR:108 #Outcome unknown, may have been executed. read back");
   const auto counters = endpoint->counters();
-  EXPECT_EQ(counters.commands, 13u);
-  EXPECT_EQ(counters.errors, 8u);
+  EXPECT_EQ(counters.commands, 14u);
+  EXPECT_EQ(counters.errors, 9u);
 }
 
 TEST_F(CommandEndpointTest, NmtSetNodeIdHelpAndLss) {

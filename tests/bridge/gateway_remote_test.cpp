@@ -265,11 +265,15 @@ TEST(GatewayRemote, CancelRemovesAQueuedRequestAndAbortsARunningOneEachAnsweredO
   ASSERT_NE(rig.result(2), nullptr);
   EXPECT_EQ(rig.result(2)->abort_code(), kLocalControl);
   EXPECT_EQ(rig.result(2)->detail(), "cancelled");
+  // Taken off the queue: the surface may tell its client it never ran.
+  EXPECT_EQ(rig.result(2)->cancelled(), v1::RemoteResult::BEFORE_START);
   EXPECT_EQ(rig.results.size(), 1u);
   rig.cancel(1);
   ASSERT_NE(rig.result(1), nullptr);
   EXPECT_EQ(rig.result(1)->abort_code(), kLocalControl);
   EXPECT_EQ(rig.result(1)->detail(), "cancelled");
+  // Stopped on the bus: what it wrote before stays written, the outcome is not "never ran".
+  EXPECT_EQ(rig.result(1)->cancelled(), v1::RemoteResult::WHILE_RUNNING);
   // The node was told: an SDO abort 0x08000021 on its request channel.
   ASSERT_FALSE(rig.written.empty());
   const Frame& abort = rig.written.back();

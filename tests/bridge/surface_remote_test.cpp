@@ -143,6 +143,7 @@ class SurfaceRemoteTest : public ::testing::Test {
     surface.start();
     connect();
     options.answer_slack = 100ms;
+    options.resend_window = 200ms;
     remote =
         std::make_unique<SurfaceRemote>(io.get_executor(), surface, policy.gateways, options, 1000);
   }
@@ -286,22 +287,78 @@ TEST_F(SurfaceRemoteTest, AGatewayThatIsDownIsUnreachableAtOnce) {
   EXPECT_TRUE(gateway.requests.empty());
 }
 
-TEST_F(SurfaceRemoteTest, NoAnswerInTimeEndsWithTimedOutAndACancelFollows) {
+// Past its deadline a request gets a cancel and still waits the resend window (200 ms here) for
+// the gateway's answer; a read that gets none has timed out, and a late answer is dropped.
+TEST_F(SurfaceRemoteTest, NoAnswerInTimeSendsACancelThenAReadEndsWithTimedOut) {
   Seen seen;
   const auto started = std::chrono::steady_clock::now();
   const auto id = remote->sdo(read_1017(0, kSurface), seen.done());
-  ASSERT_TRUE(run_until(io, [&] { return seen.outcome.has_value(); }));
-  const auto took = std::chrono::steady_clock::now() - started;
-  EXPECT_EQ(seen.outcome->error, std::make_error_code(std::errc::timed_out));
-  EXPECT_NE(seen.outcome->detail.find("no answer from gateway 'gw'"), std::string::npos);
-  EXPECT_GE(took, 150ms);  // the SDO timeout (50 ms) + answer_slack (100 ms)
   ASSERT_TRUE(run_until(io, [&] { return gateway.cancels.size() == 1; }));
   EXPECT_EQ(gateway.cancels[0], id);
-  ASSERT_EQ(gateway.requests.size(), 1u);  // the request came first
+  ASSERT_EQ(gateway.requests.size(), 1u);                        // the request came first
+  EXPECT_GE(std::chrono::steady_clock::now() - started, 150ms);  // SDO timeout + answer_slack
+  ASSERT_TRUE(run_until(io, [&] { return seen.outcome.has_value(); }));
+  EXPECT_GE(std::chrono::steady_clock::now() - started, 350ms);  // ... + resend_window
+  EXPECT_EQ(seen.outcome->error, std::make_error_code(std::errc::timed_out));
+  EXPECT_NE(seen.outcome->detail.find("no answer from gateway 'gw'"), std::string::npos);
   // The gateway's late answer is dropped, counted.
   gateway.answer(id, 0, {1});
   ASSERT_TRUE(run_until(io, [&] { return remote->counters().unknown_results == 1; }));
   EXPECT_EQ(remote->counters().timed_out, 1u);
+  EXPECT_EQ(remote->counters().overdue, 1u);
+}
+
+// Issue 27: a write whose answer never comes may have been executed: never "timed out".
+TEST_F(SurfaceRemoteTest, AWriteNeverAnsweredEndsWithOutcomeUnknown) {
+  RemoteSdo sdo = read_1017(0, kSurface);
+  sdo.upload = false;
+  sdo.data = {0x64, 0x00};
+  Seen seen;
+  remote->sdo(sdo, seen.done());
+  ASSERT_TRUE(run_until(io, [&] { return seen.outcome.has_value(); }));
+  EXPECT_EQ(seen.outcome->error, make_error_code(RemoteEnd::outcome_unknown));
+  EXPECT_NE(seen.outcome->detail.find("read the object back"), std::string::npos);
+  EXPECT_EQ(remote->counters().outcome_unknown, 1u);
+  EXPECT_EQ(remote->counters().timed_out, 0u);
+}
+
+// Issue 27: the gateway did the write, its answer came after the deadline (a stalled surface,
+// a cut link): that answer is the client's, not a time-out.
+TEST_F(SurfaceRemoteTest, AnAnswerAfterTheDeadlineWithinTheResendWindowIsTheAnswer) {
+  RemoteSdo sdo = read_1017(0, kSurface);
+  sdo.upload = false;
+  sdo.data = {0x64, 0x00};
+  Seen seen;
+  const auto id = remote->sdo(sdo, seen.done());
+  ASSERT_TRUE(run_until(io, [&] { return gateway.cancels.size() == 1; }));
+  EXPECT_FALSE(seen.outcome);
+  gateway.answer(id, 0);
+  ASSERT_TRUE(run_until(io, [&] { return seen.outcome.has_value(); }));
+  EXPECT_TRUE(seen.outcome->ok()) << seen.outcome->error.message();
+  EXPECT_EQ(remote->counters().late_answers, 1u);
+}
+
+// The gateway's answer to the deadline's cancel says whether the write ran.
+TEST_F(SurfaceRemoteTest, TheCancelsAnswerTellsATimeOutFromAnUnknownOutcome) {
+  RemoteSdo sdo = read_1017(0, kSurface);
+  sdo.upload = false;
+  sdo.data = {0x64, 0x00};
+  Seen queued, running;
+  const auto queued_id = remote->sdo(sdo, queued.done());
+  const auto running_id = remote->sdo(sdo, running.done());
+  ASSERT_TRUE(run_until(io, [&] { return gateway.cancels.size() == 2; }));
+  for (auto [id, when] : {std::pair{queued_id, v1::RemoteResult::BEFORE_START},
+                          std::pair{running_id, v1::RemoteResult::WHILE_RUNNING}}) {
+    v1::Payload p;
+    p.mutable_remote_result()->set_request_id(id);
+    p.mutable_remote_result()->set_abort_code(0x08000021);
+    p.mutable_remote_result()->set_detail("cancelled");
+    p.mutable_remote_result()->set_cancelled(when);
+    gateway.send(p);
+  }
+  ASSERT_TRUE(run_until(io, [&] { return queued.outcome && running.outcome; }));
+  EXPECT_EQ(queued.outcome->error, std::make_error_code(std::errc::timed_out));
+  EXPECT_EQ(running.outcome->error, make_error_code(RemoteEnd::outcome_unknown));
 }
 
 // A long transfer the gateway reports progress on never times out at the surface, however long

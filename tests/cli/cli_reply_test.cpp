@@ -37,6 +37,10 @@ TEST(CliReply, ErrorsAndTheirExitCodes) {
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:106 #Unsupported net.")), exit_code::unknown);
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:107")), exit_code::unknown);
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:103")), exit_code::timeout);
+  // Not a time-out: the request may have been executed (the operator reads it back).
+  EXPECT_EQ(exit_code_for(*parse_error("ERROR:108 #Outcome unknown, may have been executed.")),
+            exit_code::outcome_unknown);
+  EXPECT_EQ(exit_code::outcome_unknown, 6);
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:201")), exit_code::unreachable);
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:401")), exit_code::unreachable);
   EXPECT_EQ(exit_code_for(*parse_error("ERROR:403")), exit_code::unreachable);
