@@ -7,6 +7,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 namespace canbridge::test {
@@ -31,6 +32,8 @@ class EndpointClient {
   // Sends `request` + LF and returns the next line (empty string on timeout).
   std::string ask(const std::string& request, std::chrono::milliseconds timeout);
   int bare_lf() const { return bare_lf_; }
+  // After a multi-line answer (help), whose inner lines end with LF alone: what was counted.
+  int take_bare_lf() { return std::exchange(bare_lf_, 0); }
   // True once the server closed the connection (read returned 0).
   bool closed() const { return closed_; }
 

@@ -137,7 +137,7 @@ class RemoteAccess : public ::testing::Test {
                 "gateways:\n  - name: remote-gateway\n    modules: [1, 2]\n"
                 "    key_file: " +
                     key +
-                    "\n    surface_nodes: [5-8, 42-43]\n"
+                    "\n    surface_nodes: [5-8, 42-44]\n"
                     "command_endpoint:\n  unix_socket: " +
                     socket_path_ +
                     "\n"
@@ -152,7 +152,7 @@ class RemoteAccess : public ::testing::Test {
                     "  reconnect_min_ms: 50\n  reconnect_max_ms: 200\n  keepalive_ms: 100\n"
                     "  dead_after_ms: 400\n  retransmit_ms: 300\n"
                     "modules:\n"
-                    "  - {id: 1, bus: vcan1, profile: cia301, nodes: {10: 42, 11: 43}}\n"
+                    "  - {id: 1, bus: vcan1, profile: cia301, nodes: {10: 42, 11: 43, 12: 44}}\n"
                     "  - {id: 2, bus: vcan2, profile: qd, nodes: {1: 5, 2: 6, 3: 7, 4: 8}}\n"
                     "lss_module: 1\n"
                     "log: {level: info, stats_interval_s: 0}\n");
@@ -182,7 +182,7 @@ class RemoteAccess : public ::testing::Test {
                                                         .port_placeholder = "${LINK_PORT}",
                                                         .surface_name = "remote-surface",
                                                         .gateway_name = "remote-gateway",
-                                                        .sim_ready = "ready 5 nodes on 2 buses",
+                                                        .sim_ready = "ready 6 nodes on 2 buses",
                                                         .event_timeout = kEvent});
     processes_->start();
     if (::testing::Test::HasFatalFailure()) return;
@@ -198,6 +198,7 @@ class RemoteAccess : public ::testing::Test {
           << "node " << local << " does not beat";
     }
     ready_ = true;
+    ready_at_ = std::chrono::steady_clock::now();
   }
 
   static void TearDownTestSuite() {
@@ -254,6 +255,8 @@ class RemoteAccess : public ::testing::Test {
   static inline std::unique_ptr<ChildProcess> candump_;
   static inline std::unique_ptr<RigProcesses> processes_;
   static inline bool ready_ = false;
+  // Every node had booted by then (the quiet one too: it boots with the others).
+  static inline std::chrono::steady_clock::time_point ready_at_{};
   std::unique_ptr<EndpointClient> client_;
   int seq_ = 0;
 };
@@ -432,7 +435,8 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
     std::smatch m;
     if (!std::regex_match(l, m, row)) continue;
     seen[m[1].str() + "/" + m[3].str()] = m[4].str();
-    EXPECT_NE(m[8].str(), "-") << "a beating node has a heartbeat age: " << l;
+    const bool quiet = m[1].str() == "2" && m[3].str() == "12";  // no heartbeat (1017h = 0)
+    EXPECT_EQ(m[8].str() == "-", quiet) << "a beating node has a heartbeat age: " << l;
     if (m[1].str() == "2" && m[3].str() == "10") {
       const auto type = std::stoul(device_type);
       EXPECT_EQ(m[6].str(), (type & 0xFFFFu) ? "CiA" + std::to_string(type & 0xFFFFu)
@@ -441,14 +445,44 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
     }
   }
   const std::map<std::string, std::string> expected = {
-      {"2/10", "42"}, {"2/11", "43"}, {"3/1", "5"}, {"3/2", "6"}, {"3/3", "7"}};
+      {"2/10", "42"}, {"2/11", "43"}, {"2/12", "44"}, {"3/1", "5"}, {"3/2", "6"}, {"3/3", "7"}};
   for (const auto& [key, surface] : expected) {
     EXPECT_EQ(seen[key], surface) << key << " in:\n" << joined(lines);
   }
   // A net of its own.
   client_->send("[51] 2 nodes\n");
   const auto net2 = client_->lines_until("[51] OK", kEvent);
-  EXPECT_EQ(net2.size(), 3u) << joined(net2);
+  EXPECT_EQ(net2.size(), 4u) << joined(net2);
+}
+
+// A node whose 1017h is 0 (CANopenNode's default) sends its boot-up and no heartbeat. Through
+// and past the 3 s after which the gateway took such a node for lost, it answers SDO and the node
+// list shows it alive, in its state, with no heartbeat age. Fails when NodeTable watches a node
+// from its boot-up (routing/node_table.cpp, due(): without `!r.heartbeat_seen`): state=lost.
+TEST_F(RemoteAccess, ANodeWithoutHeartbeatStaysAliveWhileItAnswers) {
+  const std::regex quiet_row(
+      "\\[[0-9]+\\] node net=2 module=1 gateway=remote-gateway local=12 surface=44 \\S+ \\S+ "
+      "state=(\\S+) hb_age_ms=(\\S+) .*");
+  const auto check = [&] {
+    EXPECT_EQ(ask("0 44 read 0x2003 0 x32"), "0x00C0FFEE") << "the quiet node answers";
+    client_->send("[" + std::to_string(++seq_) + "] nodes\n");
+    const auto lines = client_->lines_until("[" + std::to_string(seq_) + "] OK", kEvent);
+    bool found = false;
+    for (const auto& l : lines) {
+      std::smatch m;
+      if (!std::regex_match(l, m, quiet_row)) continue;
+      found = true;
+      EXPECT_EQ(m[1].str(), "pre-operational") << l;
+      EXPECT_EQ(m[2].str(), "-") << l;
+    }
+    EXPECT_TRUE(found) << joined(lines);
+  };
+  // Watched over the window in which it used to be lost: every answer along the way counts.
+  const auto past_default_lost_after = ready_at_ + 4s;
+  do {
+    check();
+  } while (!HasFailure() && std::chrono::steady_clock::now() < past_default_lost_after);
+  check();
 }
 
 // help lists the standard commands and the extensions.
@@ -458,6 +492,9 @@ TEST_F(RemoteAccess, HelpListsTheCommands) {
   ASSERT_FALSE(lines.empty());
   EXPECT_EQ(lines.back(), "[60] OK");
   const std::string text = joined(lines);
+  // One answer, one CR LF: help's inner lines end with LF alone, as the reference gateway frames
+  // its help, so that cocomm prints all of it (every other answer is checked for CR LF).
+  EXPECT_GT(client_->take_bare_lf(), 10) << text;
   for (const char* word : {"r[ead]", "w[rite]", "start", "stop", "preop", "reset", "set", "nodes",
                            "flash", "monitor", "lss"}) {
     EXPECT_NE(text.find(word), std::string::npos) << word << " missing from help:\n" << text;

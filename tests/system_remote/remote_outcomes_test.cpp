@@ -101,17 +101,17 @@ class RemoteOutcomes : public ::testing::Test {
                     "log: {level: info, stats_interval_s: 0}\n");
     std::filesystem::copy_file(kSourceDir + "rig.yaml", dir + "rig.yaml");
     vcan1_ = std::make_unique<BusLog>("vcan1");
-    processes_ =
-        std::make_unique<RigProcesses>(test::RigOptions{.canbridge = CANBRIDGE_BIN,
-                                                        .sim = CANBRIDGE_SIM_BIN,
-                                                        .link_emulator = {},
-                                                        .link_emulator_args = {},
-                                                        .config_dir = dir,
-                                                        .port_placeholder = "${LINK_PORT}",
-                                                        .surface_name = "remote-surface",
-                                                        .gateway_name = "remote-gateway",
-                                                        .sim_ready = "ready 5 nodes on 2 buses",
-                                                        .event_timeout = kEvent});
+    processes_ = std::make_unique<RigProcesses>(
+        test::RigOptions{.canbridge = CANBRIDGE_BIN,
+                         .sim = CANBRIDGE_SIM_BIN,
+                         .link_emulator = {},
+                         .link_emulator_args = {},
+                         .config_dir = dir,
+                         .port_placeholder = "${LINK_PORT}",
+                         .surface_name = "remote-surface",
+                         .gateway_name = "remote-gateway",
+                         .sim_ready = "ready 6 nodes on 2 buses",  // rig.yaml's six, quiet included
+                         .event_timeout = kEvent});
     ASSERT_NO_FATAL_FAILURE(processes_->start());
     ASSERT_TRUE(vcan1_->wait_for(
         0,
