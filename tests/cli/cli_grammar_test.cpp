@@ -21,7 +21,7 @@ namespace exit_code = cli::exit_code;
 
 constexpr const char* kNoEndpoint = "/nonexistent/canbridge.sock";
 
-std::size_t lines_of(const std::string& text) {
+std::size_t line_count(const std::string& text) {
   return static_cast<std::size_t>(std::count(text.begin(), text.end(), '\n'));
 }
 
@@ -49,7 +49,7 @@ TEST(CliGrammar, AnUnknownSdoCommandIsNamedInOneLine) {
   const auto run = run_cli({"sdo", "frob", "5", "0x1000", "0", "--endpoint", kNoEndpoint});
   EXPECT_EQ(run.rc, exit_code::usage);
   EXPECT_THAT(run.err, HasSubstr("unknown sdo command 'frob': expected read or write"));
-  EXPECT_LE(lines_of(run.err), 2u) << run.err;
+  EXPECT_LE(line_count(run.err), 2u) << run.err;
 }
 
 TEST(CliGrammar, BadNumbersAreNamedWithTheirRange) {
@@ -70,7 +70,7 @@ TEST(CliGrammar, AMissingArgumentIsOneLineNotTheWholeHelp) {
   EXPECT_THAT(run.err, HasSubstr("INDEX"));
   EXPECT_THAT(run.err, HasSubstr("run 'canbridge sdo read --help'"));
   EXPECT_THAT(run.err, Not(HasSubstr("Options:")));
-  EXPECT_LE(lines_of(run.err), 2u) << run.err;
+  EXPECT_LE(line_count(run.err), 2u) << run.err;
 }
 
 TEST(CliGrammar, OptionsStandBeforeBetweenOrAfterTheCommandWords) {

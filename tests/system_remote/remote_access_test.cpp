@@ -30,6 +30,7 @@
 #include "tests/support/rig_processes.hpp"
 #include "tests/support/temp_key_dir.hpp"
 #include "tests/system_remote/endpoint_client.hpp"
+#include "tests/system_remote/remote_rig_configs.hpp"
 
 namespace canbridge {
 namespace {
@@ -130,32 +131,7 @@ class RemoteAccess : public ::testing::Test {
     const std::string dir = keys_->path() + "/";
     socket_path_ = dir + "surface.sock";
     const std::string key = keys_->key("remote-gateway.key");
-    keys_->file("surface.yaml",
-                "role: surface\nname: remote-surface\nbus: vcan0\n"
-                "backbone:\n  listen: 127.0.0.1:0\n  auth: {mode: psk}\n"
-                "  keepalive_ms: 100\n  dead_after_ms: 400\n  retransmit_ms: 300\n"
-                "gateways:\n  - name: remote-gateway\n    modules: [1, 2]\n"
-                "    key_file: " +
-                    key +
-                    "\n    surface_nodes: [5-8, 42-44]\n"
-                    "command_endpoint:\n  unix_socket: " +
-                    socket_path_ +
-                    "\n"
-                    "  sdo_timeout_ms: 1000\n  sdo_block: false\n"
-                    "log: {level: info, stats_interval_s: 0}\n");
-    keys_->file("gateway.yaml",
-                "role: gateway\nname: remote-gateway\nbackbone:\n"
-                "  connect: 127.0.0.1:${LINK_PORT}\n"
-                "  auth: {mode: psk, key_file: " +
-                    key +
-                    ", surface: remote-surface}\n"
-                    "  reconnect_min_ms: 50\n  reconnect_max_ms: 200\n  keepalive_ms: 100\n"
-                    "  dead_after_ms: 400\n  retransmit_ms: 300\n"
-                    "modules:\n"
-                    "  - {id: 1, bus: vcan1, profile: cia301, nodes: {10: 42, 11: 43, 12: 44}}\n"
-                    "  - {id: 2, bus: vcan2, profile: qd, nodes: {1: 5, 2: 6, 3: 7, 4: 8}}\n"
-                    "lss_module: 1\n"
-                    "log: {level: info, stats_interval_s: 0}\n");
+    test::write_remote_rig_configs(*keys_, key, socket_path_, 1000);
     std::filesystem::copy_file(kSourceDir + "rig.yaml", dir + "rig.yaml");
 
     vcan1_ = std::make_unique<BusLog>("vcan1");
