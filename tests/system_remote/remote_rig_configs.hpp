@@ -13,8 +13,7 @@ namespace canbridge::test {
 // `key`; the gateway connects to ${LINK_PORT} (RigOptions::port_placeholder). The endpoint's SDO
 // timeout is `endpoint_sdo_timeout_ms`.
 inline void write_remote_rig_configs(TempKeyDir& keys, const std::string& key,
-                                     const std::string& socket_path,
-                                     int endpoint_sdo_timeout_ms) {
+                                     const std::string& socket_path, int endpoint_sdo_timeout_ms) {
   keys.file("surface.yaml",
             "role: surface\nname: remote-surface\nbus: vcan0\n"
             "backbone:\n  listen: 127.0.0.1:0\n  auth: {mode: psk}\n"
