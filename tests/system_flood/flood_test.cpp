@@ -12,7 +12,6 @@
 
 #include <algorithm>
 #include <chrono>
-#include <fstream>
 #include <iostream>
 #include <iterator>
 #include <memory>
@@ -35,12 +34,6 @@ constexpr auto kStep = 20s;        // upper bound of each awaited step on the sl
 constexpr int kRestarts = 5;       // per condition; the median is compared
 constexpr int kFloodPeers = 1100;  // the issue's figure
 constexpr const char* kFloodSource = "127.0.0.2";
-
-std::string write_file(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + name;
-  std::ofstream(path) << text;
-  return path;
-}
 
 // Resident set of a process in kB (VmRSS), -1 if unreadable.
 long rss_kb(pid_t pid) {
@@ -87,7 +80,7 @@ class Flood : public ::testing::Test {
 
     // The authenticated surface the issue asks about: TLS 1.3 with the gateway's pre-shared key.
     const std::string key = keys_.key("flood-gateway.key");
-    const std::string surface_cfg = write_file(
+    const std::string surface_cfg = keys_.file(
         "flood-surface.yaml",
         "role: surface\nname: flood-surface\nbus: vcan0\nbackbone:\n  listen: 127.0.0.1:0\n"
         "  auth: {mode: psk}\n"
@@ -115,14 +108,14 @@ class Flood : public ::testing::Test {
         "127.0.0.1:" +
         port_ + "\n  auth: {mode: psk, key_file: " + key + ", surface: flood-surface}\n";
     const std::string gateway_modules = "modules:\n  - id: 1\n    bus: vcan1\n";
-    gateway_cfg_ = write_file("flood-gateway.yaml", gateway_head +
+    gateway_cfg_ = keys_.file("flood-gateway.yaml", gateway_head +
                                                         "  reconnect_min_ms: 20\n"
                                                         "  reconnect_max_ms: 200\n" +
                                                         gateway_modules);
     // The shipped reconnection back-off (100 ms doubling to 5 s): what a lock-out costs a real
     // gateway, each refused attempt making it wait longer.
     default_gateway_cfg_ =
-        write_file("flood-gateway-defaults.yaml", gateway_head + gateway_modules);
+        keys_.file("flood-gateway-defaults.yaml", gateway_head + gateway_modules);
     ASSERT_NO_FATAL_FAILURE(start_gateway());
   }
 
