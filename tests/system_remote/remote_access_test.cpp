@@ -400,27 +400,22 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
   // A node reset by an earlier test has booted again and is watched from its next heartbeat
   // (100 ms later): list until every beating node shows one, within kEvent.
   std::vector<std::string> lines;
+  std::string seq;  // the answer the rows are checked in
   const auto until = std::chrono::steady_clock::now() + kEvent;
-  for (int seq = 50;; ++seq) {
-    client_->send("[" + std::to_string(seq) + "] nodes\n");
-    lines = client_->lines_until("[" + std::to_string(seq) + "] OK", kEvent);
-    int without_age = 0;
-    for (const auto& l : lines) {
-      if (l.find(" hb_age_ms=-") != std::string::npos) ++without_age;
-    }
-    if (without_age <= 1 || std::chrono::steady_clock::now() > until) {
-      for (auto& l : lines) {  // the rows below are checked as of one answer, "[50]"
-        if (l.rfind("[" + std::to_string(seq) + "]", 0) == 0) {
-          l = "[50]" + l.substr(std::to_string(seq).size() + 2);
-        }
-      }
-      break;
-    }
+  for (int n = 50;; ++n) {
+    seq = "[" + std::to_string(n) + "]";
+    client_->send(seq + " nodes\n");
+    lines = client_->lines_until(seq + " OK", kEvent);
+    const auto without_age = std::count_if(lines.begin(), lines.end(), [](const std::string& l) {
+      return l.find(" hb_age_ms=-") != std::string::npos;
+    });
+    if (without_age <= 1 || std::chrono::steady_clock::now() > until) break;  // 1: the quiet node
   }
   ASSERT_FALSE(lines.empty());
-  EXPECT_EQ(lines.back(), "[50] OK") << joined(lines);
+  EXPECT_EQ(lines.back(), seq + " OK") << joined(lines);
   const std::regex row(
-      "\\[50\\] node net=([0-9]+) module=([0-9]+) gateway=remote-gateway local=([0-9]+) "
+      "\\" + seq.substr(0, seq.size() - 1) +
+      "\\] node net=([0-9]+) module=([0-9]+) gateway=remote-gateway local=([0-9]+) "
       "surface=([0-9]+|-) profile=([a-z0-9]+) kind=(\\S+) "
       "state=(boot-up|stopped|operational|pre-operational|loader|lost) hb_age_ms=([0-9]+|-) "
       "boot_count=([0-9]+) emcy=(\\S+)");
