@@ -60,6 +60,9 @@ SessionLink::SessionLink(std::shared_ptr<MessageLink> link, const Identity& iden
 SessionLink::~SessionLink() = default;
 
 void SessionLink::start() {
+  // The core first: a link may run its writer at once, and the core measures every silence,
+  // and whether this side ran, from its start.
+  core_.start(now());
   std::weak_ptr<SessionLink> weak = weak_from_this();
   link_->start(
       [weak](std::span<const std::uint8_t> bytes) {
@@ -71,7 +74,6 @@ void SessionLink::start() {
       [weak](std::error_code) {
         if (auto self = weak.lock()) self->on_closed();
       });
-  core_.start(now());
   arm_timer();
 }
 

@@ -755,6 +755,12 @@ bool SessionCore::fill_control(std::string& out, TimePoint now) {
     closing_after_flush_ = true;
     return false;
   }
+  // A writer woken as the process resumes (its buses queued frames meanwhile) may run before the
+  // late tick and the reader: its run proves nothing about the freeze, and must not hide it.
+  if (now - last_run_ > peer_patience()) {
+    close_stale("this side did not run for longer than the peer waits", now);
+    return false;
+  }
   last_run_ = now;
   if (hello_please_owed_) {
     scratch_.Clear();

@@ -485,6 +485,30 @@ TEST_F(SessionCoreTest, InputAfterAFreezeLongerThanThePeersPatienceIsStale) {
   EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
 }
 
+// After SIGCONT the gateway's writer may run first (frames its buses queued during the freeze
+// woke it), then its late tick while the surface's bytes still wait, then the reader. A write is
+// not proof that the link lived through the freeze: the first of them closes the link as stale,
+// and what waited is never delivered (the CI run of e2010bf delivered an aborted SDO segment so).
+TEST_F(SessionCoreTest, AWriteAfterAFreezeLongerThanThePeersPatienceIsStale) {
+  connect();
+  ASSERT_TRUE(ready());
+  frozen = &gateway;
+  surface.send(1, 3);
+  advance(test_options().dead_after + 100ms);
+  frozen = nullptr;
+  gateway.send(1, 2);  // the buses' frames, queued as the process resumed
+  std::string out;
+  gateway.core->fill(out, now);
+  gateway.shell.unread_input = true;
+  gateway.core->on_tick(now, false, false);
+  for (const auto& m : held) gateway.core->on_message(m, now);
+  held.clear();
+  EXPECT_EQ(gateway.counters.stale_links_closed, 1u);
+  EXPECT_EQ(gateway.counters.dead_links, 0u);
+  EXPECT_TRUE(gateway.received.empty());  // the surface may have withdrawn all of it
+  EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
+}
+
 TEST_F(SessionCoreTest, AShortFreezeIsNotStale) {
   connect();
   frozen = &gateway;
