@@ -833,7 +833,12 @@ void SessionCore::on_tick(TimePoint now, bool reading_paused, bool bytes_arrived
   if (closing_) return;  // closing already (its handler may come later)
   last_tick_ = now;
   const bool did_not_run = now - last_run_ > peer_patience();
-  if (now - last_rx_ <= options_.dead_after && did_not_run) {
+  // This side did not run for longer than the peer waits: the peer may have declared the link
+  // dead meanwhile and told its users that what it sent failed. Whatever was heard before the
+  // freeze, arrived since (counted before the process stopped, or read as it resumed) or waits
+  // unread proves nothing now; only a link silent all along is merely dead.
+  if (did_not_run && (now - last_rx_ <= options_.dead_after || bytes_arrived || reading_paused ||
+                      shell_.input_waiting())) {
     return close_stale("this side did not run for longer than the peer waits", now);
   }
   last_run_ = now;

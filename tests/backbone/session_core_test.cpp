@@ -509,6 +509,24 @@ TEST_F(SessionCoreTest, AWriteAfterAFreezeLongerThanThePeersPatienceIsStale) {
   EXPECT_EQ(gateway.shell.closed, make_error_code(errc::closed));
 }
 
+// The reader took bytes after the last tick, just before SIGSTOP: the late tick sees "bytes
+// arrived since the last tick", which is no sign of life after the freeze (the CI-like run of
+// d958c1f executed an SDO write the master had seen aborted so).
+TEST_F(SessionCoreTest, BytesReadJustBeforeAFreezeLongerThanThePeersPatienceAreNoSignOfLife) {
+  connect();
+  ASSERT_TRUE(ready());
+  frozen = &gateway;
+  surface.send(1, 3);
+  advance(test_options().dead_after + 100ms);
+  frozen = nullptr;
+  gateway.core->on_tick(now, false, true);
+  for (const auto& m : held) gateway.core->on_message(m, now);
+  held.clear();
+  EXPECT_EQ(gateway.counters.stale_links_closed, 1u);
+  EXPECT_EQ(gateway.counters.dead_links, 0u);
+  EXPECT_TRUE(gateway.received.empty());
+}
+
 TEST_F(SessionCoreTest, AShortFreezeIsNotStale) {
   connect();
   frozen = &gateway;
