@@ -109,6 +109,7 @@ SurfacePolicy surface_policy(const config::SurfaceOptions& options) {
         {g.name, g.modules, {g.surface_nodes.begin(), g.surface_nodes.end()}});
   }
   policy.require_authenticated_peers = options.auth.mode != config::AuthMode::plain;
+  policy.master_sdo_timeout = options.master_sdo_timeout;
   return policy;
 }
 

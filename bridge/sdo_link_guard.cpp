@@ -145,6 +145,11 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
     ++counters_.stale_responses_dropped;
     return false;
   }
+  if (n.awaiting_recovery) {  // executed before the cut, its answer brought by the next link
+    n.awaiting_recovery = false;
+    --awaiting_;
+    ++counters_.answers_recovered;
+  }
   n.pending = false;
   // A step answered: nothing more may come, except inside block transfers.
   if (n.expect != Expect::block_download && n.expect != Expect::block_upload &&
@@ -170,6 +175,10 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   const canopen::NodeId node = request_node(frame);
   if (node == 0 || frame.data[0] >> 5 == 4) return std::nullopt;  // not a request, or an abort
   Node& n = nodes_[node];
+  if (n.awaiting_recovery) {
+    n.awaiting_recovery = false;
+    --awaiting_;
+  }
   n.pending = false;
   n.aborted = true;
   n.expect = Expect::nothing;
@@ -203,19 +212,70 @@ bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
   return false;
 }
 
+std::optional<can::Frame> SdoLinkGuard::abort_in_flight(canopen::NodeId node, Node& n,
+                                                        Clock::time_point now) {
+  if (n.awaiting_recovery) {
+    n.awaiting_recovery = false;
+    --awaiting_;
+  }
+  n.pending = false;
+  // Aborted either way: a late answer to it must not reach the master any more than the abort
+  // may.
+  n.aborted = true;
+  n.expect = Expect::nothing;
+  if (!still_open(n, now)) return std::nullopt;
+  ++counters_.aborted_in_flight;
+  return abort_for(node, n);
+}
+
 std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::time_point now) {
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
     if (!n.owned || n.gateway != gateway || !n.pending) continue;
-    n.pending = false;
-    // Aborted either way: a late answer to it must not reach the master any more than the
-    // abort may.
-    n.aborted = true;
-    n.expect = Expect::nothing;
-    if (!still_open(n, now)) continue;
-    ++counters_.aborted_in_flight;
-    aborts.push_back(abort_for(node, n));
+    // The request may have reached the gateway before the cut: its answer waits there, in the
+    // gateway's reliable stream, and crosses once a new link resumes it.
+    if (now - n.asked < options_.answer_wait) {
+      if (!n.awaiting_recovery) {
+        n.awaiting_recovery = true;
+        ++awaiting_;
+      }
+      continue;
+    }
+    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
+  }
+  return aborts;
+}
+
+std::optional<SdoLinkGuard::Clock::time_point> SdoLinkGuard::next_deadline() const {
+  if (awaiting_ == 0) return std::nullopt;
+  std::optional<Clock::time_point> earliest;
+  for (const Node& n : nodes_) {
+    if (!n.awaiting_recovery) continue;
+    const Clock::time_point due = n.asked + options_.answer_wait;
+    if (!earliest || due < *earliest) earliest = due;
+  }
+  return earliest;
+}
+
+std::vector<can::Frame> SdoLinkGuard::on_gateway_restart(GatewayId gateway, Clock::time_point now) {
+  std::vector<can::Frame> aborts;
+  if (awaiting_ == 0) return aborts;
+  for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
+    Node& n = nodes_[node];
+    if (!n.awaiting_recovery || n.gateway != gateway) continue;
+    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
+  }
+  return aborts;
+}
+
+std::vector<can::Frame> SdoLinkGuard::on_time(Clock::time_point now) {
+  std::vector<can::Frame> aborts;
+  if (awaiting_ == 0) return aborts;
+  for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
+    Node& n = nodes_[node];
+    if (!n.awaiting_recovery || now - n.asked < options_.answer_wait) continue;
+    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
   }
   return aborts;
 }
@@ -228,6 +288,10 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   if (command == 4) return std::nullopt;  // the master's own abort needs no answer
   Node& n = nodes_[node];
   if (n.owned && !n.pending) return std::nullopt;  // answered already
+  if (n.awaiting_recovery) {
+    n.awaiting_recovery = false;
+    --awaiting_;
+  }
   Node answer = n;
   if (!n.owned && (command == 1 || command == 2 || command == 5 || command == 6)) {
     answer.mux[0] = request.data[1];

@@ -1,6 +1,7 @@
 // Keeps a surface master's SDO client from hanging on nodes whose gateway link is down: a request
 // to such a node is answered at once with abort 0x05040000 (SDO protocol timed out) instead of
-// silence, and requests in flight when a link drops are aborted the same way.
+// silence; a request in flight when a link drops gets its answer if the next link brings it in
+// time, else the same abort before its master's own time-out (docs/canopen-bridging.md).
 #pragma once
 
 #include <array>
@@ -30,14 +31,22 @@ class SdoLinkGuard {
     // reaches a master that has moved on and cannot place it, so it is dropped and counted
     // instead. Zero: no bound.
     std::chrono::milliseconds transfer_open_for{0};
+    // How long after a request went out its answer may still be delivered when the request was
+    // in flight as its gateway's link dropped: the gateway may have executed it, and its answer
+    // then crosses on the next link. Past this, the master gets the abort instead (a little
+    // before its own time-out, so that it learns the real outcome is unknown from the abort
+    // rather than from silence). Zero: the abort at once, when the link drops.
+    std::chrono::milliseconds answer_wait{0};
   };
 
   SdoLinkGuard() = default;
   explicit SdoLinkGuard(Options options) : options_(options) {}
 
   struct Counters {
-    std::uint64_t aborted_at_once = 0;         // requests to a node whose gateway was down
-    std::uint64_t aborted_in_flight = 0;       // requests pending when their gateway went down
+    std::uint64_t aborted_at_once = 0;    // requests to a node whose gateway was down
+    std::uint64_t aborted_in_flight = 0;  // requests pending when their gateway went down
+    // Requests pending when their gateway went down whose answer the next link brought in time.
+    std::uint64_t answers_recovered = 0;
     std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
     // Answers that cannot answer the master's pending request (another command class, object
     // or toggle): the answer to an older request, executed just before a link cut and aborted
@@ -94,9 +103,21 @@ class SdoLinkGuard {
   // on_gateway_down(): counted by how its master gets, or got, its answer.
   void on_request_withdrawn(const can::Frame& request);
 
-  // The gateway's link went down at `now`: the aborts for every SDO request in flight to its
-  // nodes that its master can still be waiting for (Options::transfer_open_for).
+  // The gateway's link went down at `now`: the aborts for the SDO requests in flight to its
+  // nodes that its master can still be waiting for (Options::transfer_open_for) and whose answer
+  // can no longer come in time (Options::answer_wait); the others wait for it until
+  // next_deadline().
   std::vector<can::Frame> on_gateway_down(GatewayId gateway, Clock::time_point now = {});
+
+  // A new process of the gateway: the answers its old process held are lost with it, so the
+  // requests waiting for one get their aborts now.
+  std::vector<can::Frame> on_gateway_restart(GatewayId gateway, Clock::time_point now = {});
+
+  // When the first request waiting for its answer across a lost link must be given up; nullopt
+  // when none waits.
+  std::optional<Clock::time_point> next_deadline() const;
+  // The aborts of the requests whose answer did not come in time (Options::answer_wait).
+  std::vector<can::Frame> on_time(Clock::time_point now);
 
   // A request forwarded earlier will never reach its node (the backbone gave it up: too old, or
   // queued for a gateway process that is gone): the abort for its master, unless the master has
@@ -134,7 +155,13 @@ class SdoLinkGuard {
     // The pending request was withdrawn (on_request_withdrawn): an older one still in the
     // queue was answered before.
     bool withdrawn = false;
+    // In flight when its gateway's link dropped: its answer may still come on the next link,
+    // until asked + Options::answer_wait.
+    bool awaiting_recovery = false;
   };
+  // The pending request of `n` ends aborted (or stale, past the transfer's life): the abort for
+  // its master, if one is still wanted.
+  std::optional<can::Frame> abort_in_flight(canopen::NodeId node, Node& n, Clock::time_point now);
   // Notes the master's request on a node the guard follows.
   static void note_request(Node& n, const can::Frame& frame);
   // True if `response` can answer the request `n` has pending.
@@ -149,6 +176,7 @@ class SdoLinkGuard {
 
   Options options_;
   std::array<Node, 128> nodes_{};
+  std::size_t awaiting_ = 0;  // nodes with awaiting_recovery set
   Counters counters_;
 };
 
@@ -162,6 +190,10 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (!n.owned) return {};
   const bool master_abort =
       frame.data[0] == 0x80 || (n.expect != Expect::block_download && frame.data[0] >> 5 == 4);
+  if (n.awaiting_recovery) {  // the master moved on (a newer request, or its own abort)
+    n.awaiting_recovery = false;
+    --awaiting_;
+  }
   if (master_abort) {  // nothing is in flight any more
     n.pending = false;
     n.expect = Expect::nothing;

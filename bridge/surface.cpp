@@ -19,6 +19,16 @@ namespace canbridge::bridge {
 
 namespace asio = boost::asio;
 
+namespace {
+
+// A request in flight at a cut waits for its answer until four fifths of its master's time-out
+// have passed: the abort then still reaches the master before its own time-out would.
+SdoLinkGuard::Options guard_options(std::chrono::milliseconds master_sdo_timeout) {
+  return {.transfer_open_for = master_sdo_timeout, .answer_wait = master_sdo_timeout * 4 / 5};
+}
+
+}  // namespace
+
 // One gateway as the surface knows it, kept across its links so reliable streams resume.
 struct Surface::Gateway {
   Gateway(std::string gateway_name, SdoLinkGuard::GatewayId gateway_id,
@@ -44,6 +54,7 @@ struct Surface::Gateway {
                      outbox.discard_queued();
                      discard_queued_remote_payloads();
                      surface.node_states_.forget(id);
+                     surface.on_gateway_restart(*this);
                    },
                    [&surface](const std::string& payload, backbone::ReliableDrop why) {
                      surface.on_payload_dropped(payload, why);
@@ -98,9 +109,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       tuning_(tuning),
       conflate_pdos_(conflate_pdos),
       table_(name_, policy.gateways, policy.require_authenticated_peers),
-      // The backbone gives a request up once it is reliable_max_age old (answering its master
-      // with an abort): no master waits longer for it, so no abort comes later.
-      guard_(SdoLinkGuard::Options{.transfer_open_for = tuning.session.reliable_max_age}),
+      guard_(guard_options(policy.master_sdo_timeout)),
       relay_(rpdop_relay),
       deadlines_(executor_),
       writer_(
@@ -121,6 +130,11 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       [this](DeadlineDriver::TimePoint now) {
         relay_.tick(now, relay_out_);
         flush_relay();
+      });
+  deadlines_.add(
+      "SDO answers across a lost link", [this] { return guard_.next_deadline(); },
+      [this](DeadlineDriver::TimePoint now) {
+        for (const can::Frame& abort : guard_.on_time(now)) send_to_bus(abort);
       });
 }
 
@@ -649,7 +663,15 @@ void Surface::on_gateway_down(Gateway& gateway) {
   gateway.stream.edit_unacked([&](std::string& payload) {
     counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload, account);
   });
-  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, SdoLinkGuard::Clock::now())) {
+  for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, deadlines_.now())) {
+    send_to_bus(abort);
+  }
+  deadlines_.reschedule();  // requests that wait for an answer from the next link
+}
+
+// The old process's answers are gone with it: nothing waits for them any more.
+void Surface::on_gateway_restart(Gateway& gateway) {
+  for (const can::Frame& abort : guard_.on_gateway_restart(gateway.id, deadlines_.now())) {
     send_to_bus(abort);
   }
 }
@@ -667,7 +689,7 @@ void Surface::on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop w
       break;
   }
   if (!is_sdo_request(frame)) return;
-  if (auto abort = guard_.on_request_discarded(frame, SdoLinkGuard::Clock::now())) {
+  if (auto abort = guard_.on_request_discarded(frame, deadlines_.now())) {
     ++counters_.sdo_aborted_dropped;
     send_to_bus(*abort);
   }
@@ -693,6 +715,7 @@ SurfaceCounters Surface::counters() const {
   c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight +
                   guard_.counters().aborted_not_forwarded;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
+  c.sdo_answers_recovered = guard_.counters().answers_recovered;
   c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
   c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
   c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;
@@ -771,7 +794,7 @@ std::string Surface::stats_line() const {
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
-      "untracked {}, late answers dropped {}, "
+      "untracked {}, answers recovered {}, late answers dropped {}, "
       "stale answers dropped {}, stale aborts dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}) expired-unacked {}, "
       "stale-links {}, "
@@ -787,16 +810,16 @@ std::string Surface::stats_line() const {
       c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
       c.session.refusals_received, c.sdo_aborted,
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
-      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_late_responses_dropped,
-      c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old,
-      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.reliable_expired_unacked,
-      c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
-      c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
-      c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed,
-      c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete,
-      c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line, c.outbox.batches_sent,
-      c.outbox.queued, session_counters_text(c.session), bus_counters_text(bus_->name(), b),
-      c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
+      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_answers_recovered,
+      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped,
+      c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped,
+      c.reliable_expired_unacked, c.session.stale_links_closed, c.echoes_dropped, c.bus_refused,
+      c.dropped_no_gateway, c.dropped_unclaimed, c.malformed_payloads + c.session.malformed,
+      c.unknown_module, c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards,
+      c.pdop_malformed, c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded,
+      c.rpdop_complete, c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line,
+      c.outbox.batches_sent, c.outbox.queued, session_counters_text(c.session),
+      bus_counters_text(bus_->name(), b), c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
     if (c.bus_drops[r] != 0) {
       s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),

@@ -54,7 +54,9 @@ struct SurfaceCounters {
   // SDO requests never sent because the master got an abort when their link went down: queued
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
-  std::uint64_t sdo_late_responses_dropped = 0;   // answers to requests the master saw aborted
+  std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
+  // Answers to requests in flight when their link dropped, brought by the next link in time.
+  std::uint64_t sdo_answers_recovered = 0;
   std::uint64_t sdo_stale_responses_dropped = 0;  // answers that cannot answer the pending request
   // Link-down aborts not sent: the request was older than its master can still be waiting.
   std::uint64_t sdo_stale_aborts_dropped = 0;
@@ -104,6 +106,10 @@ struct SurfacePolicy {
   // A link that proved no identity (plain TCP, an unauthenticated serial line) binds nobody.
   // False only when the configured auth mode is plain.
   bool require_authenticated_peers = true;
+  // The SDO time-out of the masters on the surface bus: a request in flight when its gateway's
+  // link drops waits for its answer from the next link until four fifths of it have passed, and
+  // no abort goes to a master for a request older than it (SdoLinkGuard::Options).
+  std::chrono::milliseconds master_sdo_timeout{1000};
 };
 
 // A whole TPDOP packet as the surface received it, for backbone clients and tests.
@@ -190,6 +196,7 @@ class Surface {
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
+  void on_gateway_restart(Gateway& gateway);
   // A frame meant for `gateway` that will never be sent: counted, an open SDO request aborted.
   void on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop why);
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);

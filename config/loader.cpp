@@ -721,11 +721,14 @@ SurfaceOptions parse_surface(std::string_view yaml, const std::string& file) {
   const YAML::Node root = parse_root(yaml, file, "surface");
   Reader in(file);
   in.only_keys(root, "",
-               {"role", "name", "backbone", "gateways", "bus", "pdop", "command_endpoint",
-                "networks", "can", "log", "metrics"});
+               {"role", "name", "backbone", "gateways", "bus", "master_sdo_timeout_ms", "pdop",
+                "command_endpoint", "networks", "can", "log", "metrics"});
   SurfaceOptions out;
   if (auto name = in.string(root, "name", "", false)) out.name = *name;
   if (auto bus = in.interface_name(root, "bus", "", true)) out.bus = *bus;
+  if (auto t = in.integer(root, "master_sdo_timeout_ms", "", 10, 600000, false)) {
+    out.master_sdo_timeout = std::chrono::milliseconds(*t);
+  }
   read_surface_backbone(in, root, out);
   read_surface_auth(in, root, out);
   read_surface_pdop(in, root, out.rpdop_relay);

@@ -184,6 +184,9 @@ struct SurfaceOptions {
   // RPDOP from the surface master to pdop nodes, taken by the surface (`pdop:` block).
   bridge::RpdopRelayOptions rpdop_relay;
   std::string bus;  // the one SocketCAN interface the surface master sees
+  // The SDO time-out of the masters on that bus (`master_sdo_timeout_ms`): how long a request in
+  // flight at a cut may wait for its answer, and the age past which no abort goes out.
+  std::chrono::milliseconds master_sdo_timeout{1000};
   // The operators' CiA 309-3 command endpoint (`command_endpoint:`; tokens read from their
   // files); unset when the file has no such block: no endpoint. Then the 309-3 network numbers
   // of the modules (`networks:`) and the answer deadlines of remote access.

@@ -198,7 +198,6 @@ TEST(SdoLinkGuard, ADiscardedRequestIsAbortedOnlyWhileItsMasterStillWaits) {
   EXPECT_FALSE(guard.on_request_discarded(kHeartbeat34));
   EXPECT_FALSE(guard.on_request_discarded(abort_of(0x622, 0x1018, 0x01)));
 }
-
 }  // namespace
 }  // namespace canbridge::bridge
 
@@ -450,6 +449,89 @@ TEST_F(SdoLinkGuardStale, BlockUploadPassesEverySegmentOfTheServer) {
 TEST_F(SdoLinkGuardStale, ABlockUploadTheServerSwitchesToTheUploadProtocolPasses) {
   ASSERT_TRUE(send({0xA4, 0x00, 0x21, 0x00, 127, 4, 0, 0}));  // protocol switch threshold 4
   EXPECT_TRUE(answer({0x43, 0x00, 0x21, 0x00, 1, 2, 3, 4}));
+}
+
+// Issue 27: a request in flight at a cut may have been executed; its answer, resent by the
+// gateway on the next link, is delivered if it comes in time (the master's time-out of 1000 ms
+// here: until 800 ms after the request), else the abort goes out then, before the master's own
+// time-out.
+using namespace std::chrono_literals;
+
+class SdoLinkGuardRecovery : public ::testing::Test {
+ protected:
+  SdoLinkGuardRecovery() { (void)guard.on_gateway_frame(1, kHeartbeat34); }
+  bool up = true;
+  SdoLinkGuard guard{{.transfer_open_for = 1000ms, .answer_wait = 800ms}};
+  const SdoLinkGuard::Clock::time_point t0{std::chrono::hours(1)};
+  const can::Frame answer_1018 = can::Frame::standard(0x5A2, {0x43, 0x18, 0x10, 0x01, 1, 2, 3, 4});
+  bool send(const can::Frame& request, SdoLinkGuard::Clock::time_point at) {
+    return guard
+        .on_surface_frame(
+            request, [this](auto) { return up; }, at)
+        .forward;
+  }
+};
+
+TEST_F(SdoLinkGuardRecovery, AnAnswerTheNextLinkBringsInTimeReachesTheMaster) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  up = false;
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 300ms).empty());  // no abort yet
+  EXPECT_EQ(guard.next_deadline(), t0 + 800ms);
+  up = true;
+  EXPECT_TRUE(guard.on_gateway_frame(1, answer_1018));  // resent by the gateway, new link
+  EXPECT_EQ(guard.counters().answers_recovered, 1u);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  EXPECT_TRUE(guard.on_time(t0 + 800ms).empty());
+  EXPECT_EQ(guard.counters().aborted_in_flight, 0u);
+}
+
+TEST_F(SdoLinkGuardRecovery, WithoutItsAnswerInTimeTheMasterGetsTheAbortBeforeItsOwnTimeOut) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  up = false;
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 300ms).empty());
+  EXPECT_TRUE(guard.on_time(t0 + 799ms).empty());
+  const auto aborts = guard.on_time(t0 + 800ms);
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_EQ(guard.counters().aborted_in_flight, 1u);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  up = true;
+  EXPECT_FALSE(guard.on_gateway_frame(1, answer_1018));  // after the abort: never delivered
+  EXPECT_EQ(guard.counters().late_responses_dropped, 1u);
+  EXPECT_EQ(guard.counters().answers_recovered, 0u);
+}
+
+TEST_F(SdoLinkGuardRecovery, ALinkThatDropsAfterTheWaitAbortsAtOnce) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  up = false;
+  ASSERT_EQ(guard.on_gateway_down(1, t0 + 800ms).size(), 1u);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  EXPECT_FALSE(send(kRead1018, t0 + 1000ms));  // the link is known down: aborted at once
+  EXPECT_EQ(guard.counters().aborted_at_once, 1u);
+}
+
+TEST_F(SdoLinkGuardRecovery, ANewerRequestOfTheMasterEndsTheWait) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  up = false;
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 300ms).empty());
+  // The master timed out itself (python-canopen: 0.3 s) and asks again: aborted at once, and the
+  // old request is not aborted later (its master has moved on).
+  const auto again = guard.on_surface_frame(
+      kRead1018, [](auto) { return false; }, t0 + 400ms);
+  ASSERT_TRUE(again.reply);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  EXPECT_TRUE(guard.on_time(t0 + 900ms).empty());
+}
+
+TEST_F(SdoLinkGuardRecovery, ANewGatewayProcessEndsTheWaitAtOnce) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  up = false;
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 300ms).empty());
+  EXPECT_TRUE(guard.on_gateway_restart(2, t0 + 400ms).empty());  // another gateway's
+  const auto aborts = guard.on_gateway_restart(1, t0 + 400ms);
+  ASSERT_EQ(aborts.size(), 1u);  // the old process's answer is lost with it
+  EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
 }
 
 }  // namespace
