@@ -24,10 +24,21 @@ phase() {
 image_prep_log=/tmp/canbridge-image-prep.log
 # One apt at a time: the two background jobs take turns on this lock.
 apt_lock=/tmp/canbridge-apt.lock
+# Both background jobs run at the lowest weight (below): unpacking packages and building the
+# image's layers took CPU from the sanitizer build while it waits for nothing until the image test.
+lowest_weight() {
+  local sid_file=$1
+  shift
+  nice -n 19 setsid --wait bash -c \
+    'echo $$ >"$0"; echo 19 >/proc/self/autogroup 2>/dev/null; exec "$@"' "$sid_file" "$@"
+}
+image_prep_session=/tmp/canbridge-image-prep.sid
+rm -f "$image_prep_session"
 {
   flock "$apt_lock" env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
     --no-install-recommends podman debootstrap docker-compose &&
-    IMAGE=localhost/canbridge-runtime-base:warm "$root/docker/build.sh" -- --target runtime-base
+    IMAGE=localhost/canbridge-runtime-base:warm lowest_weight "$image_prep_session" \
+      "$root/docker/build.sh" -- --target runtime-base
 } >"$image_prep_log" 2>&1 &
 image_prep_pid=$!
 
@@ -45,20 +56,22 @@ armhf_session=/tmp/canbridge-armhf-build.sid
 rm -rf "$armhf_tree" "$armhf_session"
 {
   flock "$apt_lock" "$root/tools/install-cross-deps.sh" armhf &&
-    CANBRIDGE_CROSS_BUILD_ONLY=1 nice -n 19 setsid --wait bash -c \
-      'echo $$ >"$0"; echo 19 >/proc/self/autogroup 2>/dev/null; exec "$@"' "$armhf_session" \
+    CANBRIDGE_CROSS_BUILD_ONLY=1 lowest_weight "$armhf_session" \
       "$root/tools/cross-build.sh" armhf "$armhf_tree" -- "${armhf_cmake_args[@]}"
 } >"$armhf_build_log" 2>&1 &
 armhf_build_pid=$!
 # A failing phase ends this script early: the build's session (compilers included) goes with it.
 # The trap must not fail itself: under `set -e` a failing command in it (pkill finding nothing
 # left in the session, the normal case at the end of a green run) becomes the script's status.
-stop_armhf_build() {
-  if [[ -s $armhf_session ]]; then
-    pkill -s "$(cat "$armhf_session")" 2>/dev/null || true
-  fi
+stop_background_jobs() {
+  local sid_file
+  for sid_file in "$armhf_session" "$image_prep_session"; do
+    if [[ -s $sid_file ]]; then
+      pkill -s "$(cat "$sid_file")" 2>/dev/null || true
+    fi
+  done
 }
-trap stop_armhf_build EXIT
+trap stop_background_jobs EXIT
 
 phase "sanitizer build (ASan+UBSan): unit tests"
 rm -rf "$root/build-asan"
@@ -88,7 +101,8 @@ rm -rf "$root/build"
 # own sittings, bench/README.md; `cmake --build build` of a developer tree builds them).
 cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
   -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=ON -DCANBRIDGE_IMAGE_TEST_PREBUILT=ON \
-  -DCANBRIDGE_BENCH_TOOLS=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON >/dev/null
+  -DCANBRIDGE_BENCH_TOOLS=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON \
+  -DCANBRIDGE_RIG_PROGRAM_OPTIONS=-O0 >/dev/null
 cmake --build "$root/build" -j "$jobs"
 phase "system tests and the other checks of the plain build"
 # One apt at a time: the background preparation must be done before a test could install.
