@@ -49,6 +49,13 @@ struct DropCount {
   std::uint64_t count = 0;
 };
 
+// What became of the SDO requests of the masters on the surface bus across link cuts (the
+// surface only; docs/canopen-bridging.md, "What each request comes to across a cut").
+struct SdoOutcomeCount {
+  std::string outcome;
+  std::uint64_t count = 0;
+};
+
 struct NodeSummary {
   std::uint64_t operational = 0;
   std::uint64_t pre_operational = 0;
@@ -64,6 +71,7 @@ struct RoleStatistics {
   std::vector<BusStatistics> buses;
   BackboneStatistics backbone;
   std::vector<DropCount> drops;  // every reason, zero ones included: a stable set of names
+  std::vector<SdoOutcomeCount> sdo_requests;  // every outcome, zeros included; empty: gateway
   NodeSummary nodes;
   std::uint64_t drops_total() const;
 };

@@ -190,9 +190,18 @@ std::string statistics_json(const RoleStatistics& s, const RoleRates& r) {
     j +=
         fmt::format("{}{}:{}", i == 0 ? "" : ",", json_string(s.drops[i].reason), s.drops[i].count);
   }
+  j += "}}";
+  if (!s.sdo_requests.empty()) {
+    j += ",\"sdo_requests\":{";
+    for (std::size_t i = 0; i < s.sdo_requests.size(); ++i) {
+      j += fmt::format("{}{}:{}", i == 0 ? "" : ",", json_string(s.sdo_requests[i].outcome),
+                       s.sdo_requests[i].count);
+    }
+    j += "}";
+  }
   const NodeSummary& n = s.nodes;
   j += fmt::format(
-      "}}}},\"nodes\":{{\"total\":{},\"operational\":{},\"pre_operational\":{},\"stopped\":{},"
+      ",\"nodes\":{{\"total\":{},\"operational\":{},\"pre_operational\":{},\"stopped\":{},"
       "\"in_loader\":{},\"lost\":{}}}}}",
       n.total(), n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost);
   return j;
@@ -286,6 +295,14 @@ std::string statistics_prometheus(const RoleStatistics& s) {
   for (const DropCount& d : s.drops) {
     e.sample("canbridge_dropped_frames_total", fmt::format("reason=\"{}\"", label_value(d.reason)),
              d.count);
+  }
+  if (!s.sdo_requests.empty()) {
+    e.family("canbridge_sdo_requests_total", "counter",
+             "surface masters' SDO requests across link cuts, by outcome");
+    for (const SdoOutcomeCount& o : s.sdo_requests) {
+      e.sample("canbridge_sdo_requests_total",
+               fmt::format("outcome=\"{}\"", label_value(o.outcome)), o.count);
+    }
   }
   e.family("canbridge_nodes", "gauge", "nodes in the node table by state");
   const NodeSummary& n = s.nodes;

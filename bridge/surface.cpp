@@ -779,6 +779,17 @@ RoleStatistics Surface::statistics() const {
   s.drops.push_back({"unknown-module", c.unknown_module});
   s.drops.push_back({"pdop-malformed", c.pdop_malformed});
   s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
+  s.sdo_requests = {
+      {"aborted-link-down", c.sdo_aborted},
+      {"aborted-given-up", c.sdo_aborted_dropped},
+      {"answers-recovered", c.sdo_answers_recovered},
+      {"withdrawn-pending", c.sdo_withdrawn_pending},
+      {"withdrawn-answered-before", c.sdo_withdrawn_answered_before},
+      {"withdrawn-untracked", c.sdo_withdrawn_untracked},
+      {"late-answers-dropped", c.sdo_late_responses_dropped},
+      {"stale-answers-dropped", c.sdo_stale_responses_dropped},
+      {"stale-aborts-dropped", c.sdo_stale_aborts_dropped},
+  };
   // A gateway whose link is down counts its nodes lost (SurfaceNodeStates): the master cannot
   // reach them.
   s.nodes = node_states_.summary([this](SurfaceNodeStates::GatewayId g) {

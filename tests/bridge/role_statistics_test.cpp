@@ -163,6 +163,23 @@ TEST(StatisticsPrometheus, CountersGaugesAndLabels) {
   }
 }
 
+// The surface's SDO request outcomes across cuts: in JSON after the drops, as a labelled
+// counter in Prometheus; a gateway (no outcomes) shows neither.
+TEST(StatisticsJson, TheSurfacesSdoOutcomesFollowTheDrops) {
+  RoleStatistics s = gateway_snapshot(3000, 30000, 2900, 130, 4);
+  EXPECT_EQ(statistics_json(s, two_second_rates()).find("sdo_requests"), std::string::npos);
+  EXPECT_EQ(statistics_prometheus(s).find("canbridge_sdo_requests_total"), std::string::npos);
+  s.sdo_requests = {{"aborted-link-down", 3}, {"answers-recovered", 2}};
+  const std::string json = statistics_json(s, two_second_rates());
+  EXPECT_NE(json.find(R"("conflated":0}},"sdo_requests":{"aborted-link-down":3,)"
+                      R"("answers-recovered":2},"nodes":{)"),
+            std::string::npos)
+      << json;
+  EXPECT_NE(statistics_prometheus(s).find(
+                "canbridge_sdo_requests_total{outcome=\"answers-recovered\"} 2\n"),
+            std::string::npos);
+}
+
 TEST(StatisticsPrometheus, LabelValuesAreEscaped) {
   RoleStatistics s;
   s.drops = {{"odd\"reason\\", 1}};
