@@ -318,12 +318,17 @@ flock -u 9
 # ---- this run ----
 work=$(mktemp -d /tmp/canbridge-qemu-rig.XXXXXX)
 qemu_pid=
+tail_pid=
 # shellcheck disable=SC2317  # run by the EXIT trap
 cleanup() {
   [[ -n $qemu_pid ]] && kill "$qemu_pid" 2>/dev/null
+  [[ -n $tail_pid ]] && kill "$tail_pid" 2>/dev/null
   if [[ ${CANBRIDGE_RIG_KEEP:-0} == 1 ]]; then say "kept $work"; else rm -rf "$work"; fi
 }
 trap cleanup EXIT
+# Killed (ctest's timeout, ^C): the EXIT trap stops the guest.
+trap 'exit 143' TERM HUP
+trap 'exit 130' INT
 mkdir "$work/share"
 
 # The /tmp folders that must stay the host's: where the working directory and any argument lie.
@@ -381,7 +386,9 @@ kernel=$kdir/vmlinux
 start=$(date +%s.%N)
 # The host's root, cached in the guest (loose): the guest reads programs and libraries many times
 # and nothing on the host changes them while it runs; what it writes reaches the host at its sync.
-timeout --kill-after=10 "$timeout_s" qemu-system-x86_64 "${accel_opts[@]}" -smp "$smp" \
+# setpriv --pdeathsig: should this script be killed outright, the guest goes with it.
+setpriv --pdeathsig KILL -- timeout --kill-after=10 "$timeout_s" \
+  setpriv --pdeathsig KILL -- qemu-system-x86_64 "${accel_opts[@]}" -smp "$smp" \
   -m "$mem" -M pc -nodefaults -no-user-config -display none -no-reboot -nic none \
   -serial "file:$work/console.log" \
   -device virtio-rng-pci \
@@ -391,8 +398,12 @@ timeout --kill-after=10 "$timeout_s" qemu-system-x86_64 "${accel_opts[@]}" -smp 
   -append "console=ttyS0 quiet loglevel=3 panic=-1 rdinit=/init rig.msize=512000 rig.cache=loose rig.verbose=$verbose rig.vcan=$vcan_count rig.modprobe=$kdir/bin/modprobe ${CANBRIDGE_RIG_APPEND:-}" \
   </dev/null >"$work/qemu.log" 2>&1 &
 qemu_pid=$!
-# The output while it is written (tail ends after the last bytes once qemu has exited).
-tail --pid="$qemu_pid" -s 0.2 -n +1 -f "$work/share/output" 2>/dev/null || true
+# The output while it is written (tail ends after the last bytes once qemu has exited); waited for
+# in the background, where a signal to this script is handled at once.
+tail --pid="$qemu_pid" -s 0.2 -n +1 -f "$work/share/output" 2>/dev/null &
+tail_pid=$!
+wait "$tail_pid" || true
+tail_pid=
 rc=0
 wait "$qemu_pid" || rc=$?
 qemu_pid=
