@@ -13,9 +13,11 @@
 # reach the command, which runs as root in the caller's working directory. Its stdout and stderr
 # come back merged on stdout (as from vcan_rig.sh), while it runs.
 # Rig settings: CANBRIDGE_RIG_SMP (guest CPUs, 2), CANBRIDGE_RIG_ACCEL (kvm or tcg; default kvm
-# where /dev/kvm opens, else tcg), CANBRIDGE_RIG_CACHE (the kernel cache folder),
-# CANBRIDGE_RIG_REFRESH_DAYS (7: how old the cached kernel may get before apt is asked whether
-# Debian has a newer one), CANBRIDGE_RIG_VERBOSE=1 (boot time and accelerator on stderr).
+# where /dev/kvm is writable and the CPU shows vmx or svm, else tcg), CANBRIDGE_RIG_CACHE (the
+# kernel cache folder; /var/cache/canbridge-rig for root), CANBRIDGE_RIG_REFRESH_DAYS (7: how old
+# the cached kernel may get before apt is asked whether Debian has a newer one),
+# CANBRIDGE_RIG_VERBOSE=1 (boot times, accelerator and the guest's log on stderr),
+# CANBRIDGE_RIG_KEEP=1 (keep this run's folder), CANBRIDGE_RIG_APPEND (more kernel parameters).
 #
 # How: on first use it installs qemu-system-x86, busybox-static, cpio, kmod and xz-utils
 # (apt-get), fetches Debian's current linux-image-*-amd64 for this release with `apt-get download`
@@ -119,8 +121,8 @@ apt_kernel() {
   pkg=$(apt-cache depends linux-image-amd64 2>/dev/null |
     awk '/Depends: linux-image-/ {sub(/:.*/, "", $2); print $2; exit}')
   [[ -n $pkg ]] || return 0
-  ver=$(apt-cache show "$pkg" 2>/dev/null | awk '/^Version:/ {print $2; exit}')
-  [[ -n $ver ]] && echo "$pkg $ver"
+  ver=$(apt-cache show --no-all-versions "$pkg" 2>/dev/null | awk '/^Version:/ {print $2; exit}')
+  if [[ -n $ver ]]; then echo "$pkg $ver"; fi
 }
 
 # missing_deps ROOT RELEASE MODULE...: the modules named, or depended on by them (each .ko's own
