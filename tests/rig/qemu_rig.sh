@@ -169,19 +169,23 @@ fetch_kernel() {
     rm -rf "$tmp"
   fi
   tmp=$(mktemp -d "$cache/new.XXXXXX")
+  # Called as a condition (errexit does not apply here): each step checks for itself.
+  give_up() { say "$1"; rm -rf "$tmp"; return 1; }
   mkdir "$tmp/root"
-  # Only what a CAN rig needs of the ~400 MB: the kernel, the module lists, and the module
-  # folders of networking (CAN, can-gw, qdiscs, ...), virtio, 9p and what they link against.
-  dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$tmp/root" --wildcards \
+  # Only what a CAN rig needs of the ~400 MB (~85 MB): the kernel, the module lists, and the
+  # module folders of networking (CAN, can-gw, qdiscs, ...), the virtual network devices (not the
+  # hardware drivers below them), virtio, 9p and what they link against.
+  dpkg-deb --fsys-tarfile "$deb" | tar -x -C "$tmp/root" --wildcards --no-wildcards-match-slash \
     './boot/vmlinuz-*' './lib/modules/*/modules.order' './lib/modules/*/modules.builtin' \
     './lib/modules/*/modules.builtin.modinfo' \
     './lib/modules/*/kernel/net/*' './lib/modules/*/kernel/drivers/net/can/*' \
     './lib/modules/*/kernel/drivers/virtio/*' './lib/modules/*/kernel/drivers/char/hw_random/*' \
     './lib/modules/*/kernel/fs/9p/*' './lib/modules/*/kernel/fs/netfs/*' \
     './lib/modules/*/kernel/fs/fscache/*' './lib/modules/*/kernel/crypto/*' \
-    './lib/modules/*/kernel/lib/*' './lib/modules/*/kernel/drivers/net/*.ko*'
+    './lib/modules/*/kernel/lib/*' './lib/modules/*/kernel/drivers/net/*.ko*' ||
+    { give_up "$deb: not the layout this rig knows (boot/vmlinuz-*, lib/modules/*/kernel/...)"; return 1; }
   release=${pkg#linux-image-}
-  mv "$tmp/root/boot/vmlinuz-$release" "$tmp/vmlinuz"
+  mv "$tmp/root/boot/vmlinuz-$release" "$tmp/vmlinuz" || { give_up "no vmlinuz-$release"; return 1; }
   # The bzImage's own decompressor takes ~10 s under TCG; qemu boots the uncompressed ELF
   # inside it directly (its PVH entry point), so it is unpacked here once (as the kernel's
   # scripts/extract-vmlinux does: from the xz stream's magic on).
@@ -197,13 +201,10 @@ fetch_kernel() {
     say "could not unpack the ELF kernel from vmlinuz: booting the bzImage (slower)"
     rm -f "$tmp/vmlinux"
   fi
-  depmod -b "$tmp/root" "$release"
+  depmod -b "$tmp/root" "$release" || { give_up "depmod failed"; return 1; }
   missing=$(missing_deps "$tmp/root" "$release" "${initramfs_modules[@]}" sch_tbf)
-  if [[ -n $missing ]]; then
-    say "not in the extracted part of $pkg: $(echo "$missing" | tr '\n' ' ')"
-    rm -rf "$tmp"
-    return 1
-  fi
+  [[ -z $missing ]] ||
+    { give_up "not in the extracted part of $pkg: $(echo "$missing" | tr '\n' ' ')"; return 1; }
   # modprobe for the guest (the kernel's and PATH's): the cached tree as its root.
   mkdir "$tmp/bin"
   printf '#!/bin/sh\n# modprobe of the qemu rig guest: modules from the rig cache\nexec /sbin/modprobe -d %q "$@"\n' \
@@ -333,9 +334,10 @@ trap 'exit 143' TERM HUP
 trap 'exit 130' INT
 mkdir "$work/share"
 
-# The /tmp folders that must stay the host's: where the working directory and any argument lie.
+# The /tmp folders that must stay the host's: where the working directory, any argument and the
+# kernel cache (its modules) lie.
 host_tmp=()
-for p in "$PWD" "$@"; do
+for p in "$PWD" "$@" "$kdir"; do
   if [[ $p == /tmp/?* && -e $p ]]; then
     top=${p#/tmp/}; top=${top%%/*}
     [[ " ${host_tmp[*]} " == *" $top "* ]] || host_tmp+=("$top")
