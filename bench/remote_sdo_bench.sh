@@ -27,7 +27,11 @@ build=$(cd "${1:-$root/build}" && pwd)
 runs=${2:-3}
 
 if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
-  exec "$root/tests/rig/vcan_rig.sh" --vcan 3 --mem 1536M --timeout 5400 -- \
+  # shellcheck source=bench/rig_common.sh
+  source "$here/rig_common.sh"
+  # CANBRIDGE_BENCH_RIG=qemu: Debian's kernel in qemu-system instead of user-mode Linux.
+  rig=$(rig_script uml)
+  exec "$rig" --vcan 3 --mem 1536M --timeout 5400 -- \
     env CANBRIDGE_IN_RIG=1 "$0" "$build" "$runs"
 fi
 

@@ -1,22 +1,34 @@
 # shellcheck shell=bash
 # Shared pieces of the bench scripts that run inside the vcan rig (source it, do not run it).
 #
+#   rig_script DEFAULT                         the rig script CANBRIDGE_BENCH_RIG (qemu|uml) or DEFAULT names
 #   rig_reexec VCAN MEM TIMEOUT "$0" ARGS...   re-runs the script inside the rig unless already there
 #   wait_line FILE TEXT [TRIES]                bounded wait for a line (25 ms per try, default 800)
 #   kv FILE KEY                                the value of KEY=value in FILE
 #   median                                     the median of the numbers on stdin ("-" for none)
 #   four_bus_configs SRC DEST                  the four-bus scenario's configs from SRC's
 
-# Re-executes the calling script in the vcan rig (user-mode Linux where the host has no CAN),
-# passing every CANBRIDGE_* variable through (vcan_rig.sh forwards them to the guest).
+# The rig a bench boots, by CANBRIDGE_BENCH_RIG, else DEFAULT: qemu (tests/rig/qemu_rig.sh, Debian's
+# own kernel in qemu-system: system calls cost ~1 us, as on hardware) or uml (tests/rig/vcan_rig.sh:
+# user-mode Linux, ~65 us per system call, or the host itself where its kernel has CAN).
+rig_script() {
+  local root kind=${CANBRIDGE_BENCH_RIG:-$1}
+  root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+  case $kind in
+    qemu) echo "$root/tests/rig/qemu_rig.sh" ;;
+    uml) echo "$root/tests/rig/vcan_rig.sh" ;;
+    *) echo "bench: CANBRIDGE_BENCH_RIG=$kind: qemu or uml" >&2; return 2 ;;
+  esac
+}
+
+# Re-executes the calling script in the rig (rig_script, default uml), passing every CANBRIDGE_*
+# variable through (both rigs forward them to the guest).
 rig_reexec() {
-  local vcan=$1 mem=$2 timeout=$3
+  local vcan=$1 mem=$2 timeout=$3 rig
   shift 3
   if [[ -z ${CANBRIDGE_IN_RIG:-} ]]; then
-    local root
-    root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-    exec "$root/tests/rig/vcan_rig.sh" --vcan "$vcan" --mem "$mem" --timeout "$timeout" -- \
-      env CANBRIDGE_IN_RIG=1 "$@"
+    rig=$(rig_script uml)
+    exec "$rig" --vcan "$vcan" --mem "$mem" --timeout "$timeout" -- env CANBRIDGE_IN_RIG=1 "$@"
   fi
 }
 

@@ -2,7 +2,10 @@
 # Issue 17's one table: the tunnel against raw vcan and the kernel's can-gw, with the sample
 # configs as shipped, all in one boot of the vcan rig.
 #
-#   bench/speed_bench.sh [BUILD_DIR] [RUNS]           (default: build, 1 run; medians over RUNS)
+#   bench/speed_bench.sh [--uml] [BUILD_DIR] [RUNS]   (default: build, 1 run; medians over RUNS)
+#   --uml (or CANBRIDGE_BENCH_RIG=uml): in user-mode Linux (tests/rig/vcan_rig.sh) instead of
+#   Debian's own kernel in qemu-system (tests/rig/qemu_rig.sh, the default: two guest CPUs, system
+#   calls of ~1 us as on hardware, where UML's ~65 us dominated the latency columns).
 #   CANBRIDGE_BASELINE=/work/baseline17/canbridge bench/speed_bench.sh ...   (before/after)
 #   CANBRIDGE_BENCH_TUNE="key=value ..." bench/speed_bench.sh ...            (the tcp-tuned row)
 #   CANBRIDGE_BENCH_ROWS=serial bench/speed_bench.sh ...     (only the canbridge rows matching it)
@@ -50,6 +53,12 @@
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(dirname "$here")
+if [[ ${1:-} == --uml ]]; then
+  CANBRIDGE_BENCH_RIG=uml
+  shift
+fi
+# Exported: it reaches the guest (a CANBRIDGE_* variable), whose first line names the rig.
+export CANBRIDGE_BENCH_RIG=${CANBRIDGE_BENCH_RIG:-qemu}
 build=$(cd "${1:-$root/build}" && pwd)
 runs=${2:-1}
 # shellcheck source=bench/rig_common.sh
@@ -149,7 +158,7 @@ fi
 show_diff() {  # the lines of a derived config that differ from the shipped sample
   diff "$1" "$2" | grep '^[<>]' | sed "s|^|    $(basename "$2"): |" || true
 }
-echo "speed_bench: $(nproc) CPU, $(uname -r), runs $runs, burst $burst (serial $serial_burst)," \
+echo "speed_bench: $CANBRIDGE_BENCH_RIG rig, $(nproc) CPU, $(uname -r), runs $runs, burst $burst (serial $serial_burst)," \
   "paced $paced at 1 ms and $max_count at $max_per_tick per 1 ms, four-bus ${fourbus_seconds} s," \
   "SDO block download $sdo_size B, strace burst $strace_burst; baseline ${baseline:-none}"
 echo "config lines rewritten from config/*.yaml (< shipped, > used):"
