@@ -19,13 +19,13 @@
 #include <fstream>
 #include <map>
 #include <optional>
-#include <set>
 #include <span>
 #include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "bridge/endpoint_server.hpp"
 #include "canopen/ascii_command.hpp"
 #include "canopen/ascii_response.hpp"
 #include "canopen/ascii_value.hpp"
@@ -41,7 +41,10 @@ namespace asio = boost::asio;
 using canopen::AsciiCommand;
 using canopen::AsciiError;
 using canopen::AsciiVerb;
+// A client's socket, Unix or TCP alike: one Session type serves both.
 using Socket = asio::generic::stream_protocol::socket;
+using Local = asio::local::stream_protocol;
+using Tcp = asio::ip::tcp;
 
 namespace {
 
@@ -57,7 +60,6 @@ constexpr std::size_t kWriteBatch = 64 * 1024;
 constexpr std::uint8_t kBlockSize = 127;
 // A firmware image larger than this is not an image (a device file, a mistake).
 constexpr std::uintmax_t kMaxImageBytes = 64ull * 1024 * 1024;
-constexpr std::chrono::milliseconds kAcceptRetryDelay{100};
 
 // Compares in a time that depends on the lengths only, so a wrong token's bytes leak nothing.
 bool same_token(std::string_view a, std::string_view b) {
@@ -194,33 +196,38 @@ class Session;
 }  // namespace
 
 struct CommandEndpoint::Core : std::enable_shared_from_this<CommandEndpoint::Core> {
+  // The accept loops, the client limit and the per-client coroutine are the shared skeleton's
+  // (bridge/endpoint_server.hpp); one limit counts the clients of both listeners.
+  using UnixServer = EndpointServer<Local::acceptor, Socket>;
+  using TcpServer = EndpointServer<Tcp::acceptor, Socket>;
+
   Core(asio::any_io_executor ex, CommandEndpointOptions opts, RemoteAccess& r)
       : executor(std::move(ex)),
         options(std::move(opts)),
         remote(r),
-        unix_acceptor(executor),
-        tcp_acceptor(executor),
-        retry_timer(executor) {}
+        slots(std::make_shared<ClientSlots>(ClientSlots{options.max_clients, 0})) {}
 
   void start();
   void stop();
-  asio::awaitable<void> accept_unix();
-  asio::awaitable<void> accept_tcp();
-  void admit(Socket socket, bool tcp, std::string peer);
-  // Waits a little after a failed accept (EMFILE would fail again at once).
-  asio::awaitable<void> accept_failed(const char* which, const boost::system::error_code& ec);
-  void session_ended(std::uint64_t id);
+  void listen_unix();
+  void listen_tcp();
+  // One client, from its first byte to its close (its Session's reader and writer).
+  static asio::awaitable<void> serve(std::shared_ptr<Core> self, std::shared_ptr<Socket> socket,
+                                     bool tcp);
+  // A client past max_clients: told why on its fresh socket, then closed by the server.
+  template <typename Fresh>
+  void refuse(Fresh& socket, const std::string& peer);
   // Which client a TCP token belongs to; nullptr for none. Looks at every client every time.
   const EndpointClient* client_of(std::string_view token) const;
 
   asio::any_io_executor executor;
   CommandEndpointOptions options;
   RemoteAccess& remote;
-  asio::local::stream_protocol::acceptor unix_acceptor;
-  asio::ip::tcp::acceptor tcp_acceptor;
-  asio::steady_timer retry_timer;
-  std::map<std::uint64_t, std::shared_ptr<Session>> sessions;
-  std::set<std::uint64_t> refused_sessions;  // told "too many clients", not counted as sessions
+  std::shared_ptr<ClientSlots> slots;
+  std::shared_ptr<UnixServer> unix_server;
+  std::shared_ptr<TcpServer> tcp_server;
+  // The sessions being served, for stop(): their pending requests are cancelled there.
+  std::map<std::uint64_t, std::weak_ptr<Session>> sessions;
   std::uint64_t next_session = 0;
   CommandEndpointCounters counters;
   std::uint16_t tcp_port = 0;
@@ -229,7 +236,6 @@ struct CommandEndpoint::Core : std::enable_shared_from_this<CommandEndpoint::Cor
   ino_t socket_inode = 0;
   bool started = false;
   bool stopped = false;
-  bool warned_accept = false;
   bool warned_full = false;
 };
 
@@ -241,40 +247,31 @@ class Session : public std::enable_shared_from_this<Session> {
  public:
   using Core = CommandEndpoint::Core;
 
-  Session(std::shared_ptr<Core> core, std::uint64_t id, Socket socket, bool tcp, std::string peer)
+  Session(std::shared_ptr<Core> core, std::shared_ptr<Socket> socket, bool tcp, std::string peer)
       : core_(std::move(core)),
-        id_(id),
         socket_(std::move(socket)),
-        wake_(socket_.get_executor(), asio::steady_timer::time_point::max()),
-        room_(socket_.get_executor(), asio::steady_timer::time_point::max()),
+        wake_(socket_->get_executor(), asio::steady_timer::time_point::max()),
+        room_(socket_->get_executor(), asio::steady_timer::time_point::max()),
         authenticated_(!tcp),
         role_(EndpointRole::control),
         peer_(std::move(peer)),
         sdo_timeout_(core_->options.sdo_timeout),
         sdo_block_(core_->options.sdo_block) {}
 
-  // Serves the client; `refusal`: answers only this line and closes (the endpoint is full).
-  void start(std::optional<std::string> refusal) {
-    auto self = shared_from_this();
-    loops_ = refusal ? 1 : 2;
-    auto on_end = [self](const char* which) {
-      return [self, which](const std::string& failure) {
-        // Each loop closes the client itself when it ends on its own (a lingering reader leaves
-        // that to the writer); a loop that threw closes it here.
-        if (!failure.empty()) {
-          spdlog::error("command endpoint: {} of client {} failed: {}; client closed", which,
-                        self->peer_, failure);
-          self->close();
-        }
-        if (--self->loops_ == 0) self->core_->session_ended(self->id_);
-      };
-    };
-    if (refusal) {
-      linger(*refusal);
-    } else {
-      coro::spawn_owned(socket_.get_executor(), read_loop(), on_end("reader"));
-    }
-    coro::spawn_owned(socket_.get_executor(), write_loop(), on_end("writer"));
+  // Serves the client until it is closed: the writer runs here, the reader beside it. The
+  // client's end is the writer's (after the last answer, or at close()); a reader that threw
+  // closes the client, which ends the writer too.
+  asio::awaitable<void> run() {
+    coro::spawn_owned(socket_->get_executor(), read_loop(),
+                      [self = shared_from_this()](const std::string& failure) {
+                        if (failure.empty()) return;
+                        spdlog::error(
+                            "command endpoint: the reader of client {} failed: {}; "
+                            "client closed",
+                            self->peer_, failure);
+                        self->close();
+                      });
+    co_await write_loop();
   }
 
   // Ends the client at once: pending requests are cancelled, the monitor feed unsubscribed.
@@ -282,8 +279,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (!open_) return;
     open_ = false;
     boost::system::error_code ignored;
-    socket_.shutdown(asio::socket_base::shutdown_both, ignored);
-    socket_.close(ignored);
+    socket_->shutdown(asio::socket_base::shutdown_both, ignored);
+    socket_->close(ignored);
     wake_.cancel();
     room_.cancel();
     if (subscription_) {
@@ -319,7 +316,7 @@ class Session : public std::enable_shared_from_this<Session> {
       const std::size_t limit = authenticated_ ? core_->options.max_line_bytes : kPreAuthLineBytes;
       // Room for the line's CR LF beyond its `limit` bytes.
       auto [ec, n] = co_await asio::async_read_until(
-          socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
+          *socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
       if (!open_) break;
       if (ec == asio::error::not_found) {
         linger(canopen::ascii_error(
@@ -344,13 +341,13 @@ class Session : public std::enable_shared_from_this<Session> {
         if (lingering_ && replies_.empty()) {
           // The last answer is out: tell the client we are done before closing.
           boost::system::error_code ignored;
-          socket_.shutdown(asio::socket_base::shutdown_send, ignored);
+          socket_->shutdown(asio::socket_base::shutdown_send, ignored);
           break;
         }
         co_await wake_.async_wait(kNoError);
         continue;
       }
-      auto [ec, n] = co_await asio::async_write(socket_, asio::buffer(batch), kNoError);
+      auto [ec, n] = co_await asio::async_write(*socket_, asio::buffer(batch), kNoError);
       if (ec) break;
     }
     close();
@@ -391,12 +388,19 @@ class Session : public std::enable_shared_from_this<Session> {
   void linger(std::string line, std::optional<std::uint32_t> sequence = std::nullopt) {
     ReplyPtr reply = new_reply(sequence);
     finish(reply, std::move(line));
+    stop_reading();
+  }
+
+  // Reads nothing more: the requests already read are answered, then the client is closed. A
+  // monitor feed ends here (it has no last answer to wait for).
+  void stop_reading() {
     lingering_ = true;
     if (subscription_) {
       core_->remote.unsubscribe(*subscription_);
       subscription_.reset();
       monitor_lines_.clear();
     }
+    wake_.cancel();  // the writer may be done already
   }
 
   ReplyPtr new_reply(std::optional<std::uint32_t> sequence) {
@@ -706,8 +710,7 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   std::shared_ptr<Core> core_;
-  std::uint64_t id_;
-  Socket socket_;
+  std::shared_ptr<Socket> socket_;
   asio::steady_timer wake_;  // wakes the writer: something to write, or closing
   asio::steady_timer room_;  // wakes the reader: an answer went out
   std::deque<ReplyPtr> replies_;
@@ -725,7 +728,6 @@ class Session : public std::enable_shared_from_this<Session> {
   bool open_ = true;
   bool lingering_ = false;  // answers the rest, then closes; reads nothing more
   bool warned_refused_ = false;
-  int loops_ = 0;
 };
 
 }  // namespace
@@ -733,164 +735,161 @@ class Session : public std::enable_shared_from_this<Session> {
 void CommandEndpoint::Core::start() {
   if (started || stopped) throw std::runtime_error("command endpoint: started twice");
   started = true;
-  namespace local = asio::local;
-  boost::system::error_code ec;
+  if (!options.unix_socket.empty()) listen_unix();
+  if (options.tcp_port != 0) listen_tcp();
+  // Accepting starts once every listener is bound: a failed one leaves none serving.
+  if (unix_server) unix_server->start();
+  if (tcp_server) tcp_server->start();
+}
+
+void CommandEndpoint::Core::listen_unix() {
   const auto& path = options.unix_socket;
-  if (!path.empty()) {
-    struct stat st {};
-    if (::lstat(path.c_str(), &st) == 0) {
-      if (!S_ISSOCK(st.st_mode)) {
-        throw std::runtime_error("command endpoint: " + path +
-                                 " exists and is not a socket; refusing to replace it");
-      }
-      // A socket file someone still serves is not stale: two surfaces must not share it.
-      local::stream_protocol::socket probe(executor);
-      probe.connect(local::stream_protocol::endpoint(path), ec);
-      if (!ec) {
-        throw std::runtime_error("command endpoint: another process serves " + path);
-      }
-      ::unlink(path.c_str());
+  unix_server = std::make_shared<UnixServer>(
+      executor, "command endpoint (" + path + ")", slots,
+      [weak = weak_from_this()](std::shared_ptr<Socket> socket) {
+        return serve(weak.lock(), std::move(socket), false);
+      },
+      [weak = weak_from_this()](Local::socket& socket) {
+        if (const auto self = weak.lock()) self->refuse(socket, "on " + self->options.unix_socket);
+      });
+  Local::acceptor& acceptor = unix_server->acceptor();
+  boost::system::error_code ec;
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) == 0) {
+    if (!S_ISSOCK(st.st_mode)) {
+      throw std::runtime_error("command endpoint: " + path +
+                               " exists and is not a socket; refusing to replace it");
     }
-    unix_acceptor.open(local::stream_protocol(), ec);
-    if (!ec) unix_acceptor.bind(local::stream_protocol::endpoint(path), ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot bind " + path + ": " + ec.message());
-    }
-    socket_path = path;
-    if (::lstat(path.c_str(), &st) == 0) socket_inode = st.st_ino;
-    // Before listen(): nobody can connect while the mode is still the umask's.
-    if (::chmod(path.c_str(), 0660) != 0) {
-      throw std::runtime_error("command endpoint: cannot chmod " + path + ": " +
-                               std::strerror(errno));
-    }
-    unix_acceptor.listen(asio::socket_base::max_listen_connections, ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + path + ": " + ec.message());
-    }
-    spdlog::info("command endpoint: listening on {}", path);
+    // A socket file someone still serves is not stale: two surfaces must not share it.
+    Local::socket probe(executor);
+    probe.connect(Local::endpoint(path), ec);
+    if (!ec) throw std::runtime_error("command endpoint: another process serves " + path);
+    ::unlink(path.c_str());
   }
-  if (options.tcp_port != 0) {
-    const auto address = asio::ip::make_address(options.tcp_address, ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
-                               " is not an IP address");
-    }
-    if (!address.is_loopback()) {
-      throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
-                               " is not a loopback address; the TCP endpoint only listens on "
-                               "loopback (docs/security.md)");
-    }
-    const asio::ip::tcp::endpoint endpoint(address, options.tcp_port);
-    tcp_acceptor.open(endpoint.protocol(), ec);
-    if (!ec) tcp_acceptor.set_option(asio::ip::tcp::acceptor::reuse_address(true), ec);
-    if (!ec) tcp_acceptor.bind(endpoint, ec);
-    if (!ec) tcp_acceptor.listen(asio::socket_base::max_listen_connections, ec);
-    if (!ec) tcp_port = tcp_acceptor.local_endpoint(ec).port();
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address + ":" +
-                               std::to_string(options.tcp_port) + ": " + ec.message());
-    }
-    if (options.clients.empty()) {
-      spdlog::warn("command endpoint: TCP on port {} has no clients: every auth fails", tcp_port);
-    }
-    spdlog::info("command endpoint: listening on {}:{}", options.tcp_address, tcp_port);
+  acceptor.open(Local(), ec);
+  if (!ec) acceptor.bind(Local::endpoint(path), ec);
+  if (ec) throw std::runtime_error("command endpoint: cannot bind " + path + ": " + ec.message());
+  socket_path = path;
+  if (::lstat(path.c_str(), &st) == 0) socket_inode = st.st_ino;
+  // Before listen(): nobody can connect while the mode is still the umask's.
+  if (::chmod(path.c_str(), 0660) != 0) {
+    throw std::runtime_error("command endpoint: cannot chmod " + path + ": " +
+                             std::strerror(errno));
   }
-  auto on_end = [self = shared_from_this()](const char* which) {
-    return [self, which](const std::string& failure) {
-      if (failure.empty()) return;
-      spdlog::error("command endpoint: {} failed: {}; endpoint stopped", which, failure);
-      self->stop();
-    };
-  };
-  if (unix_acceptor.is_open()) {
-    coro::spawn_owned(executor, accept_unix(), on_end("Unix socket accept loop"));
+  acceptor.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) {
+    throw std::runtime_error("command endpoint: cannot listen on " + path + ": " + ec.message());
   }
-  if (tcp_acceptor.is_open()) coro::spawn_owned(executor, accept_tcp(), on_end("TCP accept loop"));
+  spdlog::info("command endpoint: listening on {}", path);
+}
+
+void CommandEndpoint::Core::listen_tcp() {
+  boost::system::error_code ec;
+  const auto address = asio::ip::make_address(options.tcp_address, ec);
+  if (ec) {
+    throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
+                             " is not an IP address");
+  }
+  if (!address.is_loopback()) {
+    throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
+                             " is not a loopback address; the TCP endpoint only listens on "
+                             "loopback (docs/security.md)");
+  }
+  tcp_server = std::make_shared<TcpServer>(
+      executor, "command endpoint (TCP)", slots,
+      [weak = weak_from_this()](std::shared_ptr<Socket> socket) {
+        return serve(weak.lock(), std::move(socket), true);
+      },
+      [weak = weak_from_this()](Tcp::socket& socket) {
+        boost::system::error_code ignored;
+        const auto peer = socket.remote_endpoint(ignored);
+        if (const auto self = weak.lock()) {
+          self->refuse(socket, peer.address().to_string() + ":" + std::to_string(peer.port()));
+        }
+      });
+  Tcp::acceptor& acceptor = tcp_server->acceptor();
+  const Tcp::endpoint endpoint(address, options.tcp_port);
+  acceptor.open(endpoint.protocol(), ec);
+  if (!ec) acceptor.set_option(Tcp::acceptor::reuse_address(true), ec);
+  if (!ec) acceptor.bind(endpoint, ec);
+  if (!ec) acceptor.listen(asio::socket_base::max_listen_connections, ec);
+  if (!ec) tcp_port = acceptor.local_endpoint(ec).port();
+  if (ec) {
+    throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address + ":" +
+                             std::to_string(options.tcp_port) + ": " + ec.message());
+  }
+  if (options.clients.empty()) {
+    spdlog::warn("command endpoint: TCP on port {} has no clients: every auth fails", tcp_port);
+  }
+  spdlog::info("command endpoint: listening on {}:{}", options.tcp_address, tcp_port);
 }
 
 void CommandEndpoint::Core::stop() {
   if (stopped) return;
   stopped = true;
-  boost::system::error_code ignored;
-  unix_acceptor.close(ignored);
-  tcp_acceptor.close(ignored);
-  retry_timer.cancel();
+  // Each client's pending requests are cancelled before its socket goes: close() does both.
+  for (const auto& [id, weak] : std::map(sessions)) {
+    if (const auto session = weak.lock()) session->close();
+  }
+  if (unix_server) unix_server->stop();
+  if (tcp_server) tcp_server->stop();
   // Only the file this endpoint made: a successor may have replaced it already.
   struct stat st {};
   if (!socket_path.empty() && ::lstat(socket_path.c_str(), &st) == 0 && st.st_ino == socket_inode &&
       S_ISSOCK(st.st_mode)) {
     ::unlink(socket_path.c_str());
   }
-  for (auto& [id, session] : std::map(sessions)) session->close();
 }
 
-asio::awaitable<void> CommandEndpoint::Core::accept_failed(const char* which,
-                                                           const boost::system::error_code& ec) {
-  if (!warned_accept) {
-    warned_accept = true;
-    spdlog::warn("command endpoint: accept on the {} failed: {} (further failures are not logged)",
-                 which, ec.message());
-  }
-  retry_timer.expires_after(kAcceptRetryDelay);
-  co_await retry_timer.async_wait(kNoError);
-}
-
-asio::awaitable<void> CommandEndpoint::Core::accept_unix() {
-  while (!stopped) {
-    auto [ec, socket] = co_await unix_acceptor.async_accept(kNoError);
-    if (stopped) break;
-    if (ec) {
-      co_await accept_failed("Unix socket", ec);
-      continue;
-    }
-    admit(Socket(std::move(socket)), false, "unix#" + std::to_string(next_session + 1));
-  }
-}
-
-asio::awaitable<void> CommandEndpoint::Core::accept_tcp() {
-  while (!stopped) {
-    auto [ec, socket] = co_await tcp_acceptor.async_accept(kNoError);
-    if (stopped) break;
-    if (ec) {
-      co_await accept_failed("TCP port", ec);
-      continue;
-    }
+asio::awaitable<void> CommandEndpoint::Core::serve(std::shared_ptr<Core> self,
+                                                   std::shared_ptr<Socket> socket, bool tcp) {
+  if (!self || self->stopped) co_return;
+  const std::uint64_t id = ++self->next_session;
+  std::string peer = "unix#" + std::to_string(id);
+  if (tcp) {
+    // The generic socket's address is a TCP one: read it back as such, for the logs.
     boost::system::error_code ignored;
-    const auto remote_end = socket.remote_endpoint(ignored);
-    admit(Socket(std::move(socket)), true,
-          remote_end.address().to_string() + ":" + std::to_string(remote_end.port()));
-  }
-}
-
-void CommandEndpoint::Core::admit(Socket socket, bool tcp, std::string peer) {
-  const std::uint64_t id = ++next_session;
-  auto session = std::make_shared<Session>(shared_from_this(), id, std::move(socket), tcp, peer);
-  std::optional<std::string> refusal;
-  if (counters.sessions >= options.max_clients) {
-    ++counters.clients_refused;
-    if (!warned_full) {
-      warned_full = true;
-      spdlog::warn(
-          "command endpoint: {} clients connected (max_clients): client {} refused (further "
-          "refusals are only counted)",
-          options.max_clients, peer);
+    const auto generic = socket->remote_endpoint(ignored);
+    Tcp::endpoint remote_end;
+    if (!ignored && generic.size() <= remote_end.capacity()) {
+      std::memcpy(remote_end.data(), generic.data(), generic.size());
+      remote_end.resize(generic.size());
+      peer = remote_end.address().to_string() + ":" + std::to_string(remote_end.port());
     }
-    refusal =
-        canopen::ascii_error(std::nullopt, AsciiError::internal_state,
-                             "too many clients (" + std::to_string(options.max_clients) + ")");
-  } else {
-    ++counters.clients;
-    ++counters.sessions;
-    spdlog::debug("command endpoint: client {} connected", peer);
   }
-  sessions.emplace(id, session);
-  if (refusal) refused_sessions.insert(id);
-  session->start(refusal);
+  ++self->counters.clients;
+  spdlog::debug("command endpoint: client {} connected", peer);
+  const auto session = std::make_shared<Session>(self, std::move(socket), tcp, peer);
+  self->sessions.emplace(id, session);
+  // However the session ends (even by an exception), its requests are cancelled and stop()
+  // forgets it.
+  struct Forget {
+    Core& core;
+    std::uint64_t id;
+    Session& session;
+    ~Forget() {
+      session.close();
+      core.sessions.erase(id);
+    }
+  } forget{*self, id, *session};
+  co_await session->run();
 }
 
-void CommandEndpoint::Core::session_ended(std::uint64_t id) {
-  if (refused_sessions.erase(id) == 0) --counters.sessions;
-  sessions.erase(id);
+template <typename Fresh>
+void CommandEndpoint::Core::refuse(Fresh& socket, const std::string& peer) {
+  ++counters.clients_refused;
+  if (!warned_full) {
+    warned_full = true;
+    spdlog::warn(
+        "command endpoint: {} clients connected (max_clients): client {} refused (further "
+        "refusals are only counted)",
+        options.max_clients, peer);
+  }
+  const std::string line =
+      canopen::ascii_error(std::nullopt, AsciiError::internal_state,
+                           "too many clients (" + std::to_string(options.max_clients) + ")");
+  boost::system::error_code ignored;
+  asio::write(socket, asio::buffer(line), ignored);  // a few bytes on a fresh socket
 }
 
 const EndpointClient* CommandEndpoint::Core::client_of(std::string_view token) const {
@@ -933,7 +932,9 @@ std::uint16_t CommandEndpoint::tcp_port() const {
 }
 
 CommandEndpointCounters CommandEndpoint::counters() const {
-  return core_->counters;
+  CommandEndpointCounters counters = core_->counters;
+  counters.sessions = core_->slots->used;
+  return counters;
 }
 
 }  // namespace canbridge::bridge
