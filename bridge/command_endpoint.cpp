@@ -1,5 +1,6 @@
 #include "bridge/command_endpoint.hpp"
 
+#include <poll.h>
 #include <spdlog/spdlog.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -324,12 +325,39 @@ class Session : public std::enable_shared_from_this<Session> {
             "line longer than " + std::to_string(limit) + " bytes; connection closed"));
         break;
       }
-      if (ec) break;  // the client left (end of file) or the socket failed
+      if (ec == asio::error::eof) {
+        // The client closed its sending side (`printf ... | socat -t 3 - UNIX-CONNECT:...`,
+        // docs/remote-access.md): it still waits for the answers to what it sent. A last line
+        // without its LF is a request too.
+        if (!buffer.empty()) handle_line(buffer);
+        stop_reading();
+        co_await watch_hangup();
+        co_return;
+      }
+      if (ec) break;  // the socket failed
       std::string_view line(buffer.data(), n - 1);
       handle_line(line);
       buffer.erase(0, n);
     }
     if (!lingering_) close();
+  }
+
+  // After the client's end of file, until the writer closes the client: a client that closed
+  // its socket altogether (not only its sending side) reads no answer, so its pending requests
+  // are cancelled at once rather than run to their end. A Unix socket tells the two apart
+  // (POLLHUP); a TCP peer's close looks like a half-close until an answer is written to it, which
+  // then fails and closes the client the same way.
+  asio::awaitable<void> watch_hangup() {
+    while (open_) {
+      pollfd p{socket_->native_handle(), POLLRDHUP, 0};
+      if (::poll(&p, 1, 0) == 1 && (p.revents & (POLLHUP | POLLERR)) != 0) {
+        close();
+        co_return;
+      }
+      // A hang-up or an error wakes every wait on the socket; close() ends this one.
+      auto [ec] = co_await socket_->async_wait(Socket::wait_error, kNoError);
+      if (ec) co_return;
+    }
   }
 
   asio::awaitable<void> write_loop() {

@@ -201,6 +201,8 @@ class RawClient {
     }
     return out;
   }
+  // Closes the sending side only, as `printf ... | socat` does at the end of its input.
+  void shutdown_send() { ::shutdown(fd_, SHUT_WR); }
   const std::string& received() const { return received_; }
   bool eof() const { return eof_; }
   void close() {
@@ -518,6 +520,49 @@ TEST_F(CommandEndpointTest, DisconnectCancelsPendingRequestsAndMonitor) {
   EXPECT_EQ(remote.cancelled, std::vector<RemoteAccess::RequestId>{remote.calls[1].id});
   EXPECT_TRUE(until([&] { return endpoint->counters().sessions == 0; }));
   remote.complete(1, RemoteOutcome{std::make_error_code(std::errc::operation_canceled), {}, {}});
+}
+
+// `printf '[1] 10 read 0x1008 0 vs\n' | socat -t 3 - UNIX-CONNECT:...`: the client's end of file
+// comes before the answers, which it still reads. Every request already sent is answered, in
+// order, nothing is cancelled, and then the endpoint closes.
+TEST_F(CommandEndpointTest, HalfCloseStillGetsEveryAnswer) {
+  start(options());
+  auto client = connect();
+  client->send("[1] 10 read 0x1008 0 vs\n[2] 5 r 0x1000 0 u8\n");
+  client->shutdown_send();
+  ASSERT_EQ(calls_soon(2), 2u);
+  for (int i = 0; i < 20; ++i) {  // the end of file is read; nothing may be cancelled
+    io.restart();
+    io.poll();
+  }
+  EXPECT_TRUE(remote.cancelled.empty());
+  remote.complete_ok(1, {7});
+  remote.complete_ok(0, {'a', 'b'});
+  EXPECT_TRUE(closed_by_endpoint(*client));
+  EXPECT_EQ(client->received(), "[1] \"ab\"\r\n[2] 7\r\n");
+  EXPECT_TRUE(remote.cancelled.empty());
+  EXPECT_TRUE(until([&] { return endpoint->counters().sessions == 0; }));
+}
+
+// A last line without its LF before the end of file is a request too; a monitor feed ends at the
+// end of file (it has no last answer), and a client with nothing pending is closed at once.
+TEST_F(CommandEndpointTest, HalfCloseAnswersAnUnterminatedLineAndEndsTheMonitor) {
+  start(options());
+  auto client = connect();
+  client->send("[1] monitor\n[2] 5 r 0x1000 0 u8");
+  ASSERT_TRUE(until([&] { return remote.observers.size() == 1; }));
+  EXPECT_TRUE(remote.calls.empty()) << "a line without its LF, before the end of file";
+  client->shutdown_send();
+  ASSERT_EQ(calls_soon(1), 1u);
+  ASSERT_TRUE(until([&] { return remote.observers.empty(); }));
+  remote.complete_ok(0, {9});
+  EXPECT_TRUE(closed_by_endpoint(*client));
+  EXPECT_EQ(client->received(), "[1] OK\r\n[2] 9\r\n");
+
+  auto idle = connect();
+  idle->shutdown_send();
+  EXPECT_TRUE(closed_by_endpoint(*idle));
+  EXPECT_EQ(idle->received(), "");
 }
 
 MonitorFrame frame(std::uint32_t module, std::uint32_t id, std::uint8_t byte) {
