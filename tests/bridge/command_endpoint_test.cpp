@@ -304,7 +304,7 @@ TEST_F(CommandEndpointTest, ReadAndWriteOneBytePerWrite) {
   EXPECT_EQ(read.sdo.index, 0x1018);
   EXPECT_EQ(read.sdo.sub, 1);
   EXPECT_TRUE(read.sdo.upload);
-  EXPECT_EQ(read.sdo.timeout, 1000ms);
+  EXPECT_EQ(read.sdo.timeout, 500ms);  // CANopenNode's gateway's default
   EXPECT_EQ(read.sdo.block_size, 0);
   remote.complete_ok(0, {0x78, 0x56, 0x34, 0x12});
   EXPECT_EQ(line(*client, 0), "[1] 305419896");

@@ -46,7 +46,7 @@ TEST(RemoteConfig, WithoutTheBlocksNoEndpointAndDefaultNetworks) {
       "d.yaml");
   ASSERT_TRUE(d.command_endpoint);
   EXPECT_EQ(d.command_endpoint->unix_socket, "/run/canbridge/surface.sock");
-  EXPECT_EQ(d.command_endpoint->sdo_timeout, std::chrono::milliseconds(1000));
+  EXPECT_EQ(d.command_endpoint->sdo_timeout, std::chrono::milliseconds(500));  // as canopend
   EXPECT_FALSE(d.command_endpoint->sdo_block);
   const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_profiles.yaml");
   EXPECT_EQ(g.remote.sdo_timeout, std::chrono::milliseconds(1000));
