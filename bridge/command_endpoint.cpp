@@ -82,6 +82,7 @@ bool allowed_for_monitor(AsciiVerb verb) {
     case AsciiVerb::set_node:
     case AsciiVerb::set_sdo_timeout:
     case AsciiVerb::set_sdo_block:
+    case AsciiVerb::set_error_detail:
     case AsciiVerb::help:
     case AsciiVerb::auth:
     case AsciiVerb::nodes:
@@ -152,12 +153,18 @@ std::string frame_line(const MonitorFrame& frame) {
 }
 
 // The error response for a request's failure (bridge/remote_access.hpp lists the kinds).
-std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& outcome) {
+// `with_detail`: canbridge's reason after the reference text
+// (CommandEndpointOptions::error_detail).
+std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& outcome,
+                         bool with_detail) {
   const std::error_code& error = outcome.error;
   if (error.category() == canopen::sdo_category()) {
-    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()), outcome.detail);
+    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()),
+                                    with_detail ? outcome.detail : std::string());
   }
-  const std::string detail = outcome.detail.empty() ? error.message() : outcome.detail;
+  const std::string detail = !with_detail             ? std::string()
+                             : outcome.detail.empty() ? error.message()
+                                                      : outcome.detail;
   if (error == std::errc::no_such_device_or_address) {
     return canopen::ascii_error(seq, AsciiError::unsupported_node, detail);
   }
@@ -257,7 +264,8 @@ class Session : public std::enable_shared_from_this<Session> {
         role_(EndpointRole::control),
         peer_(std::move(peer)),
         sdo_timeout_(core_->options.sdo_timeout),
-        sdo_block_(core_->options.sdo_block) {}
+        sdo_block_(core_->options.sdo_block),
+        error_detail_(core_->options.error_detail) {}
 
   // Serves the client until it is closed: the writer runs here, the reader beside it. The
   // client's end is the writer's (after the last answer, or at close()); a reader that threw
@@ -320,9 +328,9 @@ class Session : public std::enable_shared_from_this<Session> {
           *socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
       if (!open_) break;
       if (ec == asio::error::not_found) {
-        linger(canopen::ascii_error(
-            std::nullopt, AsciiError::syntax,
-            "line longer than " + std::to_string(limit) + " bytes; connection closed"));
+        linger(
+            error_line(std::nullopt, AsciiError::syntax,
+                       "line longer than " + std::to_string(limit) + " bytes; connection closed"));
         break;
       }
       if (ec == asio::error::eof) {
@@ -450,8 +458,14 @@ class Session : public std::enable_shared_from_this<Session> {
     wake_.cancel();
   }
 
+  // An error line, with canbridge's reason after the reference text if the session wants it.
+  std::string error_line(std::optional<std::uint32_t> sequence, AsciiError error,
+                         std::string_view detail = {}) const {
+    return canopen::ascii_error(sequence, error, error_detail_ ? detail : std::string_view());
+  }
+
   void fail(const ReplyPtr& reply, AsciiError error, std::string_view detail = {}) {
-    finish(reply, canopen::ascii_error(reply->sequence, error, detail));
+    finish(reply, error_line(reply->sequence, error, detail));
   }
 
   // The completion of a RemoteAccess call: a no-op once the client is gone.
@@ -461,7 +475,7 @@ class Session : public std::enable_shared_from_this<Session> {
       const auto self = weak.lock();
       if (!self || !self->open_) return;
       if (!outcome.ok()) {
-        self->finish(reply, failure_text(reply->sequence, outcome));
+        self->finish(reply, failure_text(reply->sequence, outcome, self->error_detail_));
       } else {
         self->finish(reply, on_outcome(outcome));
       }
@@ -476,13 +490,18 @@ class Session : public std::enable_shared_from_this<Session> {
   void handle_line(std::string_view line) {
     canopen::AsciiParse parse = canopen::parse_ascii_command(line);
     AsciiCommand& cmd = parse.command;
-    if (parse.ok() && cmd.verb == AsciiVerb::none) return;  // blank or comment
+    if (parse.ok() && cmd.verb == AsciiVerb::none) {
+      // A blank or comment-only line: CANopenNode's gateway answers it with an empty line (CR LF
+      // alone), in its place among the answers, and a client that reads one answer per line it
+      // sent (cocomm) waits for it. Before a TCP client's `auth` it is skipped.
+      if (authenticated_) finish(new_reply(std::nullopt), "\r\n");
+      return;
+    }
     ++core_->counters.commands;
     if (!authenticated_) {
       if (!parse.ok() || cmd.verb != AsciiVerb::auth) {
         ++core_->counters.auth_failures;
-        linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required),
-               cmd.sequence);
+        linger(error_line(cmd.sequence, AsciiError::authentication_required), cmd.sequence);
         return;
       }
       return authenticate(cmd);
@@ -508,7 +527,7 @@ class Session : public std::enable_shared_from_this<Session> {
     if (client == nullptr) {
       ++core_->counters.auth_failures;
       spdlog::warn("command endpoint: TCP client {} sent a wrong token; closed", peer_);
-      linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required, "wrong token"),
+      linger(error_line(cmd.sequence, AsciiError::authentication_required, "wrong token"),
              cmd.sequence);
       return;
     }
@@ -620,6 +639,10 @@ class Session : public std::enable_shared_from_this<Session> {
         if (!network(cmd, reply)) return;
         sdo_block_ = cmd.number != 0;
         return finish(reply, canopen::ascii_ok(seq));
+      case AsciiVerb::set_error_detail:
+        if (!network(cmd, reply)) return;
+        error_detail_ = cmd.number != 0;
+        return finish(reply, canopen::ascii_ok(seq));
       case AsciiVerb::help:
         return finish(reply, canopen::ascii_multiline(seq, canopen::ascii_help(cmd.text)));
       case AsciiVerb::nodes:
@@ -684,7 +707,8 @@ class Session : public std::enable_shared_from_this<Session> {
           const auto self = weak.lock();
           if (!self || !self->open_) return;
           if (error) {
-            self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}}));
+            self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}},
+                                             self->error_detail_));
             return;
           }
           for (const auto& row : rows) {
@@ -753,6 +777,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<std::uint32_t> node_default_;
   std::chrono::milliseconds sdo_timeout_;
   bool sdo_block_;
+  bool error_detail_;
   bool open_ = true;
   bool lingering_ = false;  // answers the rest, then closes; reads nothing more
   bool warned_refused_ = false;
@@ -913,9 +938,10 @@ void CommandEndpoint::Core::refuse(Fresh& socket, const std::string& peer) {
         "refusals are only counted)",
         options.max_clients, peer);
   }
-  const std::string line =
-      canopen::ascii_error(std::nullopt, AsciiError::internal_state,
-                           "too many clients (" + std::to_string(options.max_clients) + ")");
+  const std::string line = canopen::ascii_error(
+      std::nullopt, AsciiError::internal_state,
+      options.error_detail ? "too many clients (" + std::to_string(options.max_clients) + ")"
+                           : std::string());
   boost::system::error_code ignored;
   asio::write(socket, asio::buffer(line), ignored);  // a few bytes on a fresh socket
 }

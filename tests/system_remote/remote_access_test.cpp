@@ -244,8 +244,10 @@ TEST_F(RemoteAccess, RequestSentByteByByteIsAnswered) {
   // Without a sequence number the response has none; `r` is `read`; net 0 = surface ids.
   client_->send_byte_by_byte("42 r 0x2010 0 u32\n");
   EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "305419896");
-  // A comment-only line asks nothing: the next answer is the next request's.
+  // A comment-only line is answered with an empty line, as CANopenNode's gateway does; the
+  // next answer is the next request's.
   client_->send("# nothing\n[8] 0 43 r 0x1018 2 u32\n");
+  EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "");
   EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "[8] 258");
 }
 
