@@ -239,7 +239,20 @@ int run_set_node_id(const Connect& connect, const CommonOptions& common,
   Session& s = *session;
   std::string answer;
   rc = s.call(target(common, node) + " set node_id " + std::to_string(new_id), answer, {});
-  if (rc == exit_code::ok) s.io().out << "node " << node << " is now node " << new_id << "\n";
+  if (rc != exit_code::ok) return rc;
+  // The new id is the node's id on its module's bus; which id the surface addresses it by is the
+  // gateway's map's to say (the endpoint's answer): on net 0 it often keeps its surface id.
+  std::ostream& out = s.io().out;
+  out << "node " << node;
+  if (common.net != 0) out << " of net " << common.net;
+  out << " renamed to " << (common.net == 0 ? "local id " : "") << new_id;
+  if (answer == "OK") {
+    out << "; its surface id was not reported (canbridge nodes shows it)\n";
+  } else if (answer == "-") {
+    out << "; it has no surface id now (reach it on its module's network, --net)\n";
+  } else {
+    out << "; the surface addresses it as node " << answer << "\n";
+  }
   return rc;
 }
 

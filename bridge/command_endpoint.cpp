@@ -615,8 +615,15 @@ class Session : public std::enable_shared_from_this<Session> {
       case AsciiVerb::set_node_id: {
         const auto where = target(cmd, reply, 1);
         if (!where) return;
-        reply->request = remote.set_node_id(*where, static_cast<canopen::NodeId>(cmd.number),
-                                            ok_completion(reply));
+        // The answer is the surface id the node has now, from the gateway's live map after the
+        // rename ("-": none): the new id is a local one, and the map may keep the node at its
+        // surface id. A gateway that does not say (an older one) is answered OK.
+        reply->request = remote.set_node_id(
+            *where, static_cast<canopen::NodeId>(cmd.number),
+            completion(reply, [seq](const RemoteOutcome& o) {
+              if (o.data.size() != 1) return canopen::ascii_ok(seq);
+              return canopen::ascii_line(seq, o.data[0] == 0 ? "-" : std::to_string(o.data[0]));
+            }));
         return;
       }
       case AsciiVerb::flash:

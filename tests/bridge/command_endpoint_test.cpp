@@ -382,27 +382,34 @@ TEST_F(CommandEndpointTest, NmtSetNodeIdHelpAndLss) {
   EXPECT_EQ(remote.calls[1].target.net, 2u);
   EXPECT_EQ(remote.calls[2].kind, "set_node_id");
   EXPECT_EQ(remote.calls[2].new_node, 9);
-  for (std::size_t i = 0; i < 3; ++i) remote.complete_ok(i);
-  EXPECT_EQ(line(*client, 2), "[3] OK");
+  for (std::size_t i = 0; i < 2; ++i) remote.complete_ok(i);
+  remote.complete_ok(2, {21});  // the surface id the renamed node has now
+  EXPECT_EQ(line(*client, 2), "[3] 21");
+  client->send("[31] 2 9 set node_id 10\n[32] 2 10 set node_id 11\n");
+  ASSERT_EQ(calls_soon(5), 5u);
+  remote.complete_ok(3, {0});  // no surface id
+  remote.complete_ok(4);       // a gateway that does not say
+  EXPECT_EQ(line(*client, 3), "[31] -");
+  EXPECT_EQ(line(*client, 4), "[32] OK");
 
   client->send("[4] help datatype\n");
   // One answer, one CR LF: its lines are separated by LF alone (as the reference gateway's help),
   // so a client that prints an answer per CR LF (cocomm) prints all of it.
-  const auto help = lines(*client, 4);
-  ASSERT_EQ(help.size(), 4u);
-  EXPECT_EQ(help[3].rfind("Datatypes:\n", 0), 0u) << help[3];
-  EXPECT_TRUE(help[3].ends_with("\n[4] OK")) << help[3];
-  EXPECT_EQ(std::count(help[3].begin(), help[3].end(), '\n'),
+  const auto help = lines(*client, 6);
+  ASSERT_EQ(help.size(), 6u);
+  EXPECT_EQ(help[5].rfind("Datatypes:\n", 0), 0u) << help[5];
+  EXPECT_TRUE(help[5].ends_with("\n[4] OK")) << help[5];
+  EXPECT_EQ(std::count(help[5].begin(), help[5].end(), '\n'),
             static_cast<long>(canopen::ascii_help("datatype").size()));
 
   const std::size_t seen = help.size();
   client->send("[5] 3 lss_store\n[6] 2 lss_get_node\n[7] 2 lss_inquire_addr\n[8] lss_store\n");
   EXPECT_EQ(line(*client, seen), "[5] ERROR:100 #Request not supported. no LSS on net 3");
-  ASSERT_EQ(calls_soon(5), 5u);
-  EXPECT_EQ(remote.calls[3].lss, "lss_get_node");
-  EXPECT_EQ(remote.calls[3].net, 2u);
-  remote.complete_ok(3, {0x05});
-  remote.complete_ok(4, {1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0xEF, 0xBE, 0, 0});
+  ASSERT_EQ(calls_soon(7), 7u);
+  EXPECT_EQ(remote.calls[5].lss, "lss_get_node");
+  EXPECT_EQ(remote.calls[5].net, 2u);
+  remote.complete_ok(5, {0x05});
+  remote.complete_ok(6, {1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0xEF, 0xBE, 0, 0});
   EXPECT_EQ(line(*client, seen + 1), "[6] 0x05");
   EXPECT_EQ(line(*client, seen + 2), "[7] 0x00000001 0x00000002 0x00000003 0x0000BEEF");
   // Net 0 (the surface's network) has no LSS of its own.

@@ -265,11 +265,21 @@ TEST(CliNmt, CommandsAndAllNodes) {
   EXPECT_THAT(third.received(), ElementsAre("[1] 0 5 reset node"));
 }
 
-TEST(CliSetNodeId, SendsTheRenameAndReportsNoBootUp) {
-  FakeEndpoint endpoint(Script{{"[1] 0 5 set node_id 9", {"[1] OK"}}});
+TEST(CliSetNodeId, SendsTheRenameReportsTheSurfaceIdAndNoBootUp) {
+  // On net 0 the new id is a local one; the node keeps surface id 5, which the endpoint answers.
+  FakeEndpoint endpoint(Script{{"[1] 0 5 set node_id 9", {"[1] 5"}}});
   const auto run = run_cli(with_endpoint({"set-node-id", "5", "9"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::ok) << run.err;
-  EXPECT_EQ(run.out, "node 5 is now node 9\n");
+  EXPECT_EQ(run.out, "node 5 renamed to local id 9; the surface addresses it as node 5\n");
+  FakeEndpoint on_net(Script{{"[1] 3 3 set node_id 4", {"[1] 8"}}});
+  const auto moved = run_cli(with_endpoint({"set-node-id", "--net", "3", "3", "4"}, on_net));
+  EXPECT_EQ(moved.out, "node 3 of net 3 renamed to 4; the surface addresses it as node 8\n");
+  FakeEndpoint unmapped(Script{{"[1] 3 3 set node_id 4", {"[1] -"}}});
+  EXPECT_THAT(run_cli(with_endpoint({"set-node-id", "--net", "3", "3", "4"}, unmapped)).out,
+              HasSubstr("no surface id"));
+  FakeEndpoint older(Script{{"[1] 0 5 set node_id 9", {"[1] OK"}}});
+  EXPECT_THAT(run_cli(with_endpoint({"set-node-id", "5", "9"}, older)).out,
+              HasSubstr("not reported"));
   FakeEndpoint failing(
       Script{{"[1] 0 5 set node_id 9", {"[1] ERROR:0x05040000 #no boot-up on new id"}}});
   const auto failed = run_cli(with_endpoint({"set-node-id", "5", "9"}, failing));

@@ -598,12 +598,16 @@ TEST_F(RemoteAccess, CliSetNodeIdRenamesTheFpgaNode) {
   std::size_t mark = vcan2_->mark();
   auto r = cli({"set-node-id", "--net", "3", "3", "4"});
   EXPECT_EQ(r.status, 0) << r.output;
+  // Local 4 is mapped to surface 8: the answer says where the surface reaches the node now.
+  EXPECT_NE(r.output.find("renamed to 4; the surface addresses it as node 8"), std::string::npos)
+      << r.output;
   EXPECT_TRUE(candump_->wait_for_line("vcan2 000#E00304", kEvent)) << candump_->output();
   EXPECT_TRUE(await(*vcan2_, mark, [](const Frame& f) { return is_heartbeat(f, 4, 0); }));
   EXPECT_EQ(lower(ask("0 8 r 0x2000 0 x32")), "0x0badcafe");
   mark = vcan2_->mark();
   r = cli({"set-node-id", "--net", "3", "4", "3"});
   EXPECT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("as node 7"), std::string::npos) << r.output;
   EXPECT_TRUE(await(*vcan2_, mark, [](const Frame& f) { return is_heartbeat(f, 3, 0); }));
   EXPECT_EQ(lower(ask("0 7 r 0x2000 0 x32")), "0x0badcafe");
 }
