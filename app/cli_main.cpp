@@ -112,15 +112,26 @@ int run_nodes(const Connect& connect, const CommonOptions& common, bool net_give
   if (!session) return rc;
   Session& s = *session;
   std::vector<NodeRow> rows;
+  std::vector<NodeRow> gateways;
   std::string answer;
   rc = s.call(net_given ? std::to_string(common.net) + " nodes" : "nodes", answer,
               [&](std::string_view rest) {
-                auto row = parse_node_row(rest);
-                if (row) rows.push_back(std::move(*row));
-                return row.has_value();
+                if (auto row = parse_node_row(rest)) {
+                  rows.push_back(std::move(*row));
+                  return true;
+                }
+                auto gateway = parse_gateway_state(rest);
+                if (gateway) gateways.push_back(std::move(*gateway));
+                return gateway.has_value();
               });
   if (rc != exit_code::ok) return rc;
   print_node_table(s.io().out, rows);
+  // A gateway that is down is no failure of `nodes`: its nodes are listed, lost, from the
+  // surface's own table, and the operator is told why.
+  for (const auto& gateway : gateways) {
+    s.io().out << "gateway " << field(gateway, "name") << ": " << field(gateway, "state")
+               << " (its nodes are shown lost, as the surface last knew them)\n";
+  }
   return exit_code::ok;
 }
 

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/generic/stream_protocol.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -709,20 +710,37 @@ class Session : public std::enable_shared_from_this<Session> {
   void nodes(const ReplyPtr& reply, const AsciiCommand& cmd) {
     const auto net = network(cmd, reply);
     if (!net) return;
-    core_->remote.nodes(
-        *net, [weak = weak_from_this(), reply](std::vector<NodeRow> rows, std::error_code error) {
-          const auto self = weak.lock();
-          if (!self || !self->open_) return;
-          if (error) {
-            self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}},
-                                             self->error_detail_));
-            return;
-          }
-          for (const auto& row : rows) {
-            reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
-          }
-          self->finish(reply, canopen::ascii_ok(reply->sequence));
-        });
+    core_->remote.nodes(*net, [weak = weak_from_this(), reply, net = *net](
+                                  std::vector<NodeRow> rows, std::error_code error) {
+      const auto self = weak.lock();
+      if (!self || !self->open_) return;
+      if (error) {
+        self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}},
+                                         self->error_detail_));
+        return;
+      }
+      for (const auto& row : rows) {
+        reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
+      }
+      // The rows of a gateway that is down are the surface's own (each lost): say which.
+      for (const auto& gateway : self->gateways_down(net)) {
+        reply->lines.push_back(
+            canopen::ascii_line(reply->sequence, "gateway name=" + gateway + " state=down"));
+      }
+      self->finish(reply, canopen::ascii_ok(reply->sequence));
+    });
+  }
+
+  // The configured gateways of network `net` (0: of every network) that are not connected now.
+  std::vector<std::string> gateways_down(NetworkNumber net) const {
+    std::vector<std::string> down;
+    for (const auto& info : core_->remote.networks()) {
+      if (info.net == 0 || info.connected || (net != 0 && info.net != net)) continue;
+      if (std::find(down.begin(), down.end(), info.gateway) == down.end()) {
+        down.push_back(info.gateway);
+      }
+    }
+    return down;
   }
 
   void monitor(const ReplyPtr& reply, const AsciiCommand& cmd) {

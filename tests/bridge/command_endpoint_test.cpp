@@ -452,6 +452,34 @@ TEST_F(CommandEndpointTest, NodesLinesAsDocumented) {
   EXPECT_EQ(line(*client, 2), "[3] OK");
 }
 
+// A gateway that is down: its rows (the surface's own, lost) are listed, then one line names the
+// gateway and its state, and the answer is OK. Only the gateways of the network asked for.
+TEST_F(CommandEndpointTest, NodesNameAGatewayThatIsDown) {
+  remote.nets[2].connected = false;  // gw-b, net 3
+  start(options());
+  auto client = connect();
+  client->send("[4] nodes\n");
+  ASSERT_TRUE(until([&] { return remote.nodes_done != nullptr; }));
+  NodeRow lost;
+  lost.net = 3;
+  lost.module_id = 2;
+  lost.gateway = "gw-b";
+  lost.local_node = 1;
+  lost.surface_node = 5;
+  lost.lost = true;
+  remote.nodes_done({lost}, {});
+  EXPECT_EQ(lines(*client, 3),
+            (std::vector<std::string>{
+                "[4] node net=3 module=2 gateway=gw-b local=1 surface=5 profile=- kind=- "
+                "state=lost hb_age_ms=- boot_count=0 emcy=-",
+                "[4] gateway name=gw-b state=down", "[4] OK"}));
+  remote.nodes_done = nullptr;
+  client->send("[5] 2 nodes\n");
+  ASSERT_TRUE(until([&] { return remote.nodes_done != nullptr; }));
+  remote.nodes_done({}, {});
+  EXPECT_EQ(line(*client, 3), "[5] OK");
+}
+
 TEST_F(CommandEndpointTest, FlashReadsTheFileAndReportsProgress) {
   start(options());
   auto client = connect();

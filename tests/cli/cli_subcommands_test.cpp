@@ -52,6 +52,20 @@ TEST(CliNodes, PrintsTheNodeRowsAsATable) {
   EXPECT_EQ(second.find("loader"), header.find("STATE"));
 }
 
+// The surface lists the nodes of a gateway that is down from its own table: the table, and a line
+// naming the gateway; exit 0, as the surface knows them.
+TEST(CliNodes, AGatewayThatIsDownIsNamedAndTheListSucceeds) {
+  FakeEndpoint endpoint(
+      Script{{"[1] nodes",
+              {"[1] node net=2 module=1 gateway=g1 local=5 surface=5 profile=- kind=- "
+               "state=lost hb_age_ms=- boot_count=1 emcy=-",
+               "[1] gateway name=g1 state=down", "[1] OK"}}});
+  const auto run = run_cli(with_endpoint({"nodes"}, endpoint));
+  EXPECT_EQ(run.rc, exit_code::ok) << run.err;
+  EXPECT_THAT(run.out, HasSubstr("lost"));
+  EXPECT_THAT(run.out, HasSubstr("gateway g1: down (its nodes are shown lost"));
+}
+
 TEST(CliNodes, NetOptionNamesTheNetwork) {
   FakeEndpoint endpoint(Script{{"[1] 3 nodes", {"[1] OK"}}});
   const auto run = run_cli(with_endpoint({"nodes", "--net", "3"}, endpoint));
