@@ -571,6 +571,22 @@ TEST_F(RemoteAccess, CliNodesAndSdo) {
   EXPECT_EQ(r.status, 2) << r.output;
 }
 
+// cmd sends raw 309-3 lines as cocomm does and prints the answers as they came; a client that
+// closes its sending side after its request (printf ... | socat -t 3) still gets the answer.
+TEST_F(RemoteAccess, CmdAndAHalfClosingClientGetTheirAnswers) {
+  const auto r = cli({"cmd", "42 r 0x2010 0 u32", "[5] 2 10 r 0x6666 0 u32"});
+  EXPECT_EQ(r.status, 1) << r.output;  // the abort
+  EXPECT_NE(r.output.find("[1] 305419896\n"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("[5] ERROR:0x06020000 #Object does not exist."), std::string::npos)
+      << r.output;
+  EndpointClient half(socket_path_);
+  half.send("[61] 2 10 read 0x1008 0 vs\n");
+  half.shutdown_send();
+  EXPECT_EQ(half.line(kEvent).value_or("<none>"), "[61] \"canbridge remote cia301 device\"");
+  EXPECT_FALSE(half.line(kEvent)) << "the endpoint closes after the last answer";
+  EXPECT_TRUE(half.closed());
+}
+
 TEST_F(RemoteAccess, CliNmt) {
   struct Case {
     std::vector<std::string> args;
