@@ -6,11 +6,13 @@
 #include <charconv>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <iterator>
 #include <optional>
 #include <ostream>
 #include <span>
 
+#include "app/cli_cmd.hpp"
 #include "app/cli_monitor.hpp"
 #include "app/cli_node_table.hpp"
 #include "app/cli_progress.hpp"
@@ -23,8 +25,8 @@ namespace canbridge::cli {
 
 namespace {
 
-constexpr std::array<std::string_view, 8> kCommands = {"nodes", "sdo",  "nmt",     "set-node-id",
-                                                       "flash", "dump", "capture", "stats"};
+constexpr std::array<std::string_view, 9> kCommands = {
+    "nodes", "sdo", "nmt", "set-node-id", "flash", "dump", "capture", "stats", "cmd"};
 
 constexpr std::array<std::string_view, 19> kDatatypes = {
     "b",   "u8",  "u16", "u32", "u64", "i8", "i16", "i32", "i64", "x8",
@@ -112,15 +114,26 @@ int run_nodes(const Connect& connect, const CommonOptions& common, bool net_give
   if (!session) return rc;
   Session& s = *session;
   std::vector<NodeRow> rows;
+  std::vector<NodeRow> gateways;
   std::string answer;
   rc = s.call(net_given ? std::to_string(common.net) + " nodes" : "nodes", answer,
               [&](std::string_view rest) {
-                auto row = parse_node_row(rest);
-                if (row) rows.push_back(std::move(*row));
-                return row.has_value();
+                if (auto row = parse_node_row(rest)) {
+                  rows.push_back(std::move(*row));
+                  return true;
+                }
+                auto gateway = parse_gateway_state(rest);
+                if (gateway) gateways.push_back(std::move(*gateway));
+                return gateway.has_value();
               });
   if (rc != exit_code::ok) return rc;
   print_node_table(s.io().out, rows);
+  // A gateway that is down is no failure of `nodes`: its nodes are listed, lost, from the
+  // surface's own table, and the operator is told why.
+  for (const auto& gateway : gateways) {
+    s.io().out << "gateway " << field(gateway, "name") << ": " << field(gateway, "state")
+               << " (its nodes are shown lost, as the surface last knew them)\n";
+  }
   return exit_code::ok;
 }
 
@@ -239,7 +252,20 @@ int run_set_node_id(const Connect& connect, const CommonOptions& common,
   Session& s = *session;
   std::string answer;
   rc = s.call(target(common, node) + " set node_id " + std::to_string(new_id), answer, {});
-  if (rc == exit_code::ok) s.io().out << "node " << node << " is now node " << new_id << "\n";
+  if (rc != exit_code::ok) return rc;
+  // The new id is the node's id on its module's bus; which id the surface addresses it by is the
+  // gateway's map's to say (the endpoint's answer): on net 0 it often keeps its surface id.
+  std::ostream& out = s.io().out;
+  out << "node " << node;
+  if (common.net != 0) out << " of net " << common.net;
+  out << " renamed to " << (common.net == 0 ? "local id " : "") << new_id;
+  if (answer == "OK") {
+    out << "; its surface id was not reported (canbridge nodes shows it)\n";
+  } else if (answer == "-") {
+    out << "; it has no surface id now (reach it on its module's network, --net)\n";
+  } else {
+    out << "; the surface addresses it as node " << answer << "\n";
+  }
   return rc;
 }
 
@@ -363,6 +389,11 @@ bool is_client_option_with_value(std::string_view option) {
 
 int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
                bool terminal) {
+  return run_client(args, out, err, terminal, std::cin);
+}
+
+int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
+               bool terminal, std::istream& in) {
   CLI::App app{"canbridge: operator commands against a surface's command endpoint", "canbridge"};
   app.require_subcommand(1, 1);
   CommonOptions common;
@@ -436,11 +467,21 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
   capture->add_option("--count", monitor.count, "stop after this many frames (default: never)")
       ->type_name("N");
   add_common_options(*capture, common);
+  std::vector<std::string> raw_lines;
+  auto* cmd = app.add_subcommand(
+      "cmd",
+      "[LINE...]: raw CiA 309-3 lines, as cocomm sends them; each answer printed as it came");
+  cmd->add_option("LINE", raw_lines,
+                  "one request each, e.g. \"4 read 0x1017 0 u16\" (\"[<n>] \" put before a line "
+                  "without a sequence); none: the lines of standard input");
+  // The lines name their networks themselves: --net would have nothing to apply to.
+  cmd->remove_option(add_common_options(*cmd, common));
   app.footer(
-      "Each command takes --endpoint, --token-file, -c, --net and --timeout, before or after its "
-      "name; 'canbridge COMMAND --help' lists them. Exit status: 0 done, 1 refused or failed "
-      "(SDO abort), 2 usage, 3 unknown network or node, 4 time-out, 5 endpoint unreachable, "
-      "6 outcome unknown (it may have been executed: read the object back).");
+      "Each command takes --endpoint, --token-file, -c, --net (not cmd) and --timeout, before or "
+      "after its name; 'canbridge COMMAND --help' lists them. Exit status: 0 done, 1 refused or "
+      "failed (SDO abort), 2 usage, 3 unknown network or node, 4 time-out, 5 endpoint "
+      "unreachable, 6 outcome unknown (it may have been executed: read the object back); cmd: "
+      "that of its first ERROR answer.");
 
   std::vector<std::string> ordered;
   try {
@@ -480,6 +521,7 @@ int run_client(const std::vector<std::string>& args, std::ostream& out, std::ost
     if (nmt->parsed()) return run_nmt(connect, common, nmt_command, node_text);
     if (set_node_id->parsed()) return run_set_node_id(connect, common, node_text, new_id);
     if (flash->parsed()) return run_flash(connect, common, node_text, image);
+    if (cmd->parsed()) return run_cmd(connect, raw_lines, in);
     if (dump->parsed() || capture->parsed()) {
       monitor.capture = capture->parsed();
       return run_monitor(connect, monitor);

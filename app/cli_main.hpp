@@ -1,5 +1,5 @@
 // The operator subcommands of the canbridge executable (nodes, sdo, nmt, set-node-id, flash, dump,
-// capture): clients of a running surface's command endpoint, parsed with CLI11.
+// capture, stats, cmd): clients of a running surface's command endpoint, parsed with CLI11.
 #pragma once
 
 #include <iosfwd>
@@ -21,5 +21,8 @@ bool is_client_option_with_value(std::string_view option);
 // not lines).
 int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
                bool terminal);
+// The same with `in` for `cmd`'s lines from standard input.
+int run_client(const std::vector<std::string>& args, std::ostream& out, std::ostream& err,
+               bool terminal, std::istream& in);
 
 }  // namespace canbridge::cli

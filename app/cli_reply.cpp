@@ -112,6 +112,17 @@ std::optional<Progress> parse_progress(std::string_view rest) {
   return p;
 }
 
+std::optional<NodeRow> parse_gateway_state(std::string_view rest) {
+  if (next_word(rest) != "gateway") return std::nullopt;
+  NodeRow fields;
+  for (std::string_view word = next_word(rest); !word.empty(); word = next_word(rest)) {
+    const std::size_t eq = word.find('=');
+    if (eq == std::string_view::npos) return std::nullopt;
+    fields.emplace_back(std::string(word.substr(0, eq)), std::string(word.substr(eq + 1)));
+  }
+  return fields;
+}
+
 std::optional<NodeRow> parse_node_row(std::string_view rest) {
   if (next_word(rest) != "node") return std::nullopt;
   NodeRow row;

@@ -55,6 +55,9 @@ std::optional<Progress> parse_progress(std::string_view rest);
 // "node net=1 module=0 ... emcy=-": the key=value fields after "node", in order.
 using NodeRow = std::vector<std::pair<std::string, std::string>>;
 std::optional<NodeRow> parse_node_row(std::string_view rest);
+// "gateway name=<g> state=down" after a `nodes` answer's rows: that gateway could not be asked,
+// its rows are the surface's own, lost. The gateway's name and state, in the line's order.
+std::optional<NodeRow> parse_gateway_state(std::string_view rest);
 std::string field(const NodeRow& row, std::string_view key);  // "" when absent
 
 // "FRAME <unix_us> <module> <dir> <canid>#<data>": dir '>' from a module, '<' from the surface

@@ -1,9 +1,11 @@
 #include "bridge/command_endpoint.hpp"
 
+#include <poll.h>
 #include <spdlog/spdlog.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/generic/stream_protocol.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -19,13 +21,13 @@
 #include <fstream>
 #include <map>
 #include <optional>
-#include <set>
 #include <span>
 #include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "bridge/endpoint_server.hpp"
 #include "canopen/ascii_command.hpp"
 #include "canopen/ascii_response.hpp"
 #include "canopen/ascii_value.hpp"
@@ -41,7 +43,10 @@ namespace asio = boost::asio;
 using canopen::AsciiCommand;
 using canopen::AsciiError;
 using canopen::AsciiVerb;
+// A client's socket, Unix or TCP alike: one Session type serves both.
 using Socket = asio::generic::stream_protocol::socket;
+using Local = asio::local::stream_protocol;
+using Tcp = asio::ip::tcp;
 
 namespace {
 
@@ -57,7 +62,6 @@ constexpr std::size_t kWriteBatch = 64 * 1024;
 constexpr std::uint8_t kBlockSize = 127;
 // A firmware image larger than this is not an image (a device file, a mistake).
 constexpr std::uintmax_t kMaxImageBytes = 64ull * 1024 * 1024;
-constexpr std::chrono::milliseconds kAcceptRetryDelay{100};
 
 // Compares in a time that depends on the lengths only, so a wrong token's bytes leak nothing.
 bool same_token(std::string_view a, std::string_view b) {
@@ -79,6 +83,7 @@ bool allowed_for_monitor(AsciiVerb verb) {
     case AsciiVerb::set_node:
     case AsciiVerb::set_sdo_timeout:
     case AsciiVerb::set_sdo_block:
+    case AsciiVerb::set_error_detail:
     case AsciiVerb::help:
     case AsciiVerb::auth:
     case AsciiVerb::nodes:
@@ -149,12 +154,18 @@ std::string frame_line(const MonitorFrame& frame) {
 }
 
 // The error response for a request's failure (bridge/remote_access.hpp lists the kinds).
-std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& outcome) {
+// `with_detail`: canbridge's reason after the reference text
+// (CommandEndpointOptions::error_detail).
+std::string failure_text(std::optional<std::uint32_t> seq, const RemoteOutcome& outcome,
+                         bool with_detail) {
   const std::error_code& error = outcome.error;
   if (error.category() == canopen::sdo_category()) {
-    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()), outcome.detail);
+    return canopen::ascii_sdo_abort(seq, static_cast<std::uint32_t>(error.value()),
+                                    with_detail ? outcome.detail : std::string());
   }
-  const std::string detail = outcome.detail.empty() ? error.message() : outcome.detail;
+  const std::string detail = !with_detail             ? std::string()
+                             : outcome.detail.empty() ? error.message()
+                                                      : outcome.detail;
   if (error == std::errc::no_such_device_or_address) {
     return canopen::ascii_error(seq, AsciiError::unsupported_node, detail);
   }
@@ -194,33 +205,38 @@ class Session;
 }  // namespace
 
 struct CommandEndpoint::Core : std::enable_shared_from_this<CommandEndpoint::Core> {
+  // The accept loops, the client limit and the per-client coroutine are the shared skeleton's
+  // (bridge/endpoint_server.hpp); one limit counts the clients of both listeners.
+  using UnixServer = EndpointServer<Local::acceptor, Socket>;
+  using TcpServer = EndpointServer<Tcp::acceptor, Socket>;
+
   Core(asio::any_io_executor ex, CommandEndpointOptions opts, RemoteAccess& r)
       : executor(std::move(ex)),
         options(std::move(opts)),
         remote(r),
-        unix_acceptor(executor),
-        tcp_acceptor(executor),
-        retry_timer(executor) {}
+        slots(std::make_shared<ClientSlots>(ClientSlots{options.max_clients, 0})) {}
 
   void start();
   void stop();
-  asio::awaitable<void> accept_unix();
-  asio::awaitable<void> accept_tcp();
-  void admit(Socket socket, bool tcp, std::string peer);
-  // Waits a little after a failed accept (EMFILE would fail again at once).
-  asio::awaitable<void> accept_failed(const char* which, const boost::system::error_code& ec);
-  void session_ended(std::uint64_t id);
+  void listen_unix();
+  void listen_tcp();
+  // One client, from its first byte to its close (its Session's reader and writer).
+  static asio::awaitable<void> serve(std::shared_ptr<Core> self, std::shared_ptr<Socket> socket,
+                                     bool tcp);
+  // A client past max_clients: told why on its fresh socket, then closed by the server.
+  template <typename Fresh>
+  void refuse(Fresh& socket, const std::string& peer);
   // Which client a TCP token belongs to; nullptr for none. Looks at every client every time.
   const EndpointClient* client_of(std::string_view token) const;
 
   asio::any_io_executor executor;
   CommandEndpointOptions options;
   RemoteAccess& remote;
-  asio::local::stream_protocol::acceptor unix_acceptor;
-  asio::ip::tcp::acceptor tcp_acceptor;
-  asio::steady_timer retry_timer;
-  std::map<std::uint64_t, std::shared_ptr<Session>> sessions;
-  std::set<std::uint64_t> refused_sessions;  // told "too many clients", not counted as sessions
+  std::shared_ptr<ClientSlots> slots;
+  std::shared_ptr<UnixServer> unix_server;
+  std::shared_ptr<TcpServer> tcp_server;
+  // The sessions being served, for stop(): their pending requests are cancelled there.
+  std::map<std::uint64_t, std::weak_ptr<Session>> sessions;
   std::uint64_t next_session = 0;
   CommandEndpointCounters counters;
   std::uint16_t tcp_port = 0;
@@ -229,7 +245,6 @@ struct CommandEndpoint::Core : std::enable_shared_from_this<CommandEndpoint::Cor
   ino_t socket_inode = 0;
   bool started = false;
   bool stopped = false;
-  bool warned_accept = false;
   bool warned_full = false;
 };
 
@@ -241,40 +256,32 @@ class Session : public std::enable_shared_from_this<Session> {
  public:
   using Core = CommandEndpoint::Core;
 
-  Session(std::shared_ptr<Core> core, std::uint64_t id, Socket socket, bool tcp, std::string peer)
+  Session(std::shared_ptr<Core> core, std::shared_ptr<Socket> socket, bool tcp, std::string peer)
       : core_(std::move(core)),
-        id_(id),
         socket_(std::move(socket)),
-        wake_(socket_.get_executor(), asio::steady_timer::time_point::max()),
-        room_(socket_.get_executor(), asio::steady_timer::time_point::max()),
+        wake_(socket_->get_executor(), asio::steady_timer::time_point::max()),
+        room_(socket_->get_executor(), asio::steady_timer::time_point::max()),
         authenticated_(!tcp),
         role_(EndpointRole::control),
         peer_(std::move(peer)),
         sdo_timeout_(core_->options.sdo_timeout),
-        sdo_block_(core_->options.sdo_block) {}
+        sdo_block_(core_->options.sdo_block),
+        error_detail_(core_->options.error_detail) {}
 
-  // Serves the client; `refusal`: answers only this line and closes (the endpoint is full).
-  void start(std::optional<std::string> refusal) {
-    auto self = shared_from_this();
-    loops_ = refusal ? 1 : 2;
-    auto on_end = [self](const char* which) {
-      return [self, which](const std::string& failure) {
-        // Each loop closes the client itself when it ends on its own (a lingering reader leaves
-        // that to the writer); a loop that threw closes it here.
-        if (!failure.empty()) {
-          spdlog::error("command endpoint: {} of client {} failed: {}; client closed", which,
-                        self->peer_, failure);
-          self->close();
-        }
-        if (--self->loops_ == 0) self->core_->session_ended(self->id_);
-      };
-    };
-    if (refusal) {
-      linger(*refusal);
-    } else {
-      coro::spawn_owned(socket_.get_executor(), read_loop(), on_end("reader"));
-    }
-    coro::spawn_owned(socket_.get_executor(), write_loop(), on_end("writer"));
+  // Serves the client until it is closed: the writer runs here, the reader beside it. The
+  // client's end is the writer's (after the last answer, or at close()); a reader that threw
+  // closes the client, which ends the writer too.
+  asio::awaitable<void> run() {
+    coro::spawn_owned(socket_->get_executor(), read_loop(),
+                      [self = shared_from_this()](const std::string& failure) {
+                        if (failure.empty()) return;
+                        spdlog::error(
+                            "command endpoint: the reader of client {} failed: {}; "
+                            "client closed",
+                            self->peer_, failure);
+                        self->close();
+                      });
+    co_await write_loop();
   }
 
   // Ends the client at once: pending requests are cancelled, the monitor feed unsubscribed.
@@ -282,8 +289,8 @@ class Session : public std::enable_shared_from_this<Session> {
     if (!open_) return;
     open_ = false;
     boost::system::error_code ignored;
-    socket_.shutdown(asio::socket_base::shutdown_both, ignored);
-    socket_.close(ignored);
+    socket_->shutdown(asio::socket_base::shutdown_both, ignored);
+    socket_->close(ignored);
     wake_.cancel();
     room_.cancel();
     if (subscription_) {
@@ -319,20 +326,47 @@ class Session : public std::enable_shared_from_this<Session> {
       const std::size_t limit = authenticated_ ? core_->options.max_line_bytes : kPreAuthLineBytes;
       // Room for the line's CR LF beyond its `limit` bytes.
       auto [ec, n] = co_await asio::async_read_until(
-          socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
+          *socket_, asio::dynamic_buffer(buffer, limit + 2), '\n', kNoError);
       if (!open_) break;
       if (ec == asio::error::not_found) {
-        linger(canopen::ascii_error(
-            std::nullopt, AsciiError::syntax,
-            "line longer than " + std::to_string(limit) + " bytes; connection closed"));
+        linger(
+            error_line(std::nullopt, AsciiError::syntax,
+                       "line longer than " + std::to_string(limit) + " bytes; connection closed"));
         break;
       }
-      if (ec) break;  // the client left (end of file) or the socket failed
+      if (ec == asio::error::eof) {
+        // The client closed its sending side (`printf ... | socat -t 3 - UNIX-CONNECT:...`,
+        // docs/remote-access.md): it still waits for the answers to what it sent. A last line
+        // without its LF is a request too.
+        if (!buffer.empty()) handle_line(buffer);
+        stop_reading();
+        co_await watch_hangup();
+        co_return;
+      }
+      if (ec) break;  // the socket failed
       std::string_view line(buffer.data(), n - 1);
       handle_line(line);
       buffer.erase(0, n);
     }
     if (!lingering_) close();
+  }
+
+  // After the client's end of file, until the writer closes the client: a client that closed
+  // its socket altogether (not only its sending side) reads no answer, so its pending requests
+  // are cancelled at once rather than run to their end. A Unix socket tells the two apart
+  // (POLLHUP); a TCP peer's close looks like a half-close until an answer is written to it, which
+  // then fails and closes the client the same way.
+  asio::awaitable<void> watch_hangup() {
+    while (open_) {
+      pollfd p{socket_->native_handle(), POLLRDHUP, 0};
+      if (::poll(&p, 1, 0) == 1 && (p.revents & (POLLHUP | POLLERR)) != 0) {
+        close();
+        co_return;
+      }
+      // A hang-up or an error wakes every wait on the socket; close() ends this one.
+      auto [ec] = co_await socket_->async_wait(Socket::wait_error, kNoError);
+      if (ec) co_return;
+    }
   }
 
   asio::awaitable<void> write_loop() {
@@ -344,13 +378,13 @@ class Session : public std::enable_shared_from_this<Session> {
         if (lingering_ && replies_.empty()) {
           // The last answer is out: tell the client we are done before closing.
           boost::system::error_code ignored;
-          socket_.shutdown(asio::socket_base::shutdown_send, ignored);
+          socket_->shutdown(asio::socket_base::shutdown_send, ignored);
           break;
         }
         co_await wake_.async_wait(kNoError);
         continue;
       }
-      auto [ec, n] = co_await asio::async_write(socket_, asio::buffer(batch), kNoError);
+      auto [ec, n] = co_await asio::async_write(*socket_, asio::buffer(batch), kNoError);
       if (ec) break;
     }
     close();
@@ -391,12 +425,19 @@ class Session : public std::enable_shared_from_this<Session> {
   void linger(std::string line, std::optional<std::uint32_t> sequence = std::nullopt) {
     ReplyPtr reply = new_reply(sequence);
     finish(reply, std::move(line));
+    stop_reading();
+  }
+
+  // Reads nothing more: the requests already read are answered, then the client is closed. A
+  // monitor feed ends here (it has no last answer to wait for).
+  void stop_reading() {
     lingering_ = true;
     if (subscription_) {
       core_->remote.unsubscribe(*subscription_);
       subscription_.reset();
       monitor_lines_.clear();
     }
+    wake_.cancel();  // the writer may be done already
   }
 
   ReplyPtr new_reply(std::optional<std::uint32_t> sequence) {
@@ -418,8 +459,14 @@ class Session : public std::enable_shared_from_this<Session> {
     wake_.cancel();
   }
 
+  // An error line, with canbridge's reason after the reference text if the session wants it.
+  std::string error_line(std::optional<std::uint32_t> sequence, AsciiError error,
+                         std::string_view detail = {}) const {
+    return canopen::ascii_error(sequence, error, error_detail_ ? detail : std::string_view());
+  }
+
   void fail(const ReplyPtr& reply, AsciiError error, std::string_view detail = {}) {
-    finish(reply, canopen::ascii_error(reply->sequence, error, detail));
+    finish(reply, error_line(reply->sequence, error, detail));
   }
 
   // The completion of a RemoteAccess call: a no-op once the client is gone.
@@ -429,7 +476,7 @@ class Session : public std::enable_shared_from_this<Session> {
       const auto self = weak.lock();
       if (!self || !self->open_) return;
       if (!outcome.ok()) {
-        self->finish(reply, failure_text(reply->sequence, outcome));
+        self->finish(reply, failure_text(reply->sequence, outcome, self->error_detail_));
       } else {
         self->finish(reply, on_outcome(outcome));
       }
@@ -444,13 +491,18 @@ class Session : public std::enable_shared_from_this<Session> {
   void handle_line(std::string_view line) {
     canopen::AsciiParse parse = canopen::parse_ascii_command(line);
     AsciiCommand& cmd = parse.command;
-    if (parse.ok() && cmd.verb == AsciiVerb::none) return;  // blank or comment
+    if (parse.ok() && cmd.verb == AsciiVerb::none) {
+      // A blank or comment-only line: CANopenNode's gateway answers it with an empty line (CR LF
+      // alone), in its place among the answers, and a client that reads one answer per line it
+      // sent (cocomm) waits for it. Before a TCP client's `auth` it is skipped.
+      if (authenticated_) finish(new_reply(std::nullopt), "\r\n");
+      return;
+    }
     ++core_->counters.commands;
     if (!authenticated_) {
       if (!parse.ok() || cmd.verb != AsciiVerb::auth) {
         ++core_->counters.auth_failures;
-        linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required),
-               cmd.sequence);
+        linger(error_line(cmd.sequence, AsciiError::authentication_required), cmd.sequence);
         return;
       }
       return authenticate(cmd);
@@ -476,7 +528,7 @@ class Session : public std::enable_shared_from_this<Session> {
     if (client == nullptr) {
       ++core_->counters.auth_failures;
       spdlog::warn("command endpoint: TCP client {} sent a wrong token; closed", peer_);
-      linger(canopen::ascii_error(cmd.sequence, AsciiError::authentication_required, "wrong token"),
+      linger(error_line(cmd.sequence, AsciiError::authentication_required, "wrong token"),
              cmd.sequence);
       return;
     }
@@ -564,8 +616,15 @@ class Session : public std::enable_shared_from_this<Session> {
       case AsciiVerb::set_node_id: {
         const auto where = target(cmd, reply, 1);
         if (!where) return;
-        reply->request = remote.set_node_id(*where, static_cast<canopen::NodeId>(cmd.number),
-                                            ok_completion(reply));
+        // The answer is the surface id the node has now, from the gateway's live map after the
+        // rename ("-": none): the new id is a local one, and the map may keep the node at its
+        // surface id. A gateway that does not say (an older one) is answered OK.
+        reply->request = remote.set_node_id(
+            *where, static_cast<canopen::NodeId>(cmd.number),
+            completion(reply, [seq](const RemoteOutcome& o) {
+              if (o.data.size() != 1) return canopen::ascii_ok(seq);
+              return canopen::ascii_line(seq, o.data[0] == 0 ? "-" : std::to_string(o.data[0]));
+            }));
         return;
       }
       case AsciiVerb::flash:
@@ -587,6 +646,10 @@ class Session : public std::enable_shared_from_this<Session> {
       case AsciiVerb::set_sdo_block:
         if (!network(cmd, reply)) return;
         sdo_block_ = cmd.number != 0;
+        return finish(reply, canopen::ascii_ok(seq));
+      case AsciiVerb::set_error_detail:
+        if (!network(cmd, reply)) return;
+        error_detail_ = cmd.number != 0;
         return finish(reply, canopen::ascii_ok(seq));
       case AsciiVerb::help:
         return finish(reply, canopen::ascii_multiline(seq, canopen::ascii_help(cmd.text)));
@@ -647,19 +710,37 @@ class Session : public std::enable_shared_from_this<Session> {
   void nodes(const ReplyPtr& reply, const AsciiCommand& cmd) {
     const auto net = network(cmd, reply);
     if (!net) return;
-    core_->remote.nodes(
-        *net, [weak = weak_from_this(), reply](std::vector<NodeRow> rows, std::error_code error) {
-          const auto self = weak.lock();
-          if (!self || !self->open_) return;
-          if (error) {
-            self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}}));
-            return;
-          }
-          for (const auto& row : rows) {
-            reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
-          }
-          self->finish(reply, canopen::ascii_ok(reply->sequence));
-        });
+    core_->remote.nodes(*net, [weak = weak_from_this(), reply, net = *net](
+                                  std::vector<NodeRow> rows, std::error_code error) {
+      const auto self = weak.lock();
+      if (!self || !self->open_) return;
+      if (error) {
+        self->finish(reply, failure_text(reply->sequence, RemoteOutcome{error, {}, {}},
+                                         self->error_detail_));
+        return;
+      }
+      for (const auto& row : rows) {
+        reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
+      }
+      // The rows of a gateway that is down are the surface's own (each lost): say which.
+      for (const auto& gateway : self->gateways_down(net)) {
+        reply->lines.push_back(
+            canopen::ascii_line(reply->sequence, "gateway name=" + gateway + " state=down"));
+      }
+      self->finish(reply, canopen::ascii_ok(reply->sequence));
+    });
+  }
+
+  // The configured gateways of network `net` (0: of every network) that are not connected now.
+  std::vector<std::string> gateways_down(NetworkNumber net) const {
+    std::vector<std::string> down;
+    for (const auto& info : core_->remote.networks()) {
+      if (info.net == 0 || info.connected || (net != 0 && info.net != net)) continue;
+      if (std::find(down.begin(), down.end(), info.gateway) == down.end()) {
+        down.push_back(info.gateway);
+      }
+    }
+    return down;
   }
 
   void monitor(const ReplyPtr& reply, const AsciiCommand& cmd) {
@@ -706,8 +787,7 @@ class Session : public std::enable_shared_from_this<Session> {
   }
 
   std::shared_ptr<Core> core_;
-  std::uint64_t id_;
-  Socket socket_;
+  std::shared_ptr<Socket> socket_;
   asio::steady_timer wake_;  // wakes the writer: something to write, or closing
   asio::steady_timer room_;  // wakes the reader: an answer went out
   std::deque<ReplyPtr> replies_;
@@ -722,10 +802,10 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<std::uint32_t> node_default_;
   std::chrono::milliseconds sdo_timeout_;
   bool sdo_block_;
+  bool error_detail_;
   bool open_ = true;
   bool lingering_ = false;  // answers the rest, then closes; reads nothing more
   bool warned_refused_ = false;
-  int loops_ = 0;
 };
 
 }  // namespace
@@ -733,164 +813,162 @@ class Session : public std::enable_shared_from_this<Session> {
 void CommandEndpoint::Core::start() {
   if (started || stopped) throw std::runtime_error("command endpoint: started twice");
   started = true;
-  namespace local = asio::local;
-  boost::system::error_code ec;
+  if (!options.unix_socket.empty()) listen_unix();
+  if (options.tcp_port != 0) listen_tcp();
+  // Accepting starts once every listener is bound: a failed one leaves none serving.
+  if (unix_server) unix_server->start();
+  if (tcp_server) tcp_server->start();
+}
+
+void CommandEndpoint::Core::listen_unix() {
   const auto& path = options.unix_socket;
-  if (!path.empty()) {
-    struct stat st {};
-    if (::lstat(path.c_str(), &st) == 0) {
-      if (!S_ISSOCK(st.st_mode)) {
-        throw std::runtime_error("command endpoint: " + path +
-                                 " exists and is not a socket; refusing to replace it");
-      }
-      // A socket file someone still serves is not stale: two surfaces must not share it.
-      local::stream_protocol::socket probe(executor);
-      probe.connect(local::stream_protocol::endpoint(path), ec);
-      if (!ec) {
-        throw std::runtime_error("command endpoint: another process serves " + path);
-      }
-      ::unlink(path.c_str());
+  unix_server = std::make_shared<UnixServer>(
+      executor, "command endpoint (" + path + ")", slots,
+      [weak = weak_from_this()](std::shared_ptr<Socket> socket) {
+        return serve(weak.lock(), std::move(socket), false);
+      },
+      [weak = weak_from_this()](Local::socket& socket) {
+        if (const auto self = weak.lock()) self->refuse(socket, "on " + self->options.unix_socket);
+      });
+  Local::acceptor& acceptor = unix_server->acceptor();
+  boost::system::error_code ec;
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) == 0) {
+    if (!S_ISSOCK(st.st_mode)) {
+      throw std::runtime_error("command endpoint: " + path +
+                               " exists and is not a socket; refusing to replace it");
     }
-    unix_acceptor.open(local::stream_protocol(), ec);
-    if (!ec) unix_acceptor.bind(local::stream_protocol::endpoint(path), ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot bind " + path + ": " + ec.message());
-    }
-    socket_path = path;
-    if (::lstat(path.c_str(), &st) == 0) socket_inode = st.st_ino;
-    // Before listen(): nobody can connect while the mode is still the umask's.
-    if (::chmod(path.c_str(), 0660) != 0) {
-      throw std::runtime_error("command endpoint: cannot chmod " + path + ": " +
-                               std::strerror(errno));
-    }
-    unix_acceptor.listen(asio::socket_base::max_listen_connections, ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + path + ": " + ec.message());
-    }
-    spdlog::info("command endpoint: listening on {}", path);
+    // A socket file someone still serves is not stale: two surfaces must not share it.
+    Local::socket probe(executor);
+    probe.connect(Local::endpoint(path), ec);
+    if (!ec) throw std::runtime_error("command endpoint: another process serves " + path);
+    ::unlink(path.c_str());
   }
-  if (options.tcp_port != 0) {
-    const auto address = asio::ip::make_address(options.tcp_address, ec);
-    if (ec) {
-      throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
-                               " is not an IP address");
-    }
-    if (!address.is_loopback()) {
-      throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
-                               " is not a loopback address; the TCP endpoint only listens on "
-                               "loopback (docs/security.md)");
-    }
-    const asio::ip::tcp::endpoint endpoint(address, options.tcp_port);
-    tcp_acceptor.open(endpoint.protocol(), ec);
-    if (!ec) tcp_acceptor.set_option(asio::ip::tcp::acceptor::reuse_address(true), ec);
-    if (!ec) tcp_acceptor.bind(endpoint, ec);
-    if (!ec) tcp_acceptor.listen(asio::socket_base::max_listen_connections, ec);
-    if (!ec) tcp_port = tcp_acceptor.local_endpoint(ec).port();
-    if (ec) {
-      throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address + ":" +
-                               std::to_string(options.tcp_port) + ": " + ec.message());
-    }
-    if (options.clients.empty()) {
-      spdlog::warn("command endpoint: TCP on port {} has no clients: every auth fails", tcp_port);
-    }
-    spdlog::info("command endpoint: listening on {}:{}", options.tcp_address, tcp_port);
+  acceptor.open(Local(), ec);
+  if (!ec) acceptor.bind(Local::endpoint(path), ec);
+  if (ec) throw std::runtime_error("command endpoint: cannot bind " + path + ": " + ec.message());
+  socket_path = path;
+  if (::lstat(path.c_str(), &st) == 0) socket_inode = st.st_ino;
+  // Before listen(): nobody can connect while the mode is still the umask's.
+  if (::chmod(path.c_str(), 0660) != 0) {
+    throw std::runtime_error("command endpoint: cannot chmod " + path + ": " +
+                             std::strerror(errno));
   }
-  auto on_end = [self = shared_from_this()](const char* which) {
-    return [self, which](const std::string& failure) {
-      if (failure.empty()) return;
-      spdlog::error("command endpoint: {} failed: {}; endpoint stopped", which, failure);
-      self->stop();
-    };
-  };
-  if (unix_acceptor.is_open()) {
-    coro::spawn_owned(executor, accept_unix(), on_end("Unix socket accept loop"));
+  acceptor.listen(asio::socket_base::max_listen_connections, ec);
+  if (ec) {
+    throw std::runtime_error("command endpoint: cannot listen on " + path + ": " + ec.message());
   }
-  if (tcp_acceptor.is_open()) coro::spawn_owned(executor, accept_tcp(), on_end("TCP accept loop"));
+  spdlog::info("command endpoint: listening on {}", path);
+}
+
+void CommandEndpoint::Core::listen_tcp() {
+  boost::system::error_code ec;
+  const auto address = asio::ip::make_address(options.tcp_address, ec);
+  if (ec) {
+    throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
+                             " is not an IP address");
+  }
+  if (!address.is_loopback()) {
+    throw std::runtime_error("command endpoint: tcp_address " + options.tcp_address +
+                             " is not a loopback address; the TCP endpoint only listens on "
+                             "loopback (docs/security.md)");
+  }
+  tcp_server = std::make_shared<TcpServer>(
+      executor, "command endpoint (TCP)", slots,
+      [weak = weak_from_this()](std::shared_ptr<Socket> socket) {
+        return serve(weak.lock(), std::move(socket), true);
+      },
+      [weak = weak_from_this()](Tcp::socket& socket) {
+        boost::system::error_code ignored;
+        const auto peer = socket.remote_endpoint(ignored);
+        if (const auto self = weak.lock()) {
+          self->refuse(socket, peer.address().to_string() + ":" + std::to_string(peer.port()));
+        }
+      });
+  Tcp::acceptor& acceptor = tcp_server->acceptor();
+  const Tcp::endpoint endpoint(address, options.tcp_port);
+  acceptor.open(endpoint.protocol(), ec);
+  if (!ec) acceptor.set_option(Tcp::acceptor::reuse_address(true), ec);
+  if (!ec) acceptor.bind(endpoint, ec);
+  if (!ec) acceptor.listen(asio::socket_base::max_listen_connections, ec);
+  if (!ec) tcp_port = acceptor.local_endpoint(ec).port();
+  if (ec) {
+    throw std::runtime_error("command endpoint: cannot listen on " + options.tcp_address + ":" +
+                             std::to_string(options.tcp_port) + ": " + ec.message());
+  }
+  if (options.clients.empty()) {
+    spdlog::warn("command endpoint: TCP on port {} has no clients: every auth fails", tcp_port);
+  }
+  spdlog::info("command endpoint: listening on {}:{}", options.tcp_address, tcp_port);
 }
 
 void CommandEndpoint::Core::stop() {
   if (stopped) return;
   stopped = true;
-  boost::system::error_code ignored;
-  unix_acceptor.close(ignored);
-  tcp_acceptor.close(ignored);
-  retry_timer.cancel();
+  // Each client's pending requests are cancelled before its socket goes: close() does both.
+  for (const auto& [id, weak] : std::map(sessions)) {
+    if (const auto session = weak.lock()) session->close();
+  }
+  if (unix_server) unix_server->stop();
+  if (tcp_server) tcp_server->stop();
   // Only the file this endpoint made: a successor may have replaced it already.
   struct stat st {};
   if (!socket_path.empty() && ::lstat(socket_path.c_str(), &st) == 0 && st.st_ino == socket_inode &&
       S_ISSOCK(st.st_mode)) {
     ::unlink(socket_path.c_str());
   }
-  for (auto& [id, session] : std::map(sessions)) session->close();
 }
 
-asio::awaitable<void> CommandEndpoint::Core::accept_failed(const char* which,
-                                                           const boost::system::error_code& ec) {
-  if (!warned_accept) {
-    warned_accept = true;
-    spdlog::warn("command endpoint: accept on the {} failed: {} (further failures are not logged)",
-                 which, ec.message());
-  }
-  retry_timer.expires_after(kAcceptRetryDelay);
-  co_await retry_timer.async_wait(kNoError);
-}
-
-asio::awaitable<void> CommandEndpoint::Core::accept_unix() {
-  while (!stopped) {
-    auto [ec, socket] = co_await unix_acceptor.async_accept(kNoError);
-    if (stopped) break;
-    if (ec) {
-      co_await accept_failed("Unix socket", ec);
-      continue;
-    }
-    admit(Socket(std::move(socket)), false, "unix#" + std::to_string(next_session + 1));
-  }
-}
-
-asio::awaitable<void> CommandEndpoint::Core::accept_tcp() {
-  while (!stopped) {
-    auto [ec, socket] = co_await tcp_acceptor.async_accept(kNoError);
-    if (stopped) break;
-    if (ec) {
-      co_await accept_failed("TCP port", ec);
-      continue;
-    }
+asio::awaitable<void> CommandEndpoint::Core::serve(std::shared_ptr<Core> self,
+                                                   std::shared_ptr<Socket> socket, bool tcp) {
+  if (!self || self->stopped) co_return;
+  const std::uint64_t id = ++self->next_session;
+  std::string peer = "unix#" + std::to_string(id);
+  if (tcp) {
+    // The generic socket's address is a TCP one: read it back as such, for the logs.
     boost::system::error_code ignored;
-    const auto remote_end = socket.remote_endpoint(ignored);
-    admit(Socket(std::move(socket)), true,
-          remote_end.address().to_string() + ":" + std::to_string(remote_end.port()));
-  }
-}
-
-void CommandEndpoint::Core::admit(Socket socket, bool tcp, std::string peer) {
-  const std::uint64_t id = ++next_session;
-  auto session = std::make_shared<Session>(shared_from_this(), id, std::move(socket), tcp, peer);
-  std::optional<std::string> refusal;
-  if (counters.sessions >= options.max_clients) {
-    ++counters.clients_refused;
-    if (!warned_full) {
-      warned_full = true;
-      spdlog::warn(
-          "command endpoint: {} clients connected (max_clients): client {} refused (further "
-          "refusals are only counted)",
-          options.max_clients, peer);
+    const auto generic = socket->remote_endpoint(ignored);
+    Tcp::endpoint remote_end;
+    if (!ignored && generic.size() <= remote_end.capacity()) {
+      std::memcpy(remote_end.data(), generic.data(), generic.size());
+      remote_end.resize(generic.size());
+      peer = remote_end.address().to_string() + ":" + std::to_string(remote_end.port());
     }
-    refusal =
-        canopen::ascii_error(std::nullopt, AsciiError::internal_state,
-                             "too many clients (" + std::to_string(options.max_clients) + ")");
-  } else {
-    ++counters.clients;
-    ++counters.sessions;
-    spdlog::debug("command endpoint: client {} connected", peer);
   }
-  sessions.emplace(id, session);
-  if (refusal) refused_sessions.insert(id);
-  session->start(refusal);
+  ++self->counters.clients;
+  spdlog::debug("command endpoint: client {} connected", peer);
+  const auto session = std::make_shared<Session>(self, std::move(socket), tcp, peer);
+  self->sessions.emplace(id, session);
+  // However the session ends (even by an exception), its requests are cancelled and stop()
+  // forgets it.
+  struct Forget {
+    Core& core;
+    std::uint64_t id;
+    Session& session;
+    ~Forget() {
+      session.close();
+      core.sessions.erase(id);
+    }
+  } forget{*self, id, *session};
+  co_await session->run();
 }
 
-void CommandEndpoint::Core::session_ended(std::uint64_t id) {
-  if (refused_sessions.erase(id) == 0) --counters.sessions;
-  sessions.erase(id);
+template <typename Fresh>
+void CommandEndpoint::Core::refuse(Fresh& socket, const std::string& peer) {
+  ++counters.clients_refused;
+  if (!warned_full) {
+    warned_full = true;
+    spdlog::warn(
+        "command endpoint: {} clients connected (max_clients): client {} refused (further "
+        "refusals are only counted)",
+        options.max_clients, peer);
+  }
+  const std::string line = canopen::ascii_error(
+      std::nullopt, AsciiError::internal_state,
+      options.error_detail ? "too many clients (" + std::to_string(options.max_clients) + ")"
+                           : std::string());
+  boost::system::error_code ignored;
+  asio::write(socket, asio::buffer(line), ignored);  // a few bytes on a fresh socket
 }
 
 const EndpointClient* CommandEndpoint::Core::client_of(std::string_view token) const {
@@ -933,7 +1011,9 @@ std::uint16_t CommandEndpoint::tcp_port() const {
 }
 
 CommandEndpointCounters CommandEndpoint::counters() const {
-  return core_->counters;
+  CommandEndpointCounters counters = core_->counters;
+  counters.sessions = core_->slots->used;
+  return counters;
 }
 
 }  // namespace canbridge::bridge

@@ -29,9 +29,16 @@ struct CommandEndpointOptions {
   std::string tcp_address = "127.0.0.1";
   std::uint16_t tcp_port = 0;
   std::vector<EndpointClient> clients;
-  // The defaults a session starts with (`set sdo_timeout`, `set sdo_block` change them).
-  std::chrono::milliseconds sdo_timeout{1000};
+  // The defaults a session starts with (`set sdo_timeout`, `set sdo_block` change them). 500 ms
+  // as CANopenNode's gateway (its help: "'sdo_timeout' is in milliseconds, 500 by default"), so a
+  // script written against canopend sees its time-outs at the same moment here.
+  std::chrono::milliseconds sdo_timeout{500};
   bool sdo_block = false;  // as CANopenNode's gateway: block transfer off until asked for
+  // canbridge's reason after an error's reference text ("ERROR:107 #Unsupported node. node 200"):
+  // for the operator, in the comment no parser reads. false: every line byte for byte as
+  // CANopenNode's gateway writes it ("ERROR:107 #Unsupported node."). `set error_detail` changes
+  // it for one session.
+  bool error_detail = true;
   std::size_t max_clients = 16;
   // A monitor client that reads slower than the bus: frames beyond this many queued for it are
   // dropped (counted, and told to the client in one line when it catches up).

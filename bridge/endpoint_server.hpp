@@ -1,6 +1,6 @@
-// The accept loop the operator endpoints share (stats, metrics): a client limit, one owned
-// coroutine per client, and an ordered stop; each endpoint supplies only how to serve one client
-// and how to refuse one past the limit.
+// The accept loop the operator endpoints share (command, stats, metrics): a client limit, one
+// owned coroutine per client, and an ordered stop; each endpoint supplies only how to serve one
+// client and how to refuse one past the limit.
 #pragma once
 
 #include <spdlog/spdlog.h>
@@ -31,6 +31,13 @@ void close_client(Stream& stream) {
   }
 }
 
+// A client limit that several servers of one endpoint share (the command endpoint's Unix socket
+// and TCP port): max_clients counts the clients of both, not of each.
+struct ClientSlots {
+  std::size_t max = 0;
+  std::size_t used = 0;
+};
+
 // `Acceptor` is an asio acceptor (TCP or Unix); `Stream` what a client is served on, made from
 // the accepted socket (the socket itself, or a beast::tcp_stream around it). Not thread-safe: use
 // it on its executor's thread. Its coroutines hold it by shared_ptr, so the endpoint that made it
@@ -46,9 +53,15 @@ class EndpointServer : public std::enable_shared_from_this<EndpointServer<Accept
 
   EndpointServer(const boost::asio::any_io_executor& executor, std::string name,
                  std::size_t max_clients, Serve serve, Refuse refuse = {})
+      : EndpointServer(executor, std::move(name),
+                       std::make_shared<ClientSlots>(ClientSlots{max_clients, 0}), std::move(serve),
+                       std::move(refuse)) {}
+  // The same with a limit shared with other servers.
+  EndpointServer(const boost::asio::any_io_executor& executor, std::string name,
+                 std::shared_ptr<ClientSlots> slots, Serve serve, Refuse refuse = {})
       : acceptor_(executor),
         name_(std::move(name)),
-        max_clients_(max_clients),
+        slots_(std::move(slots)),
         serve_(std::move(serve)),
         refuse_(std::move(refuse)) {}
 
@@ -87,17 +100,23 @@ class EndpointServer : public std::enable_shared_from_this<EndpointServer<Accept
       auto [ec, socket] = co_await acceptor_.async_accept(coro::kNoError);
       if (!open_) break;
       if (ec) {
+        if (!warned_accept_) {
+          warned_accept_ = true;
+          spdlog::warn("{}: accept failed: {} (further failures are not logged)", name_,
+                       ec.message());
+        }
         // EMFILE and the like would fail again at once: give the loop a breath.
         boost::asio::steady_timer pause(acceptor_.get_executor(), std::chrono::milliseconds(100));
         co_await pause.async_wait(coro::kNoError);
         continue;
       }
-      if (clients_.size() >= max_clients_) {
+      if (slots_->used >= slots_->max) {
         ++refused_;
         if (refuse_) refuse_(socket);
         continue;  // the socket closes as it goes out of scope
       }
       clients_.push_back(std::make_shared<Stream>(std::move(socket)));
+      ++slots_->used;
       const auto client = clients_.back();
       // A client's coroutine belongs to the server: its end, even by an exception, closes that
       // client and is logged; the other clients and the accept loop go on.
@@ -107,18 +126,20 @@ class EndpointServer : public std::enable_shared_from_this<EndpointServer<Accept
                             spdlog::error("{}: a client failed: {}", self->name_, why);
                           close_client(*client);
                           self->clients_.remove(client);
+                          --self->slots_->used;
                         });
     }
   }
 
   Acceptor acceptor_;
   std::string name_;
-  std::size_t max_clients_;
+  std::shared_ptr<ClientSlots> slots_;
   Serve serve_;
   Refuse refuse_;
   std::list<std::shared_ptr<Stream>> clients_;
   std::uint64_t refused_ = 0;
   bool open_ = false;
+  bool warned_accept_ = false;
 };
 
 }  // namespace canbridge::bridge

@@ -237,7 +237,11 @@ void GatewayRemote::on_node_event(const NodeEvent& event, TimePoint now) {
       continue;
     }
     if (boot) {
-      answer(lane.running->id, 0, {});
+      // The id the surface addresses the node by now, in the live map that followed the rename
+      // (1 byte, 0: none): a client told "node 5 is now node 6" went on using 6 while the map had
+      // kept the node at its surface id 5.
+      const NodeId surface = map_->surface_of(event.module_index, event.local);
+      answer(lane.running->id, 0, {}, std::string(1, static_cast<char>(surface)));
     } else {
       answer(lane.running->id, kTimeout, "no boot-up on new id");
     }

@@ -147,7 +147,8 @@ class RemoteAccess {
   // had it already ended).
   virtual void cancel(RequestId id) = 0;
 
-  // The node tables of every connected gateway; `net` 0: all networks.
+  // The node tables of the gateways; `net` 0: all networks. A gateway that is down cannot be
+  // asked: its nodes come from the surface's own view of them (the events it sent), each lost.
   virtual void nodes(NetworkNumber net,
                      std::function<void(std::vector<NodeRow>, std::error_code)> done) = 0;
 

@@ -166,6 +166,8 @@ class Surface {
   // Remote access (bridge/surface_remote.hpp) rides on these.
   // Who owns which surface node and module, and which gateways are connected.
   const GatewayTable& gateway_table() const { return table_; }
+  // The nodes the gateways reported (node events), kept while a gateway is down.
+  const SurfaceNodeStates& node_states() const { return node_states_; }
   // Sends `payload` (a serialized v1::Payload) reliably to a bound gateway, after what is queued
   // for it (also while its link is down: it goes when the link returns). False: never bound.
   bool send_to_gateway(GatewayTable::GatewayId gateway, std::string payload);

@@ -23,15 +23,17 @@ bool SurfaceNodeStates::apply(GatewayId gateway, const v1::NodeEvent& event) {
     case v1::NodeEvent::DISCOVERED:
       // Heard now, in the state it reports. An event for a node the surface has no record of
       // (one whose first event it missed: a surface restarted after it) adds it.
-      nodes_[key] = {event.nmt_state(), false, event.in_loader()};
+      nodes_[key] = {event.nmt_state(), false, event.in_loader(), event.surface_node(),
+                     event.boot_count()};
       return true;
     case v1::NodeEvent::LOADER_BOOTED:
-      nodes_[key] = {event.nmt_state(), false, true};
+      nodes_[key] = {event.nmt_state(), false, true, event.surface_node(), event.boot_count()};
       return true;
     case v1::NodeEvent::LOST: {
       // The last state stays, as in the gateway's table: the node is counted lost until heard.
       Node& node = nodes_[key];
       node.lost = true;
+      node.surface_node = event.surface_node();
       return true;
     }
     case v1::NodeEvent::RENAMED: {
@@ -41,7 +43,8 @@ bool SurfaceNodeStates::apply(GatewayId gateway, const v1::NodeEvent& event) {
       if (valid_local(from) && from != event.local_node()) {
         nodes_.erase(Key{gateway, event.module_id(), from});
       }
-      nodes_[key] = {event.nmt_state(), false, event.in_loader()};
+      nodes_[key] = {event.nmt_state(), false, event.in_loader(), event.surface_node(),
+                     event.boot_count()};
       return true;
     }
     case v1::NodeEvent::RENAME_UNCONFIRMED:  // no boot-up on the new id: nothing moved
@@ -53,6 +56,15 @@ bool SurfaceNodeStates::apply(GatewayId gateway, const v1::NodeEvent& event) {
 void SurfaceNodeStates::forget(GatewayId gateway) {
   nodes_.erase(nodes_.lower_bound(Key{gateway, 0, 0}),
                nodes_.upper_bound(Key{gateway, UINT32_MAX, UINT32_MAX}));
+}
+
+void SurfaceNodeStates::for_each_node(
+    GatewayId gateway,
+    const std::function<void(std::uint32_t, std::uint32_t, const Node&)>& f) const {
+  for (auto it = nodes_.lower_bound(Key{gateway, 0, 0});
+       it != nodes_.end() && std::get<0>(it->first) == gateway; ++it) {
+    f(std::get<1>(it->first), std::get<2>(it->first), it->second);
+  }
 }
 
 NodeSummary SurfaceNodeStates::summary(const LinkUp& link_up) const {

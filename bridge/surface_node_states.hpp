@@ -1,6 +1,7 @@
 // The surface's view of every gateway's nodes, kept from the node events the gateways send: the
 // node summary (operational, pre-operational, stopped, in loader, lost) of the surface's
-// statistics. Pure: events in, counts out; no clock, no logging.
+// statistics, and the node list the surface gives for a gateway that is down. Pure: events in,
+// counts and nodes out; no clock, no logging.
 #pragma once
 
 #include <cstdint>
@@ -43,12 +44,21 @@ class SurfaceNodeStates {
   NodeSummary summary(const LinkUp& link_up) const;
   std::size_t size() const { return nodes_.size(); }
 
- private:
+  // A node as the gateway's last event described it.
   struct Node {
     std::uint32_t nmt_state = 0;  // CiA 301 heartbeat byte
     bool lost = false;
     bool in_loader = false;
+    std::uint32_t surface_node = 0;  // 0: unmapped
+    std::uint32_t boot_count = 0;
   };
+  // The nodes of `gateway` by module and local id, in that order: what the surface can tell of
+  // them while their gateway cannot be asked.
+  void for_each_node(GatewayId gateway,
+                     const std::function<void(std::uint32_t module_id, std::uint32_t local,
+                                              const Node& node)>& f) const;
+
+ private:
   // Gateway, module id, local node id.
   using Key = std::tuple<GatewayId, std::uint32_t, std::uint32_t>;
   std::map<Key, Node> nodes_;

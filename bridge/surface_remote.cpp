@@ -30,6 +30,12 @@ constexpr std::chrono::milliseconds kBootWait{10000};
 // LSS: a few request/response exchanges of CiA 305 (each at most about a second).
 constexpr std::chrono::milliseconds kLssWait{2000};
 
+void sort_rows(std::vector<NodeRow>& rows) {
+  std::sort(rows.begin(), rows.end(), [](const NodeRow& a, const NodeRow& b) {
+    return std::tie(a.net, a.local_node) < std::tie(b.net, b.local_node);
+  });
+}
+
 NodeRow row_of(const v1::NodeRow& r, NetworkNumber net, const std::string& gateway) {
   NodeRow row;
   row.net = net;
@@ -386,18 +392,21 @@ void SurfaceRemote::nodes(NetworkNumber net,
       asks.emplace_back(static_cast<GatewayId>(i), 0);
     }
   }
+  // A gateway that is down cannot be asked: its nodes are listed from the surface's own view of
+  // them (the node events it sent), each lost, since no master reaches them now. The caller
+  // tells its operator which gateway is down (networks()).
   std::erase_if(asks, [&](const auto& a) {
     if (connected(a.first)) return false;
-    ++group->failed;  // down: its rows are missing
-    if (!group->first_error) group->first_error = errc(std::errc::host_unreachable);
+    add_rows_of_down_gateway(a.first, a.second, group->rows);
     return true;
   });
   if (asks.empty()) {
     const std::error_code error = net != 0 && !module_of_network(net)
                                       ? errc(std::errc::no_such_device_or_address)
-                                  : group->first_error ? group->first_error
-                                                       : std::error_code{};
-    asio::post(executor_, [done = std::move(group->nodes_done), error] { done({}, error); });
+                                      : std::error_code{};
+    sort_rows(group->rows);
+    asio::post(executor_, [done = std::move(group->nodes_done), rows = std::move(group->rows),
+                           error]() mutable { done(std::move(rows), error); });
     return;
   }
   group->open = asks.size();
@@ -407,6 +416,26 @@ void SurfaceRemote::nodes(NetworkNumber net,
     request.mutable_nodes();
     send(gateway, std::move(request), Effect::none, options_.answer_slack, nullptr, nullptr, group);
   }
+}
+
+void SurfaceRemote::add_rows_of_down_gateway(GatewayId gateway, std::uint32_t module_id,
+                                             std::vector<NodeRow>& rows) const {
+  const std::string name = gateway_name(gateway);
+  surface_.node_states().for_each_node(
+      gateway, [&](std::uint32_t module, std::uint32_t local, const SurfaceNodeStates::Node& n) {
+        if (module_id != 0 && module != module_id) return;
+        NodeRow row;
+        row.net = network_of(module);
+        row.module_id = module;
+        row.gateway = name;
+        row.local_node = static_cast<canopen::NodeId>(local);
+        row.surface_node = static_cast<canopen::NodeId>(n.surface_node);
+        row.nmt_state = static_cast<std::uint8_t>(n.nmt_state);
+        row.in_loader = n.in_loader;
+        row.lost = true;  // the heartbeat age, profile, kind and EMCY are the gateway's to know
+        row.boot_count = n.boot_count;
+        rows.push_back(std::move(row));
+      });
 }
 
 void SurfaceRemote::on_remote_payload(GatewayId from, const v1::Payload& payload) {
@@ -476,9 +505,7 @@ void SurfaceRemote::finish(RequestId id, RemoteOutcome outcome) {
   }
   if (--g.open != 0) return;
   if (g.nodes_done) {
-    std::sort(g.rows.begin(), g.rows.end(), [](const NodeRow& a, const NodeRow& b) {
-      return std::tie(a.net, a.local_node) < std::tie(b.net, b.local_node);
-    });
+    sort_rows(g.rows);
     // Some gateway's rows are missing: say so, with the rows of the others.
     asio::post(executor_, [done = std::move(g.nodes_done), rows = std::move(g.rows),
                            error = g.first_error]() mutable { done(std::move(rows), error); });

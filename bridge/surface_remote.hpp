@@ -113,6 +113,10 @@ class SurfaceRemote final : public RemoteAccess {
   std::optional<GatewayId> configured_owner_of_node(canopen::NodeId surface_node) const;
   std::optional<std::uint32_t> module_of_network(NetworkNumber net) const;
   bool connected(GatewayId gateway) const;
+  // The rows of a gateway that is down (`module_id` 0: all its modules), from the surface's own
+  // view of its nodes (SurfaceNodeStates), each lost.
+  void add_rows_of_down_gateway(GatewayId gateway, std::uint32_t module_id,
+                                std::vector<NodeRow>& rows) const;
   std::string gateway_name(GatewayId gateway) const;
 
   // Sends the request (its route and `op` already in `request`) and keeps it open until its

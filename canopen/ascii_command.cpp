@@ -298,6 +298,9 @@ class Parser {
     } else if (what == "sdo_block") {
       cmd.verb = AsciiVerb::set_sdo_block;
       if (auto f = number("sdo_block", 0, 1, cmd.number)) return f;
+    } else if (what == "error_detail") {
+      cmd.verb = AsciiVerb::set_error_detail;
+      if (auto f = number("error_detail", 0, 1, cmd.number)) return f;
     } else if (what.empty()) {
       return syntax("set: missing what to set");
     } else {
@@ -469,6 +472,7 @@ std::vector<std::string> ascii_help(std::string_view topic) {
       "[<net>] nodes                            # The gateways' node tables.",
       "[[<net>] <node>] flash <path>            # Firmware download of a file on the surface.",
       "[[<net>] <node>] set node_id <new>       # Rename a node (fpga set-node-id).",
+      "set error_detail <0|1>                   # canbridge's reason after an error's text.",
       "monitor [module=<m>]                     # Live frames until the client closes.",
       "stats                                    # Statistics: one JSON line, then OK.",
       "Net 0 is the surface's network (surface node ids); a module's network has its own",

@@ -53,7 +53,8 @@ enum class AsciiVerb : std::uint8_t {
   flash,
   set_node_id,
   monitor,
-  stats,  // the role's statistics as one JSON line (docs/operations.md)
+  stats,             // the role's statistics as one JSON line (docs/operations.md)
+  set_error_detail,  // `set error_detail <0|1>`: canbridge's reasons after the reference text
 };
 
 enum class AsciiNmt : std::uint8_t { start, stop, preoperational, reset_node, reset_communication };
@@ -71,7 +72,7 @@ struct AsciiCommand {
   std::optional<AsciiType> type;    // read: unset means hex
   std::vector<std::uint8_t> value;  // write: the parsed value
   AsciiNmt nmt = AsciiNmt::start;
-  // set network/node/sdo_timeout/sdo_block/node_id: the value
+  // set network/node/sdo_timeout/sdo_block/error_detail/node_id: the value
   std::uint32_t number = 0;
   // auth: the token; flash: the path; help: the topic ("", "datatype", "lss"); lss: the command
   std::string text;

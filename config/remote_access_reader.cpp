@@ -96,8 +96,8 @@ void read_command_endpoint(YamlReader& in, const YAML::Node& root,
                       "the defaults)");
   }
   in.only_keys(block, p,
-               {"unix_socket", "tcp_port", "tcp_address", "sdo_timeout_ms", "sdo_block", "clients",
-                "max_clients", "monitor_queue_frames"});
+               {"unix_socket", "tcp_port", "tcp_address", "sdo_timeout_ms", "sdo_block",
+                "error_detail", "clients", "max_clients", "monitor_queue_frames"});
   if (auto socket = in.string(block, "unix_socket", p, false)) {
     if (!socket->empty() && socket->front() != '/') {
       in.problem(block["unix_socket"], p + ".unix_socket",
@@ -128,6 +128,7 @@ void read_command_endpoint(YamlReader& in, const YAML::Node& root,
     out.sdo_timeout = std::chrono::milliseconds(*v);
   }
   if (auto v = in.boolean(block, "sdo_block", p)) out.sdo_block = *v;
+  if (auto v = in.boolean(block, "error_detail", p)) out.error_detail = *v;
   if (auto v = in.integer(block, "max_clients", p, 1, 1024)) {
     out.max_clients = static_cast<std::size_t>(*v);
   }

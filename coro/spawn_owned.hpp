@@ -11,6 +11,7 @@
 #include <exception>
 #include <string>
 #include <system_error>
+#include <type_traits>
 #include <utility>
 
 namespace canbridge::coro {
@@ -33,6 +34,18 @@ inline std::string describe_exception(const std::exception_ptr& error) {
 template <typename Executor, typename OnEnd>
 void spawn_owned(Executor&& executor, boost::asio::awaitable<void> task, OnEnd on_end) {
   boost::asio::co_spawn(std::forward<Executor>(executor), std::move(task),
+                        [on_end = std::move(on_end)](std::exception_ptr error) mutable {
+                          on_end(describe_exception(error));
+                        });
+}
+
+// The same for a coroutine function, e.g. a lambda whose captures its coroutine uses: co_spawn
+// keeps the function object alive until the coroutine ends (a lambda called in place would be
+// gone while its coroutine still reads its captures).
+template <typename Executor, typename Function, typename OnEnd>
+requires std::is_invocable_r_v<boost::asio::awaitable<void>, Function>
+void spawn_owned(Executor&& executor, Function&& function, OnEnd on_end) {
+  boost::asio::co_spawn(std::forward<Executor>(executor), std::forward<Function>(function),
                         [on_end = std::move(on_end)](std::exception_ptr error) mutable {
                           on_end(describe_exception(error));
                         });

@@ -6,7 +6,6 @@
 
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/read.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <boost/asio/write.hpp>
@@ -16,6 +15,7 @@
 
 #include "tests/backbone/link_test_support.hpp"
 #include "tests/backbone/test_support.hpp"
+#include "tests/support/spawn_checked.hpp"
 
 namespace canbridge::backbone {
 namespace {
@@ -162,13 +162,10 @@ TEST_F(StreamLinkTest, PeerCloseEndsTheLinkOnceWithPeerClosed) {
   b->start(b_in.on_message(), b_out.source(), b_in.on_closed());
   std::error_code waited;
   bool wait_done = false;
-  asio::co_spawn(
-      io,
-      [&, link = b]() -> asio::awaitable<void> {
-        waited = co_await link->async_wait_closed();
-        wait_done = true;
-      },
-      asio::detached);
+  test::spawn_checked(io, [&, link = b]() -> asio::awaitable<void> {
+    waited = co_await link->async_wait_closed();
+    wait_done = true;
+  });
   io.poll();
   EXPECT_FALSE(wait_done);
 
@@ -239,9 +236,9 @@ TEST_F(StreamLinkTest, WaitingForCloseAfterItHappenedCompletesAtOnce) {
   b->close();
   ASSERT_TRUE(run_until(io, [&] { return b_in.closed_calls == 1; }));
   std::error_code waited;
-  asio::co_spawn(
-      io, [&, link = b]() -> asio::awaitable<void> { waited = co_await link->async_wait_closed(); },
-      asio::detached);
+  test::spawn_checked(io, [&, link = b]() -> asio::awaitable<void> {
+    waited = co_await link->async_wait_closed();
+  });
   ASSERT_TRUE(run_until(io, [&] { return bool(waited); }));
   EXPECT_EQ(waited, errc::closed);
 }
@@ -382,18 +379,15 @@ class RawPeerTest : public ::testing::Test {
   // True once the raw peer sees the connection end (EOF or reset).
   bool raw_peer_sees_close() {
     bool ended = false;
-    asio::co_spawn(
-        io,
-        [&]() -> asio::awaitable<void> {
-          std::array<char, 64> buf;
-          for (;;) {
-            auto [ec, n] = co_await raw->async_read_some(asio::buffer(buf),
-                                                         asio::as_tuple(asio::use_awaitable));
-            if (ec) break;
-          }
-          ended = true;
-        },
-        asio::detached);
+    test::spawn_checked(io, [&]() -> asio::awaitable<void> {
+      std::array<char, 64> buf;
+      for (;;) {
+        auto [ec, n] =
+            co_await raw->async_read_some(asio::buffer(buf), asio::as_tuple(asio::use_awaitable));
+        if (ec) break;
+      }
+      ended = true;
+    });
     return run_until(io, [&] { return ended; });
   }
 

@@ -5,7 +5,6 @@
 #include <unistd.h>
 
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/this_coro.hpp>
@@ -20,6 +19,7 @@
 #include "tests/backbone/session_peers.hpp"
 #include "tests/support/event_loop.hpp"
 #include "tests/support/process.hpp"
+#include "tests/support/spawn_checked.hpp"
 #include "tools/link_emulator/command_line.hpp"
 
 namespace canbridge::backbone {
@@ -89,7 +89,7 @@ asio::awaitable<void> pace(SessionEnd& gateway, SessionEnd& surface) {
 void expect_everything_delivered(asio::io_context& io, SessionEnd& gateway, SessionEnd& surface,
                                  test::ChildProcess& emulator) {
   gateway.payload_size = surface.payload_size = 16;
-  asio::co_spawn(io, pace(gateway, surface), asio::detached);
+  test::spawn_checked(io, pace(gateway, surface));
   const bool done = test::run_until(
       io,
       [&] {

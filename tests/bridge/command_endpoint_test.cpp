@@ -201,6 +201,8 @@ class RawClient {
     }
     return out;
   }
+  // Closes the sending side only, as `printf ... | socat` does at the end of its input.
+  void shutdown_send() { ::shutdown(fd_, SHUT_WR); }
   const std::string& received() const { return received_; }
   bool eof() const { return eof_; }
   void close() {
@@ -302,7 +304,7 @@ TEST_F(CommandEndpointTest, ReadAndWriteOneBytePerWrite) {
   EXPECT_EQ(read.sdo.index, 0x1018);
   EXPECT_EQ(read.sdo.sub, 1);
   EXPECT_TRUE(read.sdo.upload);
-  EXPECT_EQ(read.sdo.timeout, 1000ms);
+  EXPECT_EQ(read.sdo.timeout, 500ms);  // CANopenNode's gateway's default
   EXPECT_EQ(read.sdo.block_size, 0);
   remote.complete_ok(0, {0x78, 0x56, 0x34, 0x12});
   EXPECT_EQ(line(*client, 0), "[1] 305419896");
@@ -380,27 +382,34 @@ TEST_F(CommandEndpointTest, NmtSetNodeIdHelpAndLss) {
   EXPECT_EQ(remote.calls[1].target.net, 2u);
   EXPECT_EQ(remote.calls[2].kind, "set_node_id");
   EXPECT_EQ(remote.calls[2].new_node, 9);
-  for (std::size_t i = 0; i < 3; ++i) remote.complete_ok(i);
-  EXPECT_EQ(line(*client, 2), "[3] OK");
+  for (std::size_t i = 0; i < 2; ++i) remote.complete_ok(i);
+  remote.complete_ok(2, {21});  // the surface id the renamed node has now
+  EXPECT_EQ(line(*client, 2), "[3] 21");
+  client->send("[31] 2 9 set node_id 10\n[32] 2 10 set node_id 11\n");
+  ASSERT_EQ(calls_soon(5), 5u);
+  remote.complete_ok(3, {0});  // no surface id
+  remote.complete_ok(4);       // a gateway that does not say
+  EXPECT_EQ(line(*client, 3), "[31] -");
+  EXPECT_EQ(line(*client, 4), "[32] OK");
 
   client->send("[4] help datatype\n");
   // One answer, one CR LF: its lines are separated by LF alone (as the reference gateway's help),
   // so a client that prints an answer per CR LF (cocomm) prints all of it.
-  const auto help = lines(*client, 4);
-  ASSERT_EQ(help.size(), 4u);
-  EXPECT_EQ(help[3].rfind("Datatypes:\n", 0), 0u) << help[3];
-  EXPECT_TRUE(help[3].ends_with("\n[4] OK")) << help[3];
-  EXPECT_EQ(std::count(help[3].begin(), help[3].end(), '\n'),
+  const auto help = lines(*client, 6);
+  ASSERT_EQ(help.size(), 6u);
+  EXPECT_EQ(help[5].rfind("Datatypes:\n", 0), 0u) << help[5];
+  EXPECT_TRUE(help[5].ends_with("\n[4] OK")) << help[5];
+  EXPECT_EQ(std::count(help[5].begin(), help[5].end(), '\n'),
             static_cast<long>(canopen::ascii_help("datatype").size()));
 
   const std::size_t seen = help.size();
   client->send("[5] 3 lss_store\n[6] 2 lss_get_node\n[7] 2 lss_inquire_addr\n[8] lss_store\n");
   EXPECT_EQ(line(*client, seen), "[5] ERROR:100 #Request not supported. no LSS on net 3");
-  ASSERT_EQ(calls_soon(5), 5u);
-  EXPECT_EQ(remote.calls[3].lss, "lss_get_node");
-  EXPECT_EQ(remote.calls[3].net, 2u);
-  remote.complete_ok(3, {0x05});
-  remote.complete_ok(4, {1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0xEF, 0xBE, 0, 0});
+  ASSERT_EQ(calls_soon(7), 7u);
+  EXPECT_EQ(remote.calls[5].lss, "lss_get_node");
+  EXPECT_EQ(remote.calls[5].net, 2u);
+  remote.complete_ok(5, {0x05});
+  remote.complete_ok(6, {1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0xEF, 0xBE, 0, 0});
   EXPECT_EQ(line(*client, seen + 1), "[6] 0x05");
   EXPECT_EQ(line(*client, seen + 2), "[7] 0x00000001 0x00000002 0x00000003 0x0000BEEF");
   // Net 0 (the surface's network) has no LSS of its own.
@@ -443,6 +452,34 @@ TEST_F(CommandEndpointTest, NodesLinesAsDocumented) {
   EXPECT_EQ(line(*client, 2), "[3] OK");
 }
 
+// A gateway that is down: its rows (the surface's own, lost) are listed, then one line names the
+// gateway and its state, and the answer is OK. Only the gateways of the network asked for.
+TEST_F(CommandEndpointTest, NodesNameAGatewayThatIsDown) {
+  remote.nets[2].connected = false;  // gw-b, net 3
+  start(options());
+  auto client = connect();
+  client->send("[4] nodes\n");
+  ASSERT_TRUE(until([&] { return remote.nodes_done != nullptr; }));
+  NodeRow lost;
+  lost.net = 3;
+  lost.module_id = 2;
+  lost.gateway = "gw-b";
+  lost.local_node = 1;
+  lost.surface_node = 5;
+  lost.lost = true;
+  remote.nodes_done({lost}, {});
+  EXPECT_EQ(lines(*client, 3),
+            (std::vector<std::string>{
+                "[4] node net=3 module=2 gateway=gw-b local=1 surface=5 profile=- kind=- "
+                "state=lost hb_age_ms=- boot_count=0 emcy=-",
+                "[4] gateway name=gw-b state=down", "[4] OK"}));
+  remote.nodes_done = nullptr;
+  client->send("[5] 2 nodes\n");
+  ASSERT_TRUE(until([&] { return remote.nodes_done != nullptr; }));
+  remote.nodes_done({}, {});
+  EXPECT_EQ(line(*client, 3), "[5] OK");
+}
+
 TEST_F(CommandEndpointTest, FlashReadsTheFileAndReportsProgress) {
   start(options());
   auto client = connect();
@@ -483,7 +520,8 @@ TEST_F(CommandEndpointTest, PipelinedCommandsAreAnsweredInOrder) {
   client->pump();
   EXPECT_EQ(client->received(), "") << "answered before the first request";
   remote.complete_ok(0, {1});
-  EXPECT_EQ(lines(*client, 3), (std::vector<std::string>{"[1] 1", "[2] 2", "[3] 3"}));
+  // The comment and the blank line get their empty answers in their places.
+  EXPECT_EQ(lines(*client, 5), (std::vector<std::string>{"[1] 1", "[2] 2", "", "", "[3] 3"}));
 }
 
 TEST_F(CommandEndpointTest, TwoClientsOneNodeEachGetsItsOwnAnswer) {
@@ -518,6 +556,49 @@ TEST_F(CommandEndpointTest, DisconnectCancelsPendingRequestsAndMonitor) {
   EXPECT_EQ(remote.cancelled, std::vector<RemoteAccess::RequestId>{remote.calls[1].id});
   EXPECT_TRUE(until([&] { return endpoint->counters().sessions == 0; }));
   remote.complete(1, RemoteOutcome{std::make_error_code(std::errc::operation_canceled), {}, {}});
+}
+
+// `printf '[1] 10 read 0x1008 0 vs\n' | socat -t 3 - UNIX-CONNECT:...`: the client's end of file
+// comes before the answers, which it still reads. Every request already sent is answered, in
+// order, nothing is cancelled, and then the endpoint closes.
+TEST_F(CommandEndpointTest, HalfCloseStillGetsEveryAnswer) {
+  start(options());
+  auto client = connect();
+  client->send("[1] 10 read 0x1008 0 vs\n[2] 5 r 0x1000 0 u8\n");
+  client->shutdown_send();
+  ASSERT_EQ(calls_soon(2), 2u);
+  for (int i = 0; i < 20; ++i) {  // the end of file is read; nothing may be cancelled
+    io.restart();
+    io.poll();
+  }
+  EXPECT_TRUE(remote.cancelled.empty());
+  remote.complete_ok(1, {7});
+  remote.complete_ok(0, {'a', 'b'});
+  EXPECT_TRUE(closed_by_endpoint(*client));
+  EXPECT_EQ(client->received(), "[1] \"ab\"\r\n[2] 7\r\n");
+  EXPECT_TRUE(remote.cancelled.empty());
+  EXPECT_TRUE(until([&] { return endpoint->counters().sessions == 0; }));
+}
+
+// A last line without its LF before the end of file is a request too; a monitor feed ends at the
+// end of file (it has no last answer), and a client with nothing pending is closed at once.
+TEST_F(CommandEndpointTest, HalfCloseAnswersAnUnterminatedLineAndEndsTheMonitor) {
+  start(options());
+  auto client = connect();
+  client->send("[1] monitor\n[2] 5 r 0x1000 0 u8");
+  ASSERT_TRUE(until([&] { return remote.observers.size() == 1; }));
+  EXPECT_TRUE(remote.calls.empty()) << "a line without its LF, before the end of file";
+  client->shutdown_send();
+  ASSERT_EQ(calls_soon(1), 1u);
+  ASSERT_TRUE(until([&] { return remote.observers.empty(); }));
+  remote.complete_ok(0, {9});
+  EXPECT_TRUE(closed_by_endpoint(*client));
+  EXPECT_EQ(client->received(), "[1] OK\r\n[2] 9\r\n");
+
+  auto idle = connect();
+  idle->shutdown_send();
+  EXPECT_TRUE(closed_by_endpoint(*idle));
+  EXPECT_EQ(idle->received(), "");
 }
 
 MonitorFrame frame(std::uint32_t module, std::uint32_t id, std::uint8_t byte) {

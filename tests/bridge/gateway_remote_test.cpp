@@ -16,6 +16,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway.hpp"
 #include "can/virtual_bus.hpp"
+#include "routing/rename_follower.hpp"
 #include "sim/firmware_image.hpp"
 #include "sim/sim_node.hpp"
 #include "tests/support/bus_recorder.hpp"
@@ -155,7 +156,10 @@ class Rig {
   void deliver_events() {
     std::vector<NodeEvent> e;
     e.swap(events);
-    for (const NodeEvent& ev : e) core->on_node_event(ev, now);
+    for (NodeEvent& ev : e) {
+      follow_rename(map, ev);  // as the gateway: the live map first, then the core
+      core->on_node_event(ev, now);
+    }
   }
   void collect() {
     while (core->has_results()) {
@@ -345,6 +349,10 @@ TEST(GatewayRemote, SetNodeIdIsAnsweredByTheBootUpOfTheNewId) {
   ASSERT_NE(rig.result(1), nullptr);
   EXPECT_EQ(rig.result(1)->abort_code(), 0u) << rig.result(1)->detail();
   EXPECT_EQ(rig.node(9).id(), 9);
+  // Local 9 is not mapped: the node's pair moved with it and it keeps surface id 17, which the
+  // answer names.
+  EXPECT_EQ(rig.result(1)->data(), std::string(1, '\x11'));
+  EXPECT_EQ(rig.map.surface_of(0, 9), 17);
   // A node that is not there: no boot-up, answered once when the table gives up.
   rig.request(nmt_request(2, 3, 0xE0, 4));
   EXPECT_EQ(rig.result(2), nullptr);

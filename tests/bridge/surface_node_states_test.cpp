@@ -8,6 +8,7 @@
 #include <cstdint>
 #include <set>
 #include <tuple>
+#include <vector>
 
 namespace canbridge::bridge {
 
@@ -106,6 +107,27 @@ TEST_F(SurfaceNodeStatesTest, InLoaderAsTheGatewayReportsItCountsInLoader) {
   e.set_in_loader(true);
   states.apply(0, e);
   EXPECT_EQ(summary(), counts(0, 0, 0, 1, 0));
+}
+
+// What the surface lists for a gateway that is down: its nodes by module and local id, with the
+// surface id, boot count and loader state of their last events, and nothing of other gateways.
+TEST_F(SurfaceNodeStatesTest, EachNodeOfOneGatewayIsListedWithItsLastEvent) {
+  v1::NodeEvent booted = event(v1::NodeEvent::BOOTED, 2, 3);
+  booted.set_boot_count(4);
+  states.apply(0, booted);
+  states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 7, kNmtOperational));
+  states.apply(0, event(v1::NodeEvent::LOADER_BOOTED, 2, 1, 0x00));
+  states.apply(0, event(v1::NodeEvent::LOST, 1, 7));
+  states.apply(1, event(v1::NodeEvent::DISCOVERED, 1, 9, kNmtOperational));
+  std::vector<std::tuple<std::uint32_t, std::uint32_t, std::uint32_t, std::uint32_t, bool, bool>>
+      listed;  // module, local, surface id, boot count, lost, in loader
+  states.for_each_node(
+      0, [&](std::uint32_t module, std::uint32_t local, const SurfaceNodeStates::Node& n) {
+        listed.emplace_back(module, local, n.surface_node, n.boot_count, n.lost, n.in_loader);
+      });
+  using Row = decltype(listed)::value_type;
+  EXPECT_EQ(listed, (decltype(listed){Row{1, 7, 39, 0, true, false}, Row{2, 1, 65, 0, false, true},
+                                      Row{2, 3, 67, 4, false, false}}));
 }
 
 TEST_F(SurfaceNodeStatesTest, ARenameMovesTheNodeFromItsPreviousIdToTheNewOne) {

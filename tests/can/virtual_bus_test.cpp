@@ -3,11 +3,12 @@
 #include <gtest/gtest.h>
 
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <limits>
 #include <optional>
+
+#include "tests/support/spawn_checked.hpp"
 
 namespace canbridge::can {
 namespace {
@@ -17,9 +18,8 @@ namespace asio = boost::asio;
 std::vector<Frame> receive_all(asio::io_context& io, Bus& bus) {
   std::vector<Frame> out;
   std::error_code result = std::make_error_code(std::errc::operation_would_block);
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { result = co_await bus.receive_batch(out); },
-      asio::detached);
+  test::spawn_checked(io,
+                      [&]() -> asio::awaitable<void> { result = co_await bus.receive_batch(out); });
   io.run();
   io.restart();
   EXPECT_FALSE(result) << result.message();
@@ -50,8 +50,7 @@ TEST(VirtualBus, ReceiveWaitsForAFrameSentLater) {
   auto a = medium.connect("a");
   auto b = medium.connect("b");
   std::vector<Frame> out;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { co_await b->receive_batch(out); }, asio::detached);
+  test::spawn_checked(io, [&]() -> asio::awaitable<void> { co_await b->receive_batch(out); });
   io.poll();
   EXPECT_TRUE(out.empty());
   a->send(Frame::standard(0x700, {0x05}));
@@ -91,8 +90,7 @@ TEST(VirtualBus, BoundedQueueCountsOverflowAndCloseEndsWait) {
 
   std::error_code ec;
   std::vector<Frame> out;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { ec = co_await b->receive_batch(out); }, asio::detached);
+  test::spawn_checked(io, [&]() -> asio::awaitable<void> { ec = co_await b->receive_batch(out); });
   io.poll();
   b->close();
   io.run();
@@ -125,9 +123,8 @@ TEST(VirtualBus, HeldSendsQueueAndRoomWaitEndsWhenTheyLeave) {
   EXPECT_EQ(a->counters().tx_frames, 0u);
 
   std::optional<std::error_code> waited;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { waited = co_await a->wait_send_room(2); },
-      asio::detached);
+  test::spawn_checked(io,
+                      [&]() -> asio::awaitable<void> { waited = co_await a->wait_send_room(2); });
   io.poll();
   EXPECT_FALSE(waited);
   medium.release_held(1);  // one slot free: not yet the two the writer waits for
@@ -180,18 +177,16 @@ TEST(VirtualBus, RoomWaitIsImmediateWithRoomAndFailsOnClose) {
   VirtualBus medium(io.get_executor(), "vbus");
   auto a = medium.connect("a", 1);
   std::optional<std::error_code> first, second;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { first = co_await a->wait_send_room(1); },
-      asio::detached);
+  test::spawn_checked(io,
+                      [&]() -> asio::awaitable<void> { first = co_await a->wait_send_room(1); });
   io.poll();
   ASSERT_TRUE(first);
   EXPECT_FALSE(*first);
   io.restart();  // the loop ran out of work when the wait ended
   medium.hold(true);
   ASSERT_TRUE(a->send(Frame::standard(0x80, {})));
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { second = co_await a->wait_send_room(1); },
-      asio::detached);
+  test::spawn_checked(io,
+                      [&]() -> asio::awaitable<void> { second = co_await a->wait_send_room(1); });
   io.poll();
   EXPECT_FALSE(second);
   a->close();  // the held frame is lost with the station, and counted

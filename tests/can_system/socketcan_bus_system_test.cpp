@@ -3,7 +3,6 @@
 #include <gtest/gtest.h>
 
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <cstdio>
@@ -16,6 +15,7 @@
 #include "tests/support/event_loop.hpp"
 #include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
+#include "tests/support/spawn_checked.hpp"
 
 namespace canbridge::can {
 namespace {
@@ -39,28 +39,25 @@ struct Collector {
   std::function<void(const Frame&)> on_frame;  // when set, frames are not stored
 
   void start(asio::io_context& io, Bus& bus) {
-    asio::co_spawn(
-        io,
-        [this, &bus]() -> asio::awaitable<void> {
-          std::vector<Frame> batch;
-          for (;;) {
-            batch.clear();
-            const std::error_code ec = co_await bus.receive_batch(batch);
-            if (ec) {
-              end = ec;
-              ended = true;
-              co_return;
-            }
-            for (const Frame& f : batch) {
-              if (on_frame) {
-                on_frame(f);
-              } else {
-                frames.push_back(f);
-              }
-            }
+    test::spawn_checked(io, [this, &bus]() -> asio::awaitable<void> {
+      std::vector<Frame> batch;
+      for (;;) {
+        batch.clear();
+        const std::error_code ec = co_await bus.receive_batch(batch);
+        if (ec) {
+          end = ec;
+          ended = true;
+          co_return;
+        }
+        for (const Frame& f : batch) {
+          if (on_frame) {
+            on_frame(f);
+          } else {
+            frames.push_back(f);
           }
-        },
-        asio::detached);
+        }
+      }
+    });
   }
 };
 
@@ -524,9 +521,8 @@ TEST(SocketCanSystem, WaitSendRoomEndsWhenTheWriterHasFreedTheSlots) {
   ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
   for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(bus->send(Frame::make(0x123, 0, {i})));
   std::optional<std::error_code> waited;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { waited = co_await bus->wait_send_room(3); },
-      asio::detached);
+  test::spawn_checked(io,
+                      [&]() -> asio::awaitable<void> { waited = co_await bus->wait_send_room(3); });
   ASSERT_TRUE(run_until(
       io, [&] { return !bus->interface_up(); }, 5s));
   EXPECT_FALSE(waited);  // nothing can leave while the interface is down
@@ -542,9 +538,8 @@ TEST(SocketCanSystem, WaitSendRoomEndsWhenTheWriterHasFreedTheSlots) {
   for (std::uint8_t i = 0; i < 4; ++i) ASSERT_TRUE(bus->send(Frame::make(0x124, 0, {i})));
   ASSERT_EQ(test::run({"ip", "link", "set", "vcan1", "down"}).status, 0);
   std::optional<std::error_code> on_close;
-  asio::co_spawn(
-      io, [&]() -> asio::awaitable<void> { on_close = co_await bus->wait_send_room(1); },
-      asio::detached);
+  test::spawn_checked(
+      io, [&]() -> asio::awaitable<void> { on_close = co_await bus->wait_send_room(1); });
   ASSERT_TRUE(run_until(
       io, [&] { return !bus->interface_up(); }, 5s));
   EXPECT_FALSE(on_close);

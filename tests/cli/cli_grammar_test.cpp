@@ -45,6 +45,20 @@ TEST(CliGrammar, EveryCommandsHelpListsEveryOptionWithItsDefault) {
   EXPECT_THAT(read.out, HasSubstr("1..127")) << "the positionals are described";
 }
 
+// cmd's lines name their networks: it takes every common option but --net, and says what a line
+// is and where the lines come from without one.
+TEST(CliGrammar, CmdsHelpListsItsOptionsAndLines) {
+  const auto run = run_cli({"cmd", "--help"});
+  EXPECT_EQ(run.rc, exit_code::ok);
+  for (const char* option : {"--endpoint", "--token-file", "--config", "--timeout", "LINE"}) {
+    EXPECT_THAT(run.out, HasSubstr(option)) << "cmd --help lacks " << option;
+  }
+  EXPECT_THAT(run.out, Not(HasSubstr("--net")));
+  EXPECT_THAT(run.out, HasSubstr("standard input"));
+  const auto top = run_cli({"--help"});
+  EXPECT_THAT(top.out, HasSubstr("cmd"));
+}
+
 TEST(CliGrammar, AnUnknownSdoCommandIsNamedInOneLine) {
   const auto run = run_cli({"sdo", "frob", "5", "0x1000", "0", "--endpoint", kNoEndpoint});
   EXPECT_EQ(run.rc, exit_code::usage);

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <sstream>
 #include <thread>
 
 #include "app/cli_reply.hpp"
@@ -155,6 +156,24 @@ TEST_F(CliRealEndpoint, NodesAndDump) {
   EXPECT_THAT(dump.out, HasSubstr("heartbeat node 5 operational"));
   EXPECT_THAT(dump.out, HasSubstr("surface < 000#0115"));
   EXPECT_THAT(dump.out, HasSubstr("NMT start node 21"));
+}
+
+// cmd and the real endpoint agree on where each answer ends: a value, an abort, a multi-line
+// help and a node table, each printed to its end before the next line goes.
+TEST_F(CliRealEndpoint, CmdPrintsEachAnswerToItsEnd) {
+  const auto r = run(
+      {"cmd", "2 5 r 0x1018 1 u32", "[8] 2 5 r 0x6000 0", "help datatype", "nodes", "2 5 start"});
+  EXPECT_EQ(r.rc, exit_code::abort) << r.err;  // the abort, the first error
+  std::istringstream lines(r.out);
+  std::vector<std::string> got;
+  for (std::string line; std::getline(lines, line);) got.push_back(line);
+  ASSERT_GE(got.size(), 4u) << r.out;
+  EXPECT_EQ(got[0], "[1] 305419896");
+  EXPECT_EQ(got[1], "[8] ERROR:0x06020000 #Object does not exist.");
+  EXPECT_EQ(got[2], "Datatypes:");
+  EXPECT_THAT(r.out, HasSubstr("\n[3] OK\n[4] node net=2 module=1 gateway=gw-a local=5"));
+  EXPECT_TRUE(r.out.ends_with("\n[4] OK\n[5] OK\n")) << r.out;
+  ASSERT_EQ(remote_.nmt_requests.size(), 1u);
 }
 
 TEST_F(CliRealEndpoint, FlashWithProgressAndSetNodeId) {

@@ -52,6 +52,20 @@ TEST(CliNodes, PrintsTheNodeRowsAsATable) {
   EXPECT_EQ(second.find("loader"), header.find("STATE"));
 }
 
+// The surface lists the nodes of a gateway that is down from its own table: the table, and a line
+// naming the gateway; exit 0, as the surface knows them.
+TEST(CliNodes, AGatewayThatIsDownIsNamedAndTheListSucceeds) {
+  FakeEndpoint endpoint(
+      Script{{"[1] nodes",
+              {"[1] node net=2 module=1 gateway=g1 local=5 surface=5 profile=- kind=- "
+               "state=lost hb_age_ms=- boot_count=1 emcy=-",
+               "[1] gateway name=g1 state=down", "[1] OK"}}});
+  const auto run = run_cli(with_endpoint({"nodes"}, endpoint));
+  EXPECT_EQ(run.rc, exit_code::ok) << run.err;
+  EXPECT_THAT(run.out, HasSubstr("lost"));
+  EXPECT_THAT(run.out, HasSubstr("gateway g1: down (its nodes are shown lost"));
+}
+
 TEST(CliNodes, NetOptionNamesTheNetwork) {
   FakeEndpoint endpoint(Script{{"[1] 3 nodes", {"[1] OK"}}});
   const auto run = run_cli(with_endpoint({"nodes", "--net", "3"}, endpoint));
@@ -242,6 +256,9 @@ TEST(CliUsage, BadArgumentsExitTwoBeforeConnecting) {
       {"dump", "--kind", "bogus"},
       {"nodes", "--bogus"},
       {"sdo"},
+      {"cmd", "4 start\n4 stop"},
+      {"cmd", "# only a comment"},
+      {"cmd", "4 start", "--net", "2"},
   };
   for (auto args : bad) {
     args.push_back("--endpoint");
@@ -265,16 +282,99 @@ TEST(CliNmt, CommandsAndAllNodes) {
   EXPECT_THAT(third.received(), ElementsAre("[1] 0 5 reset node"));
 }
 
-TEST(CliSetNodeId, SendsTheRenameAndReportsNoBootUp) {
-  FakeEndpoint endpoint(Script{{"[1] 0 5 set node_id 9", {"[1] OK"}}});
+TEST(CliSetNodeId, SendsTheRenameReportsTheSurfaceIdAndNoBootUp) {
+  // On net 0 the new id is a local one; the node keeps surface id 5, which the endpoint answers.
+  FakeEndpoint endpoint(Script{{"[1] 0 5 set node_id 9", {"[1] 5"}}});
   const auto run = run_cli(with_endpoint({"set-node-id", "5", "9"}, endpoint));
   EXPECT_EQ(run.rc, exit_code::ok) << run.err;
-  EXPECT_EQ(run.out, "node 5 is now node 9\n");
+  EXPECT_EQ(run.out, "node 5 renamed to local id 9; the surface addresses it as node 5\n");
+  FakeEndpoint on_net(Script{{"[1] 3 3 set node_id 4", {"[1] 8"}}});
+  const auto moved = run_cli(with_endpoint({"set-node-id", "--net", "3", "3", "4"}, on_net));
+  EXPECT_EQ(moved.out, "node 3 of net 3 renamed to 4; the surface addresses it as node 8\n");
+  FakeEndpoint unmapped(Script{{"[1] 3 3 set node_id 4", {"[1] -"}}});
+  EXPECT_THAT(run_cli(with_endpoint({"set-node-id", "--net", "3", "3", "4"}, unmapped)).out,
+              HasSubstr("no surface id"));
+  FakeEndpoint older(Script{{"[1] 0 5 set node_id 9", {"[1] OK"}}});
+  EXPECT_THAT(run_cli(with_endpoint({"set-node-id", "5", "9"}, older)).out,
+              HasSubstr("not reported"));
   FakeEndpoint failing(
       Script{{"[1] 0 5 set node_id 9", {"[1] ERROR:0x05040000 #no boot-up on new id"}}});
   const auto failed = run_cli(with_endpoint({"set-node-id", "5", "9"}, failing));
   EXPECT_EQ(failed.rc, exit_code::timeout);
   EXPECT_THAT(failed.err, HasSubstr("no boot-up on new id"));
+}
+
+// `cmd`: raw 309-3 lines as cocomm sends them. A line without a sequence gets "[<its place>] ",
+// one with a sequence goes as written; every answer line is printed as it came (a multi-line
+// answer to its end), one request at a time.
+TEST(CliCmd, SendsEachLineAndPrintsItsAnswerAsItCame) {
+  FakeEndpoint endpoint(Script{
+      {"[1] 4 read 0x1017 0 u16", {"[1] 1000"}},
+      {"[7] 4 start", {"[7] OK"}},
+      {"[3] nodes",
+       {"[3] node net=2 module=1 gateway=g local=4 surface=4 profile=- kind=- state=lost "
+        "hb_age_ms=- boot_count=0 emcy=-",
+        "[3] gateway name=g state=down", "[3] OK"}},
+      {"[4] help datatype", {"Datatypes:\nb                  # Boolean.\n[4] OK"}},
+  });
+  const auto run = run_cli(with_endpoint(
+      {"cmd", "4 read 0x1017 0 u16", "[7] 4 start", "nodes", "help datatype"}, endpoint));
+  EXPECT_EQ(run.rc, exit_code::ok) << run.err;
+  EXPECT_THAT(endpoint.received(), ElementsAre("[1] 4 read 0x1017 0 u16", "[7] 4 start",
+                                               "[3] nodes", "[4] help datatype"));
+  EXPECT_EQ(run.out,
+            "[1] 1000\n[7] OK\n"
+            "[3] node net=2 module=1 gateway=g local=4 surface=4 profile=- kind=- state=lost "
+            "hb_age_ms=- boot_count=0 emcy=-\n[3] gateway name=g state=down\n[3] OK\n"
+            "Datatypes:\nb                  # Boolean.\n[4] OK\n");
+  EXPECT_EQ(run.err, "");
+}
+
+// An ERROR answer is printed like any other and the next line still goes; the exit status is
+// the first error's, by the conventions of the other commands (108: 6, an SDO abort: 1). A line
+// with a malformed sequence is refused by the endpoint without a sequence.
+TEST(CliCmd, TheFirstErrorAnswerGivesTheExitStatus) {
+  FakeEndpoint endpoint(Script{
+      {"[1] 4 w 0x2000 0 u8 1", {"[1] ERROR:108 #Outcome unknown, may have been executed."}},
+      {"[2] 4 r 0x6000 0 u8", {"[2] ERROR:0x06020000 #Object does not exist."}},
+      {"[x] 4 start", {"ERROR:101 #Syntax error."}},
+      {"[4] 4 r 0x1017 0 u16", {"[4] 0"}},
+  });
+  const auto run = run_cli(with_endpoint(
+      {"cmd", "4 w 0x2000 0 u8 1", "4 r 0x6000 0 u8", "[x] 4 start", "4 r 0x1017 0 u16"},
+      endpoint));
+  EXPECT_EQ(run.rc, exit_code::outcome_unknown);
+  EXPECT_EQ(run.out,
+            "[1] ERROR:108 #Outcome unknown, may have been executed.\n"
+            "[2] ERROR:0x06020000 #Object does not exist.\nERROR:101 #Syntax error.\n[4] 0\n");
+  FakeEndpoint abort(
+      Script{{"[1] 4 r 0x6000 0 u8", {"[1] ERROR:0x06020000 #Object does not exist."}},
+             {"[2] 4 r 0x1017 0 u16", {"[2] 0"}}});
+  EXPECT_EQ(run_cli(with_endpoint({"cmd", "4 r 0x6000 0 u8", "4 r 0x1017 0 u16"}, abort)).rc,
+            exit_code::abort);
+}
+
+// Without lines the requests come from standard input, numbered by their line there; blank and
+// comment lines (cocomm's files have them) are not sent, a CR before the LF is dropped.
+TEST(CliCmd, WithoutLinesReadsStandardInput) {
+  FakeEndpoint endpoint(Script{{"[3] 4 r 0x1017 0 u16", {"[3] 500"}}, {"[9] 4 stop", {"[9] OK"}}});
+  const auto run = run_cli_with_input(with_endpoint({"cmd"}, endpoint),
+                                      "# set up\n\n4 r 0x1017 0 u16\r\n[9] 4 stop\n");
+  EXPECT_EQ(run.rc, exit_code::ok) << run.err;
+  EXPECT_THAT(endpoint.received(), ElementsAre("[3] 4 r 0x1017 0 u16", "[9] 4 stop"));
+  EXPECT_EQ(run.out, "[3] 500\n[9] OK\n");
+}
+
+TEST(CliCmd, ASilentOrClosingEndpointEndsTheRunWithItsCode) {
+  FakeEndpoint silent(Script{{"[1] 4 start", {}}}, FakeEndpoint::Transport::unix_socket,
+                      /*close_at_end=*/false);
+  const auto timed_out =
+      run_cli(with_endpoint({"cmd", "4 start", "4 stop", "--timeout", "0.2"}, silent));
+  EXPECT_EQ(timed_out.rc, exit_code::timeout);
+  EXPECT_THAT(timed_out.err, HasSubstr("no answer"));
+  FakeEndpoint closing(Script{{"[1] 4 start", {}}});
+  EXPECT_EQ(run_cli(with_endpoint({"cmd", "4 start", "4 stop"}, closing)).rc,
+            exit_code::unreachable);
 }
 
 class CliFlash : public ::testing::Test {

@@ -22,4 +22,13 @@ inline CliRun run_cli(const std::vector<std::string>& args, bool terminal = fals
   return {rc, out.str(), err.str()};
 }
 
+// The same with `input` as standard input (`cmd` without lines reads its lines there).
+inline CliRun run_cli_with_input(const std::vector<std::string>& args, const std::string& input) {
+  std::istringstream in(input);
+  std::ostringstream out;
+  std::ostringstream err;
+  const int rc = cli::run_client(args, out, err, false, in);
+  return {rc, out.str(), err.str()};
+}
+
 }  // namespace canbridge::test

@@ -29,6 +29,7 @@ TEST(RemoteConfig, SurfaceEndpointAndNetworksLoad) {
   EXPECT_EQ(s.command_endpoint->tcp_address, "127.0.0.1");
   EXPECT_EQ(s.command_endpoint->sdo_timeout, std::chrono::milliseconds(2500));
   EXPECT_TRUE(s.command_endpoint->sdo_block);
+  EXPECT_FALSE(s.command_endpoint->error_detail);
   EXPECT_EQ(s.command_endpoint->max_clients, 4u);
   EXPECT_TRUE(s.command_endpoint->clients.empty());
   using Net = std::pair<std::uint32_t, std::uint32_t>;
@@ -46,8 +47,9 @@ TEST(RemoteConfig, WithoutTheBlocksNoEndpointAndDefaultNetworks) {
       "d.yaml");
   ASSERT_TRUE(d.command_endpoint);
   EXPECT_EQ(d.command_endpoint->unix_socket, "/run/canbridge/surface.sock");
-  EXPECT_EQ(d.command_endpoint->sdo_timeout, std::chrono::milliseconds(1000));
+  EXPECT_EQ(d.command_endpoint->sdo_timeout, std::chrono::milliseconds(500));  // as canopend
   EXPECT_FALSE(d.command_endpoint->sdo_block);
+  EXPECT_TRUE(d.command_endpoint->error_detail);
   const GatewayOptions g = load_gateway(kConfigFixtures + "gateway_profiles.yaml");
   EXPECT_EQ(g.remote.sdo_timeout, std::chrono::milliseconds(1000));
   EXPECT_EQ(g.remote.flash_block_size, 127u);

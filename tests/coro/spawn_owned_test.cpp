@@ -5,6 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <boost/asio/io_context.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/this_coro.hpp>
+#include <boost/asio/use_awaitable.hpp>
 #include <optional>
 #include <stdexcept>
 #include <string>
@@ -52,6 +55,25 @@ TEST(SpawnOwned, AnErrorReturnEndsWithItsMessage) {
   io.restart();
   io.run();
   EXPECT_EQ(reason, std::string());
+}
+
+// A coroutine function (a lambda with captures) is kept alive while its coroutine runs: the
+// captures are read after the first suspension, when a lambda called in place would be gone.
+TEST(SpawnOwned, ALambdaKeepsItsCapturesUntilItsCoroutineEnds) {
+  asio::io_context io;
+  std::optional<std::string> reason;
+  std::string seen;
+  spawn_owned(
+      io,
+      [text = std::string(64, 'x'), &seen]() -> asio::awaitable<void> {
+        co_await asio::post(co_await asio::this_coro::executor, asio::use_awaitable);
+        seen = text;
+        throw std::runtime_error("after " + std::to_string(text.size()));
+      },
+      [&](const std::string& why) { reason = why; });
+  io.run();
+  EXPECT_EQ(seen, std::string(64, 'x'));
+  EXPECT_EQ(reason, std::string("after 64"));
 }
 
 TEST(SpawnOwned, AnExceptionOfAnyTypeIsStillReported) {

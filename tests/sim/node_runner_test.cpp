@@ -7,7 +7,6 @@
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/experimental/awaitable_operators.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/post.hpp>
@@ -17,6 +16,7 @@
 
 #include "can/virtual_bus.hpp"
 #include "canopen/sdo_client.hpp"
+#include "tests/support/spawn_checked.hpp"
 
 namespace canbridge::sim {
 namespace {
@@ -50,17 +50,14 @@ struct Rig {
   // everything finished within kTestLimit.
   bool run(std::function<asio::awaitable<void>()> body) {
     bool done = false;
-    asio::co_spawn(io, runner.run(), asio::detached);
-    asio::co_spawn(io, channel.run(), asio::detached);
-    asio::co_spawn(
-        io,
-        [&]() -> asio::awaitable<void> {
-          co_await body();
-          done = true;
-          runner.stop();
-          channel.stop();
-        },
-        asio::detached);
+    test::spawn_checked(io, runner.run());
+    test::spawn_checked(io, channel.run());
+    test::spawn_checked(io, [&]() -> asio::awaitable<void> {
+      co_await body();
+      done = true;
+      runner.stop();
+      channel.stop();
+    });
     io.run_for(kTestLimit);
     return done && io.stopped();
   }
@@ -179,14 +176,11 @@ TEST(NodeRunnerEndToEnd, StopFailsPendingAndLaterRequests) {
   SdoResult pending, later;
   bool pending_done = false;
   ASSERT_TRUE(rig.run([&]() -> asio::awaitable<void> {
-    asio::co_spawn(
-        rig.io,
-        [&]() -> asio::awaitable<void> {
-          pending = co_await rig.channel.upload(42, 0x1000, 0, 60s);
-          pending_done = true;
-          rig.seen_signal.cancel();  // wakes wait_until below
-        },
-        asio::detached);
+    test::spawn_checked(rig.io, [&]() -> asio::awaitable<void> {
+      pending = co_await rig.channel.upload(42, 0x1000, 0, 60s);
+      pending_done = true;
+      rig.seen_signal.cancel();  // wakes wait_until below
+    });
     co_await asio::post(rig.io, asio::use_awaitable);  // let the request go out
     rig.channel.stop();
     co_await rig.wait_until([&] { return pending_done; });
@@ -216,13 +210,10 @@ TEST(NodeRunner, ClosingTheBusEndsRun) {
   NodeRunner runner(io.get_executor(), *end);
   runner.add(spec_of(1));
   bool finished = false;
-  asio::co_spawn(
-      io,
-      [&]() -> asio::awaitable<void> {
-        co_await runner.run();
-        finished = true;
-      },
-      asio::detached);
+  test::spawn_checked(io, [&]() -> asio::awaitable<void> {
+    co_await runner.run();
+    finished = true;
+  });
   io.poll();
   EXPECT_FALSE(finished);
   end->close();

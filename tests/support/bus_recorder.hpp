@@ -5,7 +5,6 @@
 #include <algorithm>
 #include <boost/asio/awaitable.hpp>
 #include <boost/asio/co_spawn.hpp>
-#include <boost/asio/detached.hpp>
 #include <boost/asio/io_context.hpp>
 #include <cstddef>
 #include <cstdint>
@@ -16,6 +15,7 @@
 
 #include "can/bus.hpp"
 #include "can/frame.hpp"
+#include "tests/support/spawn_checked.hpp"
 
 namespace canbridge::test {
 
@@ -25,15 +25,12 @@ namespace canbridge::test {
 class BusRecorder {
  public:
   BusRecorder(boost::asio::io_context& io, std::unique_ptr<can::Bus> bus) : bus_(std::move(bus)) {
-    boost::asio::co_spawn(
-        io,
-        [this]() -> boost::asio::awaitable<void> {
-          while (!co_await bus_->receive_batch(frames)) {
-            if (on_frames) on_frames();
-          }
-          done_ = true;
-        },
-        boost::asio::detached);
+    test::spawn_checked(io, [this]() -> boost::asio::awaitable<void> {
+      while (!co_await bus_->receive_batch(frames)) {
+        if (on_frames) on_frames();
+      }
+      done_ = true;
+    });
   }
   bool send(const can::Frame& f) { return bus_->send(f); }
   void close() { bus_->close(); }

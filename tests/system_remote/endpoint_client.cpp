@@ -46,6 +46,10 @@ void EndpointClient::send_byte_by_byte(std::string_view bytes) {
   for (const char c : bytes) send(std::string_view(&c, 1));
 }
 
+void EndpointClient::shutdown_send() {
+  ::shutdown(fd_, SHUT_WR);
+}
+
 std::optional<std::string> EndpointClient::line(std::chrono::milliseconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   for (;;) {

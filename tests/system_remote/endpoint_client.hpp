@@ -23,6 +23,8 @@ class EndpointClient {
   // Writes all of `bytes` at once, or one write(2) per byte so the server sees every split.
   void send(std::string_view bytes);
   void send_byte_by_byte(std::string_view bytes);
+  // Closes the sending side only, as `printf ... | socat` does at the end of its input.
+  void shutdown_send();
   // The next response line without its line end, nullopt when none completes within `timeout`
   // or the server closed. Every line must end with CR LF: a bare LF is counted in bare_lf().
   std::optional<std::string> line(std::chrono::milliseconds timeout);

@@ -244,8 +244,10 @@ TEST_F(RemoteAccess, RequestSentByteByByteIsAnswered) {
   // Without a sequence number the response has none; `r` is `read`; net 0 = surface ids.
   client_->send_byte_by_byte("42 r 0x2010 0 u32\n");
   EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "305419896");
-  // A comment-only line asks nothing: the next answer is the next request's.
+  // A comment-only line is answered with an empty line, as CANopenNode's gateway does; the
+  // next answer is the next request's.
   client_->send("# nothing\n[8] 0 43 r 0x1018 2 u32\n");
+  EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "");
   EXPECT_EQ(client_->line(kEvent).value_or("<none>"), "[8] 258");
 }
 
@@ -569,6 +571,22 @@ TEST_F(RemoteAccess, CliNodesAndSdo) {
   EXPECT_EQ(r.status, 2) << r.output;
 }
 
+// cmd sends raw 309-3 lines as cocomm does and prints the answers as they came; a client that
+// closes its sending side after its request (printf ... | socat -t 3) still gets the answer.
+TEST_F(RemoteAccess, CmdAndAHalfClosingClientGetTheirAnswers) {
+  const auto r = cli({"cmd", "42 r 0x2010 0 u32", "[5] 2 10 r 0x6666 0 u32"});
+  EXPECT_EQ(r.status, 1) << r.output;  // the abort
+  EXPECT_NE(r.output.find("[1] 305419896\n"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("[5] ERROR:0x06020000 #Object does not exist."), std::string::npos)
+      << r.output;
+  EndpointClient half(socket_path_);
+  half.send("[61] 2 10 read 0x1008 0 vs\n");
+  half.shutdown_send();
+  EXPECT_EQ(half.line(kEvent).value_or("<none>"), "[61] \"canbridge remote cia301 device\"");
+  EXPECT_FALSE(half.line(kEvent)) << "the endpoint closes after the last answer";
+  EXPECT_TRUE(half.closed());
+}
+
 TEST_F(RemoteAccess, CliNmt) {
   struct Case {
     std::vector<std::string> args;
@@ -596,12 +614,16 @@ TEST_F(RemoteAccess, CliSetNodeIdRenamesTheFpgaNode) {
   std::size_t mark = vcan2_->mark();
   auto r = cli({"set-node-id", "--net", "3", "3", "4"});
   EXPECT_EQ(r.status, 0) << r.output;
+  // Local 4 is mapped to surface 8: the answer says where the surface reaches the node now.
+  EXPECT_NE(r.output.find("renamed to 4; the surface addresses it as node 8"), std::string::npos)
+      << r.output;
   EXPECT_TRUE(candump_->wait_for_line("vcan2 000#E00304", kEvent)) << candump_->output();
   EXPECT_TRUE(await(*vcan2_, mark, [](const Frame& f) { return is_heartbeat(f, 4, 0); }));
   EXPECT_EQ(lower(ask("0 8 r 0x2000 0 x32")), "0x0badcafe");
   mark = vcan2_->mark();
   r = cli({"set-node-id", "--net", "3", "4", "3"});
   EXPECT_EQ(r.status, 0) << r.output;
+  EXPECT_NE(r.output.find("as node 7"), std::string::npos) << r.output;
   EXPECT_TRUE(await(*vcan2_, mark, [](const Frame& f) { return is_heartbeat(f, 3, 0); }));
   EXPECT_EQ(lower(ask("0 7 r 0x2000 0 x32")), "0x0badcafe");
 }
