@@ -145,11 +145,8 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
     ++counters_.stale_responses_dropped;
     return false;
   }
-  if (n.awaiting_recovery) {  // executed before the cut, its answer brought by the next link
-    n.awaiting_recovery = false;
-    --awaiting_;
-    ++counters_.answers_recovered;
-  }
+  // Executed before the cut, its answer brought by the next link.
+  if (end_wait(n)) ++counters_.answers_recovered;
   n.pending = false;
   // A step answered: nothing more may come, except inside block transfers.
   if (n.expect != Expect::block_download && n.expect != Expect::block_upload &&
@@ -175,10 +172,7 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   const canopen::NodeId node = request_node(frame);
   if (node == 0 || frame.data[0] >> 5 == 4) return std::nullopt;  // not a request, or an abort
   Node& n = nodes_[node];
-  if (n.awaiting_recovery) {
-    n.awaiting_recovery = false;
-    --awaiting_;
-  }
+  end_wait(n);
   n.pending = false;
   n.aborted = true;
   n.expect = Expect::nothing;
@@ -214,10 +208,7 @@ bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
 
 std::optional<can::Frame> SdoLinkGuard::abort_in_flight(canopen::NodeId node, Node& n,
                                                         Clock::time_point now) {
-  if (n.awaiting_recovery) {
-    n.awaiting_recovery = false;
-    --awaiting_;
-  }
+  end_wait(n);
   n.pending = false;
   // Aborted either way: a late answer to it must not reach the master any more than the abort
   // may.
@@ -288,10 +279,7 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   if (command == 4) return std::nullopt;  // the master's own abort needs no answer
   Node& n = nodes_[node];
   if (n.owned && !n.pending) return std::nullopt;  // answered already
-  if (n.awaiting_recovery) {
-    n.awaiting_recovery = false;
-    --awaiting_;
-  }
+  end_wait(n);
   Node answer = n;
   if (!n.owned && (command == 1 || command == 2 || command == 5 || command == 6)) {
     answer.mux[0] = request.data[1];

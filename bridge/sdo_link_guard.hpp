@@ -162,6 +162,13 @@ class SdoLinkGuard {
   // The pending request of `n` ends aborted (or stale, past the transfer's life): the abort for
   // its master, if one is still wanted.
   std::optional<can::Frame> abort_in_flight(canopen::NodeId node, Node& n, Clock::time_point now);
+  // Ends `n`'s wait for an answer across a lost link; true if it was waiting.
+  bool end_wait(Node& n) {
+    if (!n.awaiting_recovery) return false;
+    n.awaiting_recovery = false;
+    --awaiting_;
+    return true;
+  }
   // Notes the master's request on a node the guard follows.
   static void note_request(Node& n, const can::Frame& frame);
   // True if `response` can answer the request `n` has pending.
@@ -190,10 +197,7 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (!n.owned) return {};
   const bool master_abort =
       frame.data[0] == 0x80 || (n.expect != Expect::block_download && frame.data[0] >> 5 == 4);
-  if (n.awaiting_recovery) {  // the master moved on (a newer request, or its own abort)
-    n.awaiting_recovery = false;
-    --awaiting_;
-  }
+  end_wait(n);         // if it waited, the master moved on (a newer request, or its own abort)
   if (master_abort) {  // nothing is in flight any more
     n.pending = false;
     n.expect = Expect::nothing;
