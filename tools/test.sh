@@ -80,7 +80,8 @@ rm -rf "$root/build-asan"
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
   -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
-  -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON >/dev/null
+  -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON \
+  -DCANBRIDGE_TEST_PROGRAM_OPTIONS="-fno-sanitize=vptr,null,alignment" >/dev/null
 cmake --build "$root/build-asan" -j "$jobs"
 phase "unit tests under the sanitizers"
 ctest --test-dir "$root/build-asan" -L unit -j "$jobs" --output-on-failure
@@ -90,25 +91,28 @@ rm -rf "$root/build-fuzz"
 "$root/tools/fuzz.sh" --seconds 5 "$root/build-fuzz"
 
 phase "build: the product, system tests in the rig"
-rm -rf "$root/build"
-# The product's optimisation (-O2, as the default RelWithDebInfo) without debug info: nobody
-# debugs these binaries, and leaving -g out keeps the whole run well inside its time budget.
-# The unit tests ran above under the sanitizers; building them a second time here cost four of
-# the run's 25 minutes to repeat what the sanitizer build already checks.
-# The image test checks the image made from this tree's executables (the from-source image,
-# which compiles the product a third time inside the build stage, takes 12-14 minutes here and
-# is built by `docker/build.sh`, docker/README.md). bench/ is left out (the benches run in their
-# own sittings, bench/README.md; `cmake --build build` of a developer tree builds them).
-cmake -S "$root" -B "$root/build" -G Ninja -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -DNDEBUG" \
-  -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_IMAGE_TEST=ON -DCANBRIDGE_IMAGE_TEST_PREBUILT=ON \
-  -DCANBRIDGE_BENCH_TOOLS=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON \
-  -DCANBRIDGE_RIG_PROGRAM_OPTIONS=-O0 >/dev/null
-cmake --build "$root/build" -j "$jobs"
+# The product tree of the quick start (tools/product-tree.sh), which tools/demo.sh has built when
+# .ci/run ran it first: the product compiles once per run, as a user builds it (-O2, warnings
+# not errors; the sanitizer tree above and the armhf tree below compile the same code with
+# -Werror, the latter at -O2). Added here: the system tests and the programs of the rig, those
+# compiled at -O0 (they drive the product's processes and mostly wait on them) and with -Werror.
+# The unit tests ran above under the sanitizers and are not built here. The image test checks
+# the image made from this tree's executables (the from-source image, which compiles the product
+# once more inside its build stage, takes 12-14 minutes here and is built by `docker/build.sh`,
+# docker/README.md). bench/ is left out (the benches run in their own sittings, bench/README.md;
+# `cmake --build build` of a developer tree builds them).
+# shellcheck source=tools/product-tree.sh
+source "$root/tools/product-tree.sh"
+cmake -S "$root" -B "$product_tree" "${product_tree_flags[@]}" -DCANBRIDGE_BUILD_TESTS=ON \
+  -DCANBRIDGE_UNIT_TESTS=OFF -DCANBRIDGE_SYSTEM_TESTS=ON -DCANBRIDGE_IMAGE_TEST=ON \
+  -DCANBRIDGE_IMAGE_TEST_PREBUILT=ON -DCANBRIDGE_BENCH_TOOLS=OFF \
+  -DCANBRIDGE_RIG_PROGRAM_OPTIONS="-O0;-Werror" >/dev/null
+cmake --build "$product_tree" -j "$jobs"
 phase "system tests and the other checks of the plain build"
 # One apt at a time: the background preparation must be done before a test could install.
 wait "$image_prep_pid" ||
   echo "image preparation failed (see $image_prep_log); the image test makes what it needs itself"
-ctest --test-dir "$root/build" -j "$jobs" --output-on-failure
+ctest --test-dir "$product_tree" -j "$jobs" --output-on-failure
 
 phase "armhf (the gateway's 32-bit ARM boards): cross build, unit tests under qemu-arm"
 # The unit tests once more, compiled for the board by Debian's cross compiler at the shipped -O2
