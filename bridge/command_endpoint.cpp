@@ -719,15 +719,18 @@ class Session : public std::enable_shared_from_this<Session> {
                                          self->error_detail_));
         return;
       }
-      for (const auto& row : rows) {
-        reply->lines.push_back(canopen::ascii_line(reply->sequence, node_line(row)));
-      }
+      // One multi-line answer (canopen::ascii_multiline): rows separated by LF, one CR LF after
+      // the closing OK, so that cocomm prints every row; each row keeps its `[<seq>] ` prefix,
+      // which line-based clients (canbridge nodes) match.
+      const std::string prefix =
+          reply->sequence ? "[" + std::to_string(*reply->sequence) + "] " : std::string();
+      std::vector<std::string> lines;
+      for (const auto& row : rows) lines.push_back(prefix + node_line(row));
       // The rows of a gateway that is down are the surface's own (each lost): say which.
       for (const auto& gateway : self->gateways_down(net)) {
-        reply->lines.push_back(
-            canopen::ascii_line(reply->sequence, "gateway name=" + gateway + " state=down"));
+        lines.push_back(prefix + "gateway name=" + gateway + " state=down");
       }
-      self->finish(reply, canopen::ascii_ok(reply->sequence));
+      self->finish(reply, canopen::ascii_multiline(reply->sequence, lines));
     });
   }
 
