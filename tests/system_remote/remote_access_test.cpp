@@ -403,11 +403,13 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
   // (100 ms later): list until every beating node shows one, within kEvent.
   std::vector<std::string> lines;
   std::string seq;  // the answer the rows are checked in
+  int bare_lf = 0;  // of that answer
   const auto until = std::chrono::steady_clock::now() + kEvent;
   for (int n = 50;; ++n) {
     seq = "[" + std::to_string(n) + "]";
     client_->send(seq + " nodes\n");
     lines = client_->lines_until(seq + " OK", kEvent);
+    bare_lf = client_->take_bare_lf();
     const auto without_age = std::count_if(lines.begin(), lines.end(), [](const std::string& l) {
       return l.find(" hb_age_ms=-") != std::string::npos;
     });
@@ -415,6 +417,8 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
   }
   ASSERT_FALSE(lines.empty());
   EXPECT_EQ(lines.back(), seq + " OK") << joined(lines);
+  // One answer, one CR LF, as help: every row ends in LF alone, so that cocomm prints them all.
+  EXPECT_EQ(static_cast<std::size_t>(bare_lf), lines.size() - 1) << joined(lines);
   const std::regex row(
       "\\" + seq.substr(0, seq.size() - 1) +
       "\\] node net=([0-9]+) module=([0-9]+) gateway=remote-gateway local=([0-9]+) "
@@ -444,6 +448,7 @@ TEST_F(RemoteAccess, NodesListsEveryNode) {
   client_->send("[51] 2 nodes\n");
   const auto net2 = client_->lines_until("[51] OK", kEvent);
   EXPECT_EQ(net2.size(), 4u) << joined(net2);
+  EXPECT_EQ(client_->take_bare_lf(), 3) << joined(net2);
 }
 
 // A node whose 1017h is 0 (CANopenNode's default) sends its boot-up and no heartbeat. Through
@@ -458,6 +463,7 @@ TEST_F(RemoteAccess, ANodeWithoutHeartbeatStaysAliveWhileItAnswers) {
     EXPECT_EQ(ask("0 44 read 0x2003 0 x32"), "0x00C0FFEE") << "the quiet node answers";
     client_->send("[" + std::to_string(++seq_) + "] nodes\n");
     const auto lines = client_->lines_until("[" + std::to_string(seq_) + "] OK", kEvent);
+    client_->take_bare_lf();  // the rows' (one answer, framed as help)
     bool found = false;
     for (const auto& l : lines) {
       std::smatch m;
