@@ -10,6 +10,8 @@
 
 #include <boost/asio/serial_port.hpp>
 #include <boost/asio/write.hpp>
+#include <chrono>
+#include <iostream>
 
 #include "backbone/delimited_codec.hpp"
 #include "backbone/serial_client.hpp"
@@ -27,6 +29,39 @@ using testing::exactly_once_in_order;
 using testing::fast_options;
 using testing::run_until;
 using testing::SessionEnd;
+
+// The process's first session exchange pays one-time costs (protobuf's and ASan's first
+// allocations, asio's services starting) with both ends in this one thread. In one CI run, under
+// the sanitizers on a loaded machine, the first test's two ends did not run for 377 ms after
+// writing their hellos: longer than fast_options' patience (250 ms), so each end rightly closed
+// the link as stale, and the test, which never reconnects, failed. One exchange with patient
+// options before any test takes those costs; it prints how long it took.
+class FirstExchangeWarmUp : public ::testing::Environment {
+ public:
+  void SetUp() override {
+    const auto started = std::chrono::steady_clock::now();
+    asio::io_context io{1};
+    SessionOptions patient = fast_options();
+    patient.dead_after = 10s;
+    SessionEnd gateway{"warm-up-gw", v1::Hello::ROLE_GATEWAY, patient, {1}};
+    SessionEnd surface{"warm-up-surface", v1::Hello::ROLE_SURFACE, patient};
+    auto [client, server] = connected_sockets(io);
+    gateway.attach(StreamLink::create(std::move(client)));
+    surface.attach(StreamLink::create(std::move(server)));
+    const bool up = run_until(io, [&] { return gateway.stream().up() && surface.stream().up(); });
+    for (auto& l : gateway.links) l->close();
+    for (auto& l : surface.links) l->close();
+    io.restart();
+    io.run_for(20ms);
+    std::cout << "[ warm-up  ] first session exchange " << (up ? "up" : "NOT up") << " after "
+              << std::chrono::duration_cast<std::chrono::milliseconds>(
+                     std::chrono::steady_clock::now() - started)
+                     .count()
+              << " ms\n";
+  }
+};
+[[maybe_unused]] const ::testing::Environment* const kWarmUp =
+    ::testing::AddGlobalTestEnvironment(new FirstExchangeWarmUp);
 
 // A raw pty pair as two serial ports (the master side assigned from its descriptor).
 struct PtyPair {
