@@ -50,7 +50,11 @@ image_prep_pid=$!
 # (The weights are relative: run from a session whose own autogroup is niced, the native trees
 # lose that advantage; one such run took 615 s instead of ~460 s for its sanitizer build.)
 armhf_tree=$root/build-armhf-ci
-armhf_cmake_args=(-DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_TEST_EACH_CASE=OFF)
+# The product's libraries compile at the shipped -O2; the test programs' own code at -O0, which
+# tests the product's code the same and compiled one test source in 14.8 s against 19.6 s
+# (glibc's _FORTIFY_SOURCE needs optimisation, so it is off there).
+armhf_cmake_args=(-DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_TEST_EACH_CASE=OFF
+  "-DCANBRIDGE_TEST_PROGRAM_OPTIONS=-O0;-U_FORTIFY_SOURCE")
 armhf_build_log=/tmp/canbridge-armhf-build.log
 armhf_session=/tmp/canbridge-armhf-build.sid
 rm -rf "$armhf_tree" "$armhf_session"
@@ -121,8 +125,8 @@ wait "$image_prep_pid" ||
 ctest --test-dir "$product_tree" -j "$jobs" --output-on-failure
 
 phase "armhf (the gateway's 32-bit ARM boards): cross build, unit tests under qemu-arm"
-# The unit tests once more, compiled for the board by Debian's cross compiler at the shipped -O2
-# and run by qemu-user: 32-bit size_t and time_t, unsigned char, ARM alignment. arm64 is built
+# The unit tests once more, compiled for the board by Debian's cross compiler (the product at the
+# shipped -O2) and run by qemu-user: 32-bit size_t and time_t, unsigned char, ARM alignment. arm64 is built
 # and tested the same way by tools/cross-build.sh arm64 (docs/cross-build.md): a second
 # architecture would not fit the run's 25 minutes.
 wait "$armhf_build_pid" ||
