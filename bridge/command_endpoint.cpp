@@ -722,8 +722,7 @@ class Session : public std::enable_shared_from_this<Session> {
       // One multi-line answer (canopen::ascii_multiline): rows separated by LF, one CR LF after
       // the closing OK, so that cocomm prints every row; each row keeps its `[<seq>] ` prefix,
       // which line-based clients (canbridge nodes) match.
-      const std::string prefix =
-          reply->sequence ? "[" + std::to_string(*reply->sequence) + "] " : std::string();
+      const std::string prefix = canopen::ascii_prefix(reply->sequence);
       std::vector<std::string> lines;
       for (const auto& row : rows) lines.push_back(prefix + node_line(row));
       // The rows of a gateway that is down are the surface's own (each lost): say which.

@@ -15,9 +15,12 @@ std::string one_line(std::string_view text) {
 }
 }  // namespace
 
+std::string ascii_prefix(std::optional<std::uint32_t> sequence) {
+  return sequence ? "[" + std::to_string(*sequence) + "] " : std::string();
+}
+
 std::string ascii_line(std::optional<std::uint32_t> sequence, std::string_view text) {
-  std::string out;
-  if (sequence) out = "[" + std::to_string(*sequence) + "] ";
+  std::string out = ascii_prefix(sequence);
   out += text;
   out += "\r\n";
   return out;

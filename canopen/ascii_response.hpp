@@ -15,6 +15,8 @@ namespace canbridge::canopen {
 
 // `[<seq>] <text>` CR LF; just `<text>` CR LF without a sequence.
 std::string ascii_line(std::optional<std::uint32_t> sequence, std::string_view text);
+// `[<seq>] `, or nothing without a sequence: what starts every line of an answer.
+std::string ascii_prefix(std::optional<std::uint32_t> sequence);
 // `[<seq>] OK`
 std::string ascii_ok(std::optional<std::uint32_t> sequence);
 // The CiA 301 description of an SDO abort code as CiA 309-3 gateways print it after `#` (the

@@ -95,7 +95,6 @@ test::RigOptions rig_options(int seed, CutProfile profile) {
 // What one scenario counted, for the assertions its test adds.
 struct CutOutcomes {
   long long cuts = 0;
-  long long delivered = 0;
   long long aborted = 0;
   long long recovered = 0;
 };
@@ -196,7 +195,6 @@ CutOutcomes CutScenario<Profile>::run_and_check() {
   EXPECT_GE(cuts, Profile.cuts - 1);
   EXPECT_GT(delivered, 500);
   outcomes.cuts = cuts;
-  outcomes.delivered = delivered;
   outcomes.aborted = aborted;
   outcomes.recovered = counter(rig.surface_final, "answers recovered");
   return outcomes;
