@@ -4,6 +4,7 @@
 set -euo pipefail
 packages=(
   cmake ninja-build g++ clang clang-format libclang-rt-14-dev
+  lld  # LLVM's linker: links the sanitizer tree's test programs in CI (tools/test.sh)
   libboost1.81-dev protobuf-compiler libprotobuf-dev
   libgtest-dev libgmock-dev libyaml-cpp-dev libspdlog-dev libssl-dev liburing-dev
   can-utils iproute2 kmod user-mode-linux

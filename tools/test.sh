@@ -82,7 +82,10 @@ rm -rf "$root/build-asan"
 # Both trees compile in unity batches (CANBRIDGE_UNITY_BUILD): ~40 % less compiler time from
 # scratch, which is all this script ever builds.
 # -g1: line tables are all a sanitizer report needs, at a fraction of full debug info's build time.
+# lld links this tree's 57 executables in 30 s against ~56 s for GNU ld (ASan-instrumented test
+# programs are large); the product tree keeps the system's default linker, as a user builds.
 cmake -S "$root" -B "$root/build-asan" -G Ninja -DCMAKE_BUILD_TYPE=Debug -DCMAKE_CXX_FLAGS_DEBUG=-g1 \
+  -DCMAKE_EXE_LINKER_FLAGS=-fuse-ld=lld \
   -DCANBRIDGE_SANITIZE=ON -DCANBRIDGE_SYSTEM_TESTS=OFF -DCANBRIDGE_BENCH_TOOLS=OFF \
   -DCANBRIDGE_TEST_EACH_CASE=OFF -DCANBRIDGE_UNITY_BUILD=ON -DCANBRIDGE_WERROR=ON \
   -DCANBRIDGE_TEST_PROGRAM_OPTIONS="-fno-sanitize=vptr,null,alignment" >/dev/null
