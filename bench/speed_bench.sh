@@ -17,6 +17,7 @@
 #                   config/surface.yaml as shipped; only key paths and the command socket path are
 #                   rewritten (printed at the start). Module 1 is vcan1, so TPDO 0x181 of its node
 #                   1 arrives on the surface as 0x1A1 (surface node 33).
+#   tcp-plain       the same with auth mode plain in both roles (what TLS costs, same boot)
 #   tcp-tuned       the same with CANBRIDGE_BENCH_TUNE applied (row left out while it is empty):
 #                   space-separated KEY=VALUE (every uncommented or commented-out 'KEY:' line of
 #                   both configs), gateway.KEY=VALUE / surface.KEY=VALUE (one role),
@@ -49,6 +50,9 @@
 #   sc_gw, sc_sf    TCP rows: system calls per forwarded frame of the gateway / the surface
 #                   (strace -c -f -p over a 20,000-frame burst, calls / frames delivered); the
 #                   notes add the same over the 2,000 frames paced at 1,000 frames/s.
+#   us1k_gw, us1k_sf  CPU time (utime + stime) per frame of the gateway / the surface over the
+#                   2,000 frames paced at 1,000 frames/s: what a frame costs when every frame is
+#                   its own wake (the latency path; 10 ms clock ticks, so +-5 us here).
 # '-' marks a column a row does not measure. Ends with the medians over RUNS.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -146,6 +150,20 @@ apply_tune() {
 }
 
 four_bus_configs "$work/tcp" "$work/tcp-4bus"
+# tcp-plain: the shipped configs with auth mode plain in both roles (no TLS, no MAC), so that the
+# table shows what psk TLS costs in the same boot (issue 29: psk >= 0.9 of plain's throughput).
+derive_plain() {
+  mkdir -p "$2"
+  for r in gateway surface; do
+    sed -e 's|^    mode: psk$|    mode: plain|' "$1/$r.yaml" >"$2/$r.yaml"
+    grep -q '^    mode: plain$' "$2/$r.yaml" || {
+      echo "bench: no '    mode: psk' line left in $1/$r.yaml for tcp-plain" >&2
+      return 1
+    }
+  done
+}
+derive_plain "$work/tcp" "$work/tcp-plain"
+derive_plain "$work/tcp-4bus" "$work/tcp-plain-4bus"
 for baud in 115200 1000000; do derive_serial "$work/tcp" $baud; done
 if [[ -n $tune ]]; then
   mkdir -p "$work/tuned" "$work/tuned-4bus"
@@ -177,6 +195,8 @@ if [[ -n $baseline ]]; then
   done
 fi
 for r in gateway surface; do show_diff "$root/config/$r.yaml" "$work/tcp/$r.yaml"; done
+echo "  tcp-plain (besides the above):"
+for r in gateway surface; do show_diff "$work/tcp/$r.yaml" "$work/tcp-plain/$r.yaml"; done
 echo "  serial-BAUD (besides the above; BAUD 115200 shown):"
 for r in gateway surface; do show_diff "$work/tcp/$r.yaml" "$work/tcp-serial-115200/$r.yaml"; done
 echo "  four-bus (besides the above):"
@@ -261,6 +281,9 @@ stop_bridge() {
 
 cpu_ticks() { awk '{print $14 + $15}' "/proc/$1/stat"; }
 rss_mb() { awk '/^VmRSS:/ {printf "%.1f", $2 / 1024}' "/proc/$1/status"; }
+cpu_us_per_frame() {  # TICKS FRAMES
+  awk -v d="$1" -v f="$2" -v t="$clk_tck" 'BEGIN{if (f + 0 > 0) printf "%.0f", 1e6 * d / t / f; else print "-"}'
+}
 cpu_pct() { awk -v d="$1" -v s="$2" -v t="$clk_tck" 'BEGIN{printf "%.1f", 100 * d / t / s}'; }
 
 # bytes_per_frame NAME: the gateway's backbone-tx-bytes / bus->backbone frames (final stats).
@@ -309,12 +332,16 @@ fourbus() {
   echo "$(cpu_pct $((g1 - g0)) "$secs") $(rss_mb "$gpid") $(cpu_pct $((s1 - s0)) "$secs") $(rss_mb "$spid")" \
     >"$work/$name.4bus.res"
   wait "${pids[@]}" || true
-  local lost=0 l
+  local lost=0 l sinks=""
   for i in 0 1 2 3; do
     l=$(kv "$work/$name.4bus$i.out" lost)
     lost=$((lost + ${l:-$per_bus}))
+    # Where a lost frame went: the meter's own socket drops, or a sink that stopped early (3 s
+    # without a frame) against the seconds the sender took.
+    sinks+="${buses[$i]} delivered $(kv "$work/$name.4bus$i.out" delivered) kernel-drops $(kv "$work/$name.4bus$i.out" kernel_drops_sink) in $(kv "$work/$name.4bus$i.out" seconds) s; "
   done
   echo "$lost $(kv "$work/$name.4bus.send" rate_fps_per_bus)" >>"$work/$name.4bus.res"
+  echo "${sinks}sender $(kv "$work/$name.4bus.send" seconds) s" >"$work/$name.4bus.sinks"
 }
 
 # syscalls NAME: strace -c -f on both roles over a burst on module 1; calls per delivered frame.
@@ -354,15 +381,15 @@ syscalls() {
 table=$work/table
 touch "$table"
 header() {
-  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s\n' \
+  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s %7s %7s\n' \
     "$@" | tee -a "$work/print"
 }
-row() {  # RUN PATH then 18 values
-  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s\n' "$@" |
+row() {  # RUN PATH then 20 values
+  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s %7s %7s\n' "$@" |
     tee -a "$table"
 }
 columns=(run path fps x lost reord p50_1k p99_1k p50_mx p99_max B/fr 4b_fps 4b_lost gw_cpu gw_rss
-  sf_cpu sf_rss sdo_x sc_gw sc_sf)
+  sf_cpu sf_rss sdo_x sc_gw sc_sf us1k_gw us1k_sf)
 
 # tunnel_row RUN LABEL EXE CONFDIR [BAUD]: every measurement of one canbridge path, one row.
 tunnel_row() {
@@ -372,7 +399,12 @@ tunnel_row() {
   [[ -n $baud ]] && count=$serial_burst
   start_bridge "$name" "$exe" "$conf" "$baud"
   measure "$name" vcan1 vcan0 1a1 "$count" burst
+  # CPU per frame on the latency path: each role's CPU time over the 1k/s run / frames delivered.
+  local g0 s0 us1k=(- -)
+  g0=$(cpu_ticks "$gpid"); s0=$(cpu_ticks "$spid")
   measure "$name.p1k" vcan1 vcan0 1a1 $paced paced1k
+  us1k[0]=$(cpu_us_per_frame $(($(cpu_ticks "$gpid") - g0)) "$(out "$name.p1k" delivered)")
+  us1k[1]=$(cpu_us_per_frame $(($(cpu_ticks "$spid") - s0)) "$(out "$name.p1k" delivered)")
   measure "$name.pmax" vcan1 vcan0 1a1 $max_count pacedmax
   [[ -n $baud ]] && sdo_download "$name" vcan0 34
   stop_bridge
@@ -387,7 +419,7 @@ tunnel_row() {
     stop_bridge
     read -r -a fb <<<"$(tr '\n' ' ' <"$work/$name.4.4bus.res")"
     read -r -a sc <"$work/$name.4.sc" || true
-    notes="$notes; four-bus $(counters "$name.4"); syscalls/frame at 1k gw sf: $(cat "$work/$name.4.sc1k"); gateway MB $(cat "$work/$name.4.4bus.mem")"
+    notes="$notes; four-bus $(counters "$name.4"); syscalls/frame at 1k gw sf: $(cat "$work/$name.4.sc1k"); gateway MB $(cat "$work/$name.4.4bus.mem"); four-bus sinks: $(cat "$work/$name.4.4bus.sinks")"
   fi
   if [[ -n $baud ]]; then
     x=$(awk -v a="$(out "$name" rate_fps)" -v b="$baud" 'BEGIN{printf "%.3f", a / (b / 80)}')
@@ -400,7 +432,7 @@ tunnel_row() {
   row "$r" "$label" "$(out "$name" rate_fps)" "$x" "$(out "$name" lost)" "$(out "$name" reordered)" \
     "$(out "$name.p1k" latency_us_p50)" "$(out "$name.p1k" latency_us_p99)" \
     "$(out "$name.pmax" latency_us_p50)" "$(out "$name.pmax" latency_us_p99)" "${bpf:--}" \
-    "${fb[5]}" "${fb[4]}" "${fb[0]}" "${fb[1]}" "${fb[2]}" "${fb[3]}" "$sdo_x" "${sc[0]}" "${sc[1]}"
+    "${fb[5]}" "${fb[4]}" "${fb[0]}" "${fb[1]}" "${fb[2]}" "${fb[3]}" "$sdo_x" "${sc[0]}" "${sc[1]}" "${us1k[0]}" "${us1k[1]}"
   echo "     $label: $notes; $((SECONDS - t0)) s" | tee -a "$work/notes"
 }
 
@@ -409,7 +441,7 @@ for ((r = 1; r <= runs; r++)); do
   run_t0=$(date +%s)
   measure "$r.raw" vcan0 vcan0 181 "$burst" burst
   raw_fps=$(out "$r.raw" rate_fps)
-  row "$r" raw "$raw_fps" 1.000 "$(out "$r.raw" lost)" "$(out "$r.raw" reordered)" - - - - - - - - - - - - - -
+  row "$r" raw "$raw_fps" 1.000 "$(out "$r.raw" lost)" "$(out "$r.raw" reordered)" - - - - - - - - - - - - - - - -
 
   cangw -F
   cangw -A -s vcan1 -d vcan0 -e
@@ -424,7 +456,7 @@ for ((r = 1; r <= runs; r++)); do
     "$(out "$r.cangw" lost)" "$(out "$r.cangw" reordered)" \
     "$(out "$r.cangw.p1k" latency_us_p50)" "$(out "$r.cangw.p1k" latency_us_p99)" \
     "$(out "$r.cangw.pmax" latency_us_p50)" "$(out "$r.cangw.pmax" latency_us_p99)" \
-    - - - - - - - "1.00" - -
+    - - - - - - - "1.00" - - - -
   echo "     paced rates reached: 1k $(kv "$work/$r.cangw.p1k.send" rate_fps_per_bus)" \
     "(largest batch $(kv "$work/$r.cangw.p1k.send" largest_batch))," \
     "max $(kv "$work/$r.cangw.pmax.send" rate_fps_per_bus) frames/s" \
@@ -440,6 +472,7 @@ for ((r = 1; r <= runs; r++)); do
       configs=$work/before
     fi
     tunnel_row "$r" "${exe_label}tcp-default" "$exe" "$configs/tcp"
+    tunnel_row "$r" "${exe_label}tcp-plain" "$exe" "$configs/tcp-plain"
     [[ -n $tune ]] && tunnel_row "$r" "${exe_label}tcp-tuned" "$exe" "$configs/tuned"
     tunnel_row "$r" "${exe_label}serial-115200" "$exe" "$configs/tcp-serial-115200" 115200
     tunnel_row "$r" "${exe_label}serial-1M" "$exe" "$configs/tcp-serial-1000000" 1000000
@@ -453,9 +486,9 @@ header "${columns[@]}"
 # shellcheck disable=SC2013  # path names are single words
 for p in $(awk '!seen[$2]++ {print $2}' "$table"); do  # paths, in table order
   vals=()
-  for ((c = 3; c <= 20; c++)); do
+  for ((c = 3; c <= 22; c++)); do
     vals+=("$(awk -v p="$p" -v c="$c" '$2 == p {print $c}' "$table" | median)")
   done
-  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s\n' \
+  printf '%-4s %-20s %6s %6s %6s %5s %7s %7s %7s %8s %6s %6s %7s %6s %6s %6s %6s %6s %6s %6s %7s %7s\n' \
     med "$p" "${vals[@]}"
 done
