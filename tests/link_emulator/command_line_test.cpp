@@ -80,6 +80,15 @@ TEST(CommandLine, DefaultsAreAPerfectLine) {
   EXPECT_TRUE(parsed.options->cuts.empty());
 }
 
+TEST(CommandLine, CutModeIsCloseUnlessSilentIsAsked) {
+  const auto close = parse({"--a", "pty:/tmp/a", "--b", "pty:/tmp/b"});
+  ASSERT_TRUE(close.options) << close.error;
+  EXPECT_EQ(close.options->cut_mode, emulator::EmulatorOptions::CutMode::close);
+  const auto silent = parse({"--a", "pty:/tmp/a", "--b", "pty:/tmp/b", "--cut-mode=silent"});
+  ASSERT_TRUE(silent.options) << silent.error;
+  EXPECT_EQ(silent.options->cut_mode, emulator::EmulatorOptions::CutMode::silent);
+}
+
 TEST(CommandLine, ExplicitCutsInSeconds) {
   const CommandLine parsed =
       parse({"--a", "pty:/tmp/a", "--b", "pty:/tmp/b", "--cut-at", "10+2.5", "--cut-at", "3+0.5"});
@@ -161,6 +170,7 @@ TEST(CommandLine, BadArgumentsSayWhatIsWrong) {
       "exclude");
   expect_error(with({"--cut-at", "5"}), "--cut-at");
   expect_error(with({"--cut-at", "1+2", "--cut-at", "2+1"}), "overlap");
+  expect_error(with({"--cut-mode", "quiet"}), "--cut-mode: close or silent");
 }
 
 TEST(CommandLine, EndpointSpecsRoundTrip) {

@@ -245,6 +245,66 @@ TEST_F(TcpLink, CutClosesConnectionsAndRefusesNewOnesUntilItEnds) {
   EXPECT_EQ(emulator_->stop(), 0);
 }
 
+// A silent cut (a blackholed route): the connections stay open, nothing moves, and what was sent
+// during the cut arrives after it. Fails if the cut closes the connections (close mode) or
+// discards the bytes.
+TEST_F(TcpLink, SilentCutHoldsConnectionsAndDeliversAfterIt) {
+  ASSERT_NO_FATAL_FAILURE(start({"--cut-at", "1.5+1.5", "--cut-mode", "silent"}));
+  tcp::socket gateway(io_);
+  std::optional<tcp::socket> surface;
+  ASSERT_NO_FATAL_FAILURE(connect(gateway, surface));
+  exchange(io_, gateway, *surface, "ping", "pong");
+
+  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 begins (silent)", 10s));
+  const std::string during = payload(3000, 8);
+  PendingWrite write;
+  PendingRead read;
+  start_write(gateway, during, write);
+  start_read(*surface, read, during.size());
+  // Nothing arrives while the route is gone (a bounded wait for an event that must not come).
+  EXPECT_FALSE(run_until(
+      io_, [&] { return read.done(); }, 500ms));
+  EXPECT_FALSE(output_has(*emulator_, "cut 1/1 ends")) << "the cut ended before the check";
+
+  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 ends", 10s));
+  ASSERT_TRUE(run_until(
+      io_, [&] { return read.done(); }, 10s));
+  EXPECT_FALSE(*read.result) << read.result->message();
+  EXPECT_TRUE(read.data == during) << "bytes sent during the silent cut were not delivered";
+  exchange(io_, gateway, *surface, payload(1000, 9), payload(1000, 10));  // the same connections
+  EXPECT_EQ(emulator_->stop(), 0);
+}
+
+// An end that gives up during a silent cut: the other end learns of it only after the cut, and
+// after the bytes sent before the close (as TCP delivers data before its FIN).
+TEST_F(TcpLink, CloseDuringSilentCutReachesThePeerAfterItsBytes) {
+  ASSERT_NO_FATAL_FAILURE(start({"--cut-at", "1.5+1.5", "--cut-mode", "silent"}));
+  tcp::socket gateway(io_);
+  std::optional<tcp::socket> surface;
+  ASSERT_NO_FATAL_FAILURE(connect(gateway, surface));
+  exchange(io_, gateway, *surface, "ping", "pong");
+
+  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 begins (silent)", 10s));
+  const std::string last = payload(500, 11);
+  boost::system::error_code ec;
+  asio::write(gateway, asio::buffer(last), ec);
+  ASSERT_FALSE(ec) << ec.message();
+  gateway.close();
+  PendingRead read;
+  start_read(*surface, read, last.size());
+  EXPECT_FALSE(run_until(
+      io_, [&] { return read.done(); }, 500ms));
+  EXPECT_FALSE(output_has(*emulator_, "cut 1/1 ends")) << "the cut ended before the check";
+
+  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 ends", 10s));
+  ASSERT_TRUE(run_until(
+      io_, [&] { return read.done(); }, 10s));
+  EXPECT_FALSE(*read.result) << read.result->message();
+  EXPECT_TRUE(read.data == last);
+  EXPECT_TRUE(closes(io_, *surface));
+  EXPECT_EQ(emulator_->stop(), 0);
+}
+
 TEST(PtyLink, BytesFlowBothWaysAndSurviveTheClientReopening) {
   TempDir dir;
   const std::string gw_path = dir / "gw";

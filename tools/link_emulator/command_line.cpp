@@ -35,6 +35,9 @@ cuts (the wire breaks: TCP connections close and are refused, pty bytes are disc
                           N cuts of D ms (or uniform in D..D1) at random times inside
                           [S0, S1] s after start, at least G ms apart
   --cut-at T+D            a cut at T s for D s (repeatable; not with --cuts)
+  --cut-mode close|silent close (default) as above; silent: TCP connections stay open and
+                          nothing moves on them until the cut ends (a blackholed route), new
+                          ones wait unserved; pty bytes are discarded as with close
 output:
   --stats-seconds N       a stats line every N s (default 0: only at exit)
   -v, --verbose           more log on stderr: -v debug, -vv trace (default info)
@@ -194,9 +197,10 @@ CommandLine parse_command_line(const std::vector<std::string>& args) {
     app.set_help_flag("-h,--help");
     std::map<std::string, std::string> values;
     std::vector<std::string> cut_at;
-    for (const char* flag : {"--a", "--b", "--baud", "--bits-per-byte", "--latency-ms",
-                             "--jitter-ms", "--ber", "--loss", "--buffer-bytes", "--seed", "--cuts",
-                             "--cut-ms", "--cut-window-s", "--cut-gap-ms", "--stats-seconds"}) {
+    for (const char* flag :
+         {"--a", "--b", "--baud", "--bits-per-byte", "--latency-ms", "--jitter-ms", "--ber",
+          "--loss", "--buffer-bytes", "--seed", "--cuts", "--cut-ms", "--cut-window-s",
+          "--cut-gap-ms", "--cut-mode", "--stats-seconds"}) {
       app.add_option(flag, values[flag]);
     }
     app.add_option("--cut-at", cut_at)
@@ -274,6 +278,14 @@ CommandLine parse_command_line(const std::vector<std::string>& args) {
       } else if (flag == "--cut-at") {
         const auto [start, length] = split_pair(value, '+', flag);
         explicit_cuts.push_back(Cut{parse_seconds(start, flag), parse_seconds(length, flag)});
+      } else if (flag == "--cut-mode") {
+        if (value == "close") {
+          options.cut_mode = EmulatorOptions::CutMode::close;
+        } else if (value == "silent") {
+          options.cut_mode = EmulatorOptions::CutMode::silent;
+        } else {
+          throw BadArgument("--cut-mode: close or silent, not '" + std::string(value) + "'");
+        }
       } else if (flag == "--stats-seconds") {
         options.stats_interval = std::chrono::seconds(parse_integer<unsigned>(value, flag));
       }

@@ -37,6 +37,12 @@ struct EmulatorOptions {
   ImpairmentOptions line;
   std::uint64_t seed = 1;
   CutSchedule cuts;
+  // What a cut does to TCP connections. close: they end and new ones are refused (a reset link,
+  // seen at once). silent: they stay open and nothing moves either way, new ones wait unserved
+  // (a blackholed route: each end learns only from its own silence; what was sent before or
+  // during the cut arrives afterwards if the receiving end still holds its connection).
+  enum class CutMode { close, silent };
+  CutMode cut_mode = CutMode::close;
   std::chrono::seconds stats_interval{0};  // 0 = only the final stats line
 
   ImpairmentOptions a_to_b() const;

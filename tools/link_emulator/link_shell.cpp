@@ -65,6 +65,9 @@ struct Side {
   std::uint64_t generation = 0;
   TimePoint retry_at{};
   bool connect_failure_reported = false;
+  // The connection ended during a silent cut: its end is passed on only after the cut, once what
+  // it sent before has been delivered (TCP data before a FIN arrives when the route returns).
+  bool closed_in_silent_cut = false;
 };
 
 class Shell {
@@ -154,6 +157,12 @@ class Shell {
   // Every loop sleeps on its own timer; any change of state cancels them all and each loop
   // re-checks what it waits for. Single-threaded, so no wakeup is lost: a loop checks its
   // condition and starts waiting without anything running in between.
+  bool silent_cut() const {
+    return in_cut_ && options_.cut_mode == EmulatorOptions::CutMode::silent;
+  }
+  // A TCP side during a silent cut: its connection stays, nothing is read from or written to it.
+  bool frozen_side(const Side& side) const { return silent_cut() && side.is_tcp(); }
+
   asio::steady_timer& new_waiter() { return waiters_.emplace_back(io_); }
   void poke() {
     for (auto& timer : waiters_) timer.cancel();
@@ -175,6 +184,7 @@ class Shell {
       if (!side->is_tcp()) continue;
       boost::system::error_code ignored;
       side->socket.close(ignored);  // also aborts a connect in progress
+      side->closed_in_silent_cut = false;
       if (side->up) {
         side->up = false;
         ++side->generation;
@@ -191,6 +201,7 @@ class Shell {
     boost::system::error_code ignored;
     side.socket.set_option(tcp::no_delay(true), ignored);
     side.up = true;
+    side.closed_in_silent_cut = false;
     ++side.generation;
     poke();
   }
@@ -211,6 +222,9 @@ class Shell {
         co_await sleep(timer, Clock::now() + kErrorPause);
         continue;
       }
+      // A silent cut: the new connection waits, unserved, until the route is back.
+      while (silent_cut() && !stopping_) co_await sleep(timer, TimePoint::max());
+      if (stopping_) break;
       if (in_cut_) {
         // The wire is broken: the caller sees its connection end at once.
         if (!refusal_reported) spdlog::info("{}: refusing connections during the cut", self.name);
@@ -289,7 +303,14 @@ class Shell {
     asio::steady_timer& timer = new_waiter();
     std::vector<std::uint8_t> buffer(kReadChunk);
     while (!stopping_) {
-      if (!from.up || (!in_cut_ && line.free_space() == 0)) {
+      if (from.closed_in_silent_cut && !in_cut_ && line.held() == 0) {
+        // The route is back and what this side sent before it closed has been delivered.
+        spdlog::info("{}: connection closed during the silent cut", from.name);
+        drop_connections(DiscardReason::disconnect);
+        continue;
+      }
+      const bool frozen = frozen_side(from) || from.closed_in_silent_cut;
+      if (!from.up || frozen || (!in_cut_ && line.free_space() == 0)) {
         co_await sleep(timer, TimePoint::max());
         continue;
       }
@@ -298,6 +319,10 @@ class Shell {
       auto [ec, n] = co_await read_some(from, asio::buffer(buffer.data(), room));
       if (stopping_) break;
       if (generation != from.generation) continue;  // that connection is gone
+      if (ec && frozen_side(from)) {
+        from.closed_in_silent_cut = true;  // the other end learns of it after the cut
+        continue;
+      }
       if (ec) {
         if (from.is_tcp()) {
           spdlog::info("{}: connection closed: {}", from.name, ec.message());
@@ -308,9 +333,9 @@ class Shell {
         }
         continue;
       }
-      if (in_cut_) {
+      if (in_cut_ && !frozen_side(from)) {
         line.count_dropped_in_cut(n);
-      } else {
+      } else {  // (a read that was under way when a silent cut began: held, delivered after it)
         // Only this loop pushes and it read at most free_space(), so everything fits.
         line.push(std::span<const std::uint8_t>(buffer.data(), n), Clock::now());
       }
@@ -323,7 +348,13 @@ class Shell {
     asio::steady_timer& timer = new_waiter();
     std::string due;
     while (!stopping_) {
-      if (!to.up || line.held() == 0) {
+      if (to.closed_in_silent_cut && !in_cut_ && line.held() > 0) {
+        // Nobody left to receive it: the connection's end is passed on by the other side's reader.
+        line.discard_held(DiscardReason::disconnect, Clock::now());
+        poke();
+        continue;
+      }
+      if (!to.up || line.held() == 0 || frozen_side(to) || to.closed_in_silent_cut) {
         co_await sleep(timer, TimePoint::max());
         continue;
       }
@@ -356,8 +387,13 @@ class Shell {
       co_await sleep_until(timer, origin_ + cuts[i].start);
       if (stopping_) break;
       in_cut_ = true;
-      drop_connections(DiscardReason::cut);  // before the line, so tests see the effect after it
-      print_line("link-emulator: cut " + std::to_string(i + 1) + of + " begins");
+      if (options_.cut_mode == EmulatorOptions::CutMode::close) {
+        drop_connections(DiscardReason::cut);  // before the line: tests see the effect after it
+        print_line("link-emulator: cut " + std::to_string(i + 1) + of + " begins");
+      } else {
+        poke();  // the loops stop moving bytes
+        print_line("link-emulator: cut " + std::to_string(i + 1) + of + " begins (silent)");
+      }
       co_await sleep_until(timer, origin_ + cuts[i].end());
       if (stopping_) break;
       in_cut_ = false;
