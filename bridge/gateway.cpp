@@ -326,6 +326,7 @@ void Gateway::queue_node_events() {
   for (const NodeEvent& e : node_events_) {
     const auto m = e.module_index;
     spdlog::info("gateway {}: {}", name_, to_string(e, modules_[m].id));
+    hint_loader_boot_on_cia301(e);
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
     v1::NodeEvent& o = *out.add_events();
@@ -342,6 +343,22 @@ void Gateway::queue_node_events() {
   bound_node_events();
   events_out_.push_back({payload.SerializeAsString(), events});
   stream_.wake();
+}
+
+void Gateway::hint_loader_boot_on_cia301(const NodeEvent& e) {
+  // qd puts node n's loader boot-up on 0x720 + n: read as CiA 301, that is a boot-up of node
+  // 32 + n, which no module of at most 31 nodes maps.
+  constexpr NodeId kLoaderBase = 0x20;
+  if (e.kind != NodeEvent::Kind::booted || e.local <= kLoaderBase || e.local >= 2 * kLoaderBase ||
+      map_.modules()[e.module_index].profile != IdProfile::cia301 ||
+      map_.surface_of(e.module_index, e.local) != 0) {
+    return;
+  }
+  warn_.warn(Warn::kLoaderBootOnCia301,
+             "gateway {}: module {}: a boot-up on 0x{:03X} (node {}) has no surface id; on a qd "
+             "module that is node {}'s loader boot-up (0x720 + node id): if this module's nodes "
+             "use the qd profile, set 'profile: qd' for it (later ones only in the node table)",
+             name_, modules_[e.module_index].id, 0x700u + e.local, e.local, e.local - kLoaderBase);
 }
 
 void Gateway::bound_node_events() {

@@ -182,6 +182,9 @@ class Gateway {
   // RENAME_UNCONFIRMED event of the commanded node (when the map has it).
   void report_refused_rename();
   void queue_node_events();
+  // A boot-up that looks like a qd loader's (0x720 + n) on a module configured as cia301: says
+  // once what it probably is, instead of leaving an unmapped node 32 + n in the table unexplained.
+  void hint_loader_boot_on_cia301(const NodeEvent& e);
   // A surface process the gateway has not reported to (the first ever, a restarted one) learns
   // every node the table knows, in their states now, from these events: behind what is queued.
   void queue_node_snapshot(const v1::Hello& surface);
@@ -208,6 +211,7 @@ class Gateway {
     kEventsDropped,
     kRenameRefused,
     kSdoCollision,
+    kLoaderBootOnCia301,
     kWarnKinds
   };
 
