@@ -5,11 +5,10 @@
 #include <algorithm>
 
 #include "bridge/bus_state_log.hpp"
-#include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
-#include "bridge/role_statistics_fill.hpp"
+#include "bridge/gateway_statistics.hpp"
 #include "canopen/sdo_abort.hpp"
 #include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
@@ -717,110 +716,40 @@ GatewayCounters Gateway::counters() const {
   return c;
 }
 
-RoleStatistics Gateway::statistics() const {
-  const GatewayCounters c = counters();
-  RoleStatistics s;
-  s.role = "gateway";
-  s.name = name_;
-  for (const GatewayModule& m : modules_) {
-    s.buses.push_back({m.id, m.bus->name(), m.bus->counters(), m.bus->link_up()});
-  }
-  BackboneStatistics& b = s.backbone;
-  b.peers_up = connected() ? 1 : 0;
-  b.peers_known = 1;
-  copy_stream_counters(c, b);
-  b.tx_bytes = c.backbone_tx_bytes;
-  b.rx_bytes = old_links_.rx_bytes;
-  b.rx_messages = old_links_.rx_messages;
-  b.tx_writes = old_links_.tx_writes;
-  if (link_) {
-    add_link_reads_and_writes(link_->message_link()->counters(), b);
-  }
-  b.unacked = stream_.sender().unacked_count();
-  if (connected()) {
+GatewayStatsSnapshot Gateway::stats_snapshot() const {
+  GatewayStatsSnapshot snapshot;
+  snapshot.name = name_;
+  snapshot.connected = connected();
+  snapshot.counters = counters();
+  snapshot.queued = outbox_.size();
+  snapshot.unacked = stream_.sender().unacked_count();
+  if (snapshot.connected) {
     if (auto rtt = stream_.sender().round_trip()) {
-      b.round_trip = std::chrono::duration_cast<std::chrono::microseconds>(*rtt);
+      snapshot.round_trip = std::chrono::duration_cast<std::chrono::microseconds>(*rtt);
     }
   }
-  for (std::size_t r = 0; r < kDropReasonCount; ++r) {
-    s.drops.push_back(
-        {std::string("untranslatable-") + to_string(static_cast<DropReason>(r)), c.translation[r]});
+  snapshot.links = old_links_;
+  if (link_) {
+    const backbone::LinkCounters now = link_->message_link()->counters();
+    snapshot.links.rx_bytes += now.rx_bytes;
+    snapshot.links.rx_messages += now.rx_messages;
+    snapshot.links.tx_writes += now.tx_writes;
   }
-  add_bus_write_drops(c, s.drops);
-  s.drops.push_back({"conflated", c.outbox.conflated});
-  s.drops.push_back({"process-dropped", c.outbox.process_dropped});
-  s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});
-  // Frames, each counted once: dropped while queued (outbox) or in a payload never sent
-  // (session); the session's own counts are payloads.
-  s.drops.push_back({"reliable-too-old", c.outbox.reliable_too_old + c.session_frames_too_old});
-  s.drops.push_back(
-      {"reliable-peer-restart", c.outbox.discarded_peer_restart + c.session_frames_peer_restart});
-  s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
-  s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
-  s.drops.push_back({"unknown-module", c.unknown_module});
-  s.drops.push_back({"node-events-dropped", c.node_events_dropped});
-  const NodeCounts n = node_table_.counts();
-  s.nodes = {n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost};
-  return s;
+  snapshot.nodes = node_table_.counts();
+  snapshot.pdop_active = pdop_.active();
+  snapshot.pdop_dropped_frames = pdop_.dropped_frames();
+  for (const GatewayModule& m : modules_) {
+    snapshot.buses.push_back({m.id, m.bus->name(), m.bus->counters(), m.bus->link_up()});
+  }
+  return snapshot;
+}
+
+RoleStatistics Gateway::statistics() const {
+  return gateway_statistics(stats_snapshot());
 }
 
 std::string Gateway::stats_line() const {
-  const GatewayCounters c = counters();
-  std::uint64_t dropped = 0;
-  for (auto d : c.translation) dropped += d;
-  const auto& sender = stream_.sender();
-  std::string s = fmt::format(
-      "gateway {}: link {}, bus->backbone {} frames ({} batches), backbone->bus {}, "
-      "untranslatable {}, queued {}, conflated {}, process-dropped {}, reliable-refused {}, "
-      "reliable sent {} resent {} unacked {}, dead-links {}, refusals {}/{}, malformed {}, "
-      "bus-refused {}, echoes-dropped {}, sdo-values rewritten {} unmapped {}, stale-links {}, "
-      "reliable dropped too-old {} surface-restart {} expired-unacked {}, "
-      "sdo-requests-withdrawn {}",
-      name_, connected() ? "up" : "down", c.outbox.frames_sent, c.outbox.batches_sent, c.to_buses,
-      dropped, outbox_.size(), c.outbox.conflated, c.outbox.process_dropped,
-      c.outbox.reliable_refused, c.session.reliable_sent, c.session.reliable_resent,
-      sender.unacked_count(), c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.malformed_payloads + c.session.malformed, c.bus_refused,
-      c.echoes_dropped, c.sdo_values_rewritten, c.sdo_values_unmapped, c.session.stale_links_closed,
-      c.outbox.reliable_too_old + c.session_frames_too_old,
-      c.outbox.discarded_peer_restart + c.session_frames_peer_restart,
-      c.session_frames_expired_unacked, c.sdo_requests_withdrawn);
-  s += fmt::format("; {}, node-events {} dropped {}; backbone-tx-bytes {}; {}",
-                   to_string(node_table_.counts()), c.node_events, c.node_events_dropped,
-                   c.backbone_tx_bytes, lanes_summary(c.outbox));
-  s += fmt::format("; bus-waited {} (peak {}, backbone-pauses {})", c.bus_waited,
-                   c.bus_waiting_peak, c.backbone_pauses);
-  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
-    if (c.bus_drops[r] != 0) {
-      s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
-                       c.bus_drops[r]);
-    }
-  }
-  s += fmt::format(
-      "; from-buses {} frames-received {} unknown-module {} process-lost-on-line {} "
-      "queued-total {} sdo-requests-withdrawn {}; {}",
-      c.from_buses, c.frames_received, c.unknown_module, c.process_lost_on_line, c.outbox.queued,
-      c.outbox.sdo_requests_withdrawn, session_counters_text(c.session));
-  if (pdop_.active() || c.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
-    const std::uint64_t dropped_frames = pdop_.dropped_frames();
-    s += fmt::format(
-        "; pdop packets {} ({} bytes, {} fragments) discarded {} dropped-frames {} refused {}, "
-        "rpdop packets {} complete {} failed {}",
-        c.pdop_packets, c.pdop_packet_bytes, c.pdop_fragments, c.pdop_discards, dropped_frames,
-        c.pdop_refused, c.rpdop_packets, c.rpdop_complete, c.rpdop_failed);
-  }
-  if (c.remote_requests + c.sdo_collisions + c.remote_duplicates != 0) {
-    s += fmt::format(
-        "; remote requests {} failed {} cancelled {} duplicates {} waited-for-master {} "
-        "sdo-collisions {}",
-        c.remote_requests, c.remote_failed, c.remote_cancelled, c.remote_duplicates,
-        c.remote_waited_for_master, c.sdo_collisions);
-  }
-  if (c.framing.frames + c.framing.discarded_bytes != 0) {
-    s += "; " + framing_counters_text(c.framing);
-  }
-  for (const auto& m : modules_) s += "; " + bus_counters_text(m.bus->name(), m.bus->counters());
-  return s;
+  return gateway_stats_line(stats_snapshot());
 }
 
 }  // namespace canbridge::bridge

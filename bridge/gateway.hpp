@@ -19,9 +19,11 @@
 #include "bridge/bus_writer.hpp"
 #include "bridge/deadline_driver.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/gateway_counters.hpp"
 #include "bridge/gateway_pdop_work.hpp"
 #include "bridge/gateway_remote.hpp"
 #include "bridge/gateway_remote_options.hpp"
+#include "bridge/gateway_statistics.hpp"
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/module_sdo_tracking.hpp"
@@ -46,68 +48,6 @@ struct GatewayModule {
   bool reassemble_pdop = true;
   PdopReassemblerOptions pdop_reassembly{};
   PdopSegmenterOptions pdop_segmentation{};
-};
-
-struct GatewayCounters {
-  backbone::SessionCounters session;
-  OutboxCounters outbox;
-  DropCounters translation{};
-  std::uint64_t from_buses = 0;       // frames read on module buses
-  std::uint64_t to_buses = 0;         // frames handed to module buses
-  std::uint64_t frames_received = 0;  // frames decoded from the backbone
-  std::uint64_t bus_refused = 0;      // frames for module buses dropped (bus_drops says why)
-  // Frames that waited for room in a module bus's transmit queue, and drops by reason
-  // (BusWriteQueue::Drop), all module buses together.
-  std::uint64_t bus_waited = 0;
-  std::uint64_t bus_waiting_peak = 0;
-  std::array<std::uint64_t, BusWriteQueue::kDropReasons> bus_drops{};
-  std::uint64_t backbone_pauses = 0;     // the surface's payloads went unread: a bus was backed up
-  std::uint64_t malformed_payloads = 0;  // payloads that are not a valid, consistent batch
-  std::uint64_t unknown_module = 0;      // batches naming a module this gateway does not serve
-  std::uint64_t process_lost_on_line = 0;  // process frames the surface sent that never arrived
-  backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
-  std::uint64_t echoes_dropped = 0;        // frames this gateway wrote, read back from a bus
-  // Frames in the reliable payloads the session gave up on, by backbone::ReliableDrop (the
-  // session counts payloads, which hold many frames): too old before they were ever sent, for a
-  // surface process that is gone, and too old after they were sent (the surface may have them;
-  // not a drop count).
-  std::uint64_t session_frames_too_old = 0;
-  std::uint64_t session_frames_peer_restart = 0;
-  std::uint64_t session_frames_expired_unacked = 0;
-  // SDO requests from the surface still waiting for a bus when the link died (the master was
-  // told they failed): never written.
-  std::uint64_t sdo_requests_withdrawn = 0;
-  // SDO values naming COB-IDs or node ids (1200h.., 1400h.., 1800h.., 1014h, 1016h, 1028h)
-  // rewritten between bus and surface ids, and those whose id has no counterpart (forwarded
-  // unchanged).
-  std::uint64_t sdo_values_rewritten = 0;
-  std::uint64_t sdo_values_unmapped = 0;
-  std::uint64_t node_events = 0;          // node table events queued for the surface
-  std::uint64_t node_events_dropped = 0;  // ... dropped: the link was down too long (bounded)
-  // Renamed nodes that moved in the live map, and confirmed renames it could not follow
-  // (refused commands are counted in translation as rename-refused).
-  std::uint64_t nodes_moved = 0;
-  std::uint64_t node_moves_refused = 0;
-  // PDO Packets (pdop modules with reassembly; docs/pdop.md).
-  std::uint64_t pdop_packets = 0;       // TPDOP packets queued for the surface
-  std::uint64_t pdop_packet_bytes = 0;  // ... their data bytes
-  std::uint64_t pdop_fragments = 0;     // ... their fragments (frames not sent one by one)
-  std::uint64_t pdop_discards = 0;      // broken TPDOP packets, reported to the surface
-  std::uint64_t pdop_refused = 0;       // packets or reports refused: the queue was full
-  std::uint64_t rpdop_packets = 0;      // RPDOP packets from the surface
-  std::uint64_t rpdop_complete = 0;     // ... the node acknowledged them complete
-  std::uint64_t rpdop_failed = 0;       // ... any other outcome
-  std::uint64_t backbone_tx_bytes = 0;  // bytes written on backbone links, all links so far
-  // Services run for the surface (remote access, docs/remote-access.md): requests taken, those
-  // answered with an abort (cancelled ones too), cancelled, repeated ids answered with nothing,
-  // transfers that waited for a master's, and a master's SDO requests refused with 0x08000021
-  // because the gateway ran its own transfer with the node.
-  std::uint64_t remote_requests = 0;
-  std::uint64_t remote_failed = 0;
-  std::uint64_t remote_cancelled = 0;
-  std::uint64_t remote_duplicates = 0;
-  std::uint64_t remote_waited_for_master = 0;
-  std::uint64_t sdo_collisions = 0;
 };
 
 class Gateway {
@@ -139,6 +79,8 @@ class Gateway {
   std::string stats_line() const;
   // The typed snapshot behind `canbridge stats` and /metrics (bridge/role_statistics.hpp).
   RoleStatistics statistics() const;
+  // Everything the two above say, gathered once (bridge/gateway_statistics.hpp).
+  GatewayStatsSnapshot stats_snapshot() const;
 
  private:
   backbone::PeerStream::Handlers stream_handlers();

@@ -76,8 +76,9 @@ class LoaderHint : public ::testing::Test {
 
 // Fails if the hint is missing, or repeated for every loader boot-up.
 TEST_F(LoaderHint, QdLoaderBootUpsOnACia301ModuleAreNamedOnce) {
-  const std::string log = warnings_after(
-      IdProfile::cia301, {Frame::standard(0x722, {0x00}), Frame::standard(0x725, {0x00})}, {34, 37});
+  const std::string log =
+      warnings_after(IdProfile::cia301,
+                     {Frame::standard(0x722, {0x00}), Frame::standard(0x725, {0x00})}, {34, 37});
   EXPECT_EQ(occurrences(log, "profile: qd"), 1u) << log;
   EXPECT_NE(log.find("0x722 (node 34)"), std::string::npos) << log;
   EXPECT_NE(log.find("node 2's loader boot-up"), std::string::npos) << log;
@@ -86,14 +87,14 @@ TEST_F(LoaderHint, QdLoaderBootUpsOnACia301ModuleAreNamedOnce) {
 // A mapped node's boot-up, and a node above 63 (no loader id), get no hint; nor does a qd module,
 // where 0x720 + n is understood.
 TEST_F(LoaderHint, NoHintWhereTheBootUpIsNoLoaderOfAMisreadQdNode) {
-  EXPECT_EQ(warnings_after(IdProfile::cia301,
-                           {Frame::standard(0x702, {0x00}), Frame::standard(0x750, {0x00})},
-                           {2, 80})
-                .find("profile: qd"),
-            std::string::npos);
-  EXPECT_EQ(warnings_after(IdProfile::qd, {Frame::standard(0x722, {0x00})}, {2})
-                .find("profile: qd"),
-            std::string::npos);
+  EXPECT_EQ(
+      warnings_after(IdProfile::cia301,
+                     {Frame::standard(0x702, {0x00}), Frame::standard(0x750, {0x00})}, {2, 80})
+          .find("profile: qd"),
+      std::string::npos);
+  EXPECT_EQ(
+      warnings_after(IdProfile::qd, {Frame::standard(0x722, {0x00})}, {2}).find("profile: qd"),
+      std::string::npos);
 }
 
 }  // namespace
