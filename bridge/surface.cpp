@@ -7,12 +7,10 @@
 #include <deque>
 
 #include "bridge/bus_state_log.hpp"
-#include "bridge/counter_text.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
-#include "bridge/role_statistics_fill.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -734,121 +732,45 @@ SurfaceCounters Surface::counters() const {
   return c;
 }
 
-RoleStatistics Surface::statistics() const {
-  const SurfaceCounters c = counters();
-  RoleStatistics s;
-  s.role = "surface";
-  s.name = name_;
-  s.buses.push_back({0, bus_->name(), bus_->counters(), bus_->link_up()});
-  BackboneStatistics& b = s.backbone;
-  b.peers_up = static_cast<std::uint32_t>(gateways_ready());
-  b.peers_known = static_cast<std::uint32_t>(by_id_.size());
-  b.tx_bytes = closed_links_.tx_bytes;
-  b.rx_bytes = closed_links_.rx_bytes;
-  b.rx_messages = closed_links_.rx_messages;
-  b.tx_writes = closed_links_.tx_writes;
+SurfaceStatsSnapshot Surface::stats_snapshot() const {
+  SurfaceStatsSnapshot snapshot;
+  snapshot.name = name_;
+  snapshot.counters = counters();
+  snapshot.gateways_up = gateways_ready();
+  snapshot.gateways_configured = gateways_.size();
+  snapshot.gateways_known = by_id_.size();
+  snapshot.bus = {0, bus_->name(), bus_->counters(), bus_->link_up()};
+  snapshot.links = closed_links_;
   for (const auto& l : links_) {
     const backbone::LinkCounters now = l->message_link()->counters();
-    b.tx_bytes += now.tx_bytes;
-    add_link_reads_and_writes(now, b);
+    snapshot.links.tx_bytes += now.tx_bytes;
+    snapshot.links.rx_bytes += now.rx_bytes;
+    snapshot.links.rx_messages += now.rx_messages;
+    snapshot.links.tx_writes += now.tx_writes;
   }
-  copy_stream_counters(c, b);
   // The slowest gateway's round trip: the one an operator has to worry about.
   for (const auto& [name, g] : gateways_) {
-    b.unacked += g->stream.sender().unacked_count();
+    snapshot.unacked += g->stream.sender().unacked_count();
     if (!g->stream.up()) continue;
     if (auto rtt = g->stream.sender().round_trip()) {
       const auto us = std::chrono::duration_cast<std::chrono::microseconds>(*rtt);
-      if (!b.round_trip || us > *b.round_trip) b.round_trip = us;
+      if (!snapshot.round_trip || us > *snapshot.round_trip) snapshot.round_trip = us;
     }
   }
-  add_bus_write_drops(c, s.drops);
-  s.drops.push_back({"no-gateway", c.dropped_no_gateway});
-  s.drops.push_back({"unclaimed", c.dropped_unclaimed});
-  for (std::size_t r = 0; r < kNotItsOwnReasons; ++r) {
-    s.drops.push_back(
-        {std::string("not-its-own-") + to_string(static_cast<NotItsOwn>(r)), c.not_its_own[r]});
-  }
-  s.drops.push_back({"conflated", c.outbox.conflated});
-  s.drops.push_back({"process-dropped", c.outbox.process_dropped});
-  s.drops.push_back({"reliable-refused", c.outbox.reliable_refused});
-  s.drops.push_back({"reliable-too-old", c.reliable_dropped_too_old});
-  s.drops.push_back({"reliable-peer-restart", c.reliable_dropped_gateway_restart});
-  s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
-  s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
-  s.drops.push_back({"unknown-module", c.unknown_module});
-  s.drops.push_back({"pdop-malformed", c.pdop_malformed});
-  s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
-  s.sdo_requests = {
-      {"aborted-link-down", c.sdo_aborted},
-      {"aborted-given-up", c.sdo_aborted_dropped},
-      {"answers-recovered", c.sdo_answers_recovered},
-      {"withdrawn-pending", c.sdo_withdrawn_pending},
-      {"withdrawn-answered-before", c.sdo_withdrawn_answered_before},
-      {"withdrawn-untracked", c.sdo_withdrawn_untracked},
-      {"late-answers-dropped", c.sdo_late_responses_dropped},
-      {"stale-answers-dropped", c.sdo_stale_responses_dropped},
-      {"stale-aborts-dropped", c.sdo_stale_aborts_dropped},
-  };
   // A gateway whose link is down counts its nodes lost (SurfaceNodeStates): the master cannot
   // reach them.
-  s.nodes = node_states_.summary([this](SurfaceNodeStates::GatewayId g) {
+  snapshot.nodes = node_states_.summary([this](SurfaceNodeStates::GatewayId g) {
     return g < by_id_.size() && by_id_[g] != nullptr && by_id_[g]->stream.up();
   });
-  return s;
+  return snapshot;
+}
+
+RoleStatistics Surface::statistics() const {
+  return surface_statistics(stats_snapshot());
 }
 
 std::string Surface::stats_line() const {
-  const SurfaceCounters c = counters();
-  const can::BusCounters b = bus_->counters();
-  std::string s = fmt::format(
-      "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
-      "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
-      "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
-      "untracked {}, answers recovered {}, late answers dropped {}, "
-      "stale answers dropped {}, stale aborts dropped {}), "
-      "reliable dropped too-old {} gateway-restart {} (sdo aborted {}) expired-unacked {}, "
-      "stale-links {}, "
-      "echoes-dropped {}, "
-      "bus-refused {}, dropped-no-gateway {}, unclaimed {}, "
-      "malformed {}, unknown-module {}, node-events {}; "
-      "pdop packets {} ({} bytes) discarded {} malformed {} probable-repeats {} bus-refused {}, "
-      "rpdop forwarded {} complete {} failed {}; "
-      "from-bus {} frames-received {} process-lost-on-line {} batches {} queued-total {}; {}; "
-      "{}; bus-waited {} (peak {}, backbone-pauses {})",
-      name_, gateways_ready(), gateways_.size(), c.outbox.frames_sent, c.to_bus, c.outbox.conflated,
-      c.outbox.process_dropped, c.outbox.reliable_refused, c.session.reliable_sent,
-      c.session.reliable_resent, c.session.dead_links, c.session.refusals_sent,
-      c.session.refusals_received, c.sdo_aborted,
-      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
-      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_answers_recovered,
-      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped,
-      c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped,
-      c.reliable_expired_unacked, c.session.stale_links_closed, c.echoes_dropped, c.bus_refused,
-      c.dropped_no_gateway, c.dropped_unclaimed, c.malformed_payloads + c.session.malformed,
-      c.unknown_module, c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards,
-      c.pdop_malformed, c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded,
-      c.rpdop_complete, c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line,
-      c.outbox.batches_sent, c.outbox.queued, session_counters_text(c.session),
-      bus_counters_text(bus_->name(), b), c.bus_waited, c.bus_waiting_peak, c.backbone_pauses);
-  for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {
-    if (c.bus_drops[r] != 0) {
-      s += fmt::format(" dropped-{} {}", to_string(static_cast<BusWriteQueue::Drop>(r)),
-                       c.bus_drops[r]);
-    }
-  }
-  s += fmt::format(", refused-strangers {}", c.refused_strangers);
-  for (const auto& [gateway, drops] : c.not_its_own_by_gateway) {
-    s += fmt::format(", not-its-own from '{}':", gateway);
-    for (std::size_t r = 0; r < kNotItsOwnReasons; ++r) {
-      if (drops[r] != 0) s += fmt::format(" {} {}", to_string(static_cast<NotItsOwn>(r)), drops[r]);
-    }
-  }
-  s += "; " + lanes_summary(c.outbox);
-  if (c.framing.frames + c.framing.discarded_bytes != 0) {
-    s += "; " + framing_counters_text(c.framing);
-  }
-  return s;
+  return surface_stats_line(stats_snapshot());
 }
 
 }  // namespace canbridge::bridge

@@ -2,13 +2,13 @@
 // outbox and the session each dropped, the optional sections appear exactly when they have
 // something to say, and the backbone table takes the links' reads and the round trip only from a
 // link that is up.
+#include "bridge/gateway_statistics.hpp"
+
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cstdint>
 #include <string>
-
-#include "bridge/gateway_statistics.hpp"
 
 namespace canbridge::bridge {
 namespace {
