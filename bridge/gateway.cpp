@@ -9,6 +9,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/gateway_statistics.hpp"
+#include "bridge/role_statistics_fill.hpp"
 #include "canopen/sdo_abort.hpp"
 #include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
@@ -730,10 +731,7 @@ GatewayStatsSnapshot Gateway::stats_snapshot() const {
   }
   snapshot.links = old_links_;
   if (link_) {
-    const backbone::LinkCounters now = link_->message_link()->counters();
-    snapshot.links.rx_bytes += now.rx_bytes;
-    snapshot.links.rx_messages += now.rx_messages;
-    snapshot.links.tx_writes += now.tx_writes;
+    add_link_reads_and_writes(link_->message_link()->counters(), snapshot.links);
   }
   snapshot.nodes = node_table_.counts();
   snapshot.pdop_active = pdop_.active();

@@ -33,6 +33,14 @@ inline void add_link_reads_and_writes(const backbone::LinkCounters& now, Backbon
   b.tx_writes += now.tx_writes;
 }
 
+// The same into a total over links (a role's statistics snapshot).
+inline void add_link_reads_and_writes(const backbone::LinkCounters& now,
+                                      backbone::LinkCounters& total) {
+  total.rx_bytes += now.rx_bytes;
+  total.rx_messages += now.rx_messages;
+  total.tx_writes += now.tx_writes;
+}
+
 // Bus-write drops by reason, then the refusals no reason accounts for.
 template <class RoleCounters>
 void add_bus_write_drops(const RoleCounters& c, std::vector<DropCount>& drops) {

@@ -11,6 +11,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
+#include "bridge/role_statistics_fill.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -744,9 +745,7 @@ SurfaceStatsSnapshot Surface::stats_snapshot() const {
   for (const auto& l : links_) {
     const backbone::LinkCounters now = l->message_link()->counters();
     snapshot.links.tx_bytes += now.tx_bytes;
-    snapshot.links.rx_bytes += now.rx_bytes;
-    snapshot.links.rx_messages += now.rx_messages;
-    snapshot.links.tx_writes += now.tx_writes;
+    add_link_reads_and_writes(now, snapshot.links);
   }
   // The slowest gateway's round trip: the one an operator has to worry about.
   for (const auto& [name, g] : gateways_) {

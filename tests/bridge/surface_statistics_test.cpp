@@ -1,14 +1,14 @@
 // The surface's statistics core on a snapshot built by hand: the withdrawn SDO requests add the
 // queued and the unacknowledged ones, drops from a gateway that sent what is not its own are
 // named by gateway, and the backbone table takes the links' bytes both ways.
+#include "bridge/surface_statistics.hpp"
+
 #include <gtest/gtest.h>
 
 #include <array>
 #include <chrono>
 #include <cstdint>
 #include <string>
-
-#include "bridge/surface_statistics.hpp"
 
 namespace canbridge::bridge {
 namespace {

@@ -170,6 +170,26 @@ class TcpLink : public ::testing::Test {
     surface = std::move(accepted.socket);
   }
 
+  // A connected pair that has exchanged bytes, once the emulator's one silent cut has begun.
+  void connect_then_wait_for_silent_cut(tcp::socket& gateway, std::optional<tcp::socket>& surface) {
+    ASSERT_NO_FATAL_FAILURE(start({"--cut-at", "1.5+1.5", "--cut-mode", "silent"}));
+    ASSERT_NO_FATAL_FAILURE(connect(gateway, surface));
+    exchange(io_, gateway, *surface, "ping", "pong");
+    ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 begins (silent)", 10s));
+  }
+
+  // `read` stays pending while the cut lasts (a bounded wait for an event that must not come),
+  // then completes once it has ended.
+  void expect_held_until_the_cut_ends(PendingRead& read) {
+    EXPECT_FALSE(run_until(
+        io_, [&] { return read.done(); }, 500ms));
+    EXPECT_FALSE(output_has(*emulator_, "cut 1/1 ends")) << "the cut ended before the check";
+    ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 ends", 10s));
+    ASSERT_TRUE(run_until(
+        io_, [&] { return read.done(); }, 10s));
+    EXPECT_FALSE(*read.result) << read.result->message();
+  }
+
   asio::io_context io_;
   tcp::acceptor surface_{io_, loopback(0)};
   std::optional<ChildProcess> emulator_;
@@ -249,27 +269,15 @@ TEST_F(TcpLink, CutClosesConnectionsAndRefusesNewOnesUntilItEnds) {
 // during the cut arrives after it. Fails if the cut closes the connections (close mode) or
 // discards the bytes.
 TEST_F(TcpLink, SilentCutHoldsConnectionsAndDeliversAfterIt) {
-  ASSERT_NO_FATAL_FAILURE(start({"--cut-at", "1.5+1.5", "--cut-mode", "silent"}));
   tcp::socket gateway(io_);
   std::optional<tcp::socket> surface;
-  ASSERT_NO_FATAL_FAILURE(connect(gateway, surface));
-  exchange(io_, gateway, *surface, "ping", "pong");
-
-  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 begins (silent)", 10s));
+  ASSERT_NO_FATAL_FAILURE(connect_then_wait_for_silent_cut(gateway, surface));
   const std::string during = payload(3000, 8);
   PendingWrite write;
   PendingRead read;
   start_write(gateway, during, write);
   start_read(*surface, read, during.size());
-  // Nothing arrives while the route is gone (a bounded wait for an event that must not come).
-  EXPECT_FALSE(run_until(
-      io_, [&] { return read.done(); }, 500ms));
-  EXPECT_FALSE(output_has(*emulator_, "cut 1/1 ends")) << "the cut ended before the check";
-
-  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 ends", 10s));
-  ASSERT_TRUE(run_until(
-      io_, [&] { return read.done(); }, 10s));
-  EXPECT_FALSE(*read.result) << read.result->message();
+  ASSERT_NO_FATAL_FAILURE(expect_held_until_the_cut_ends(read));
   EXPECT_TRUE(read.data == during) << "bytes sent during the silent cut were not delivered";
   exchange(io_, gateway, *surface, payload(1000, 9), payload(1000, 10));  // the same connections
   EXPECT_EQ(emulator_->stop(), 0);
@@ -278,13 +286,9 @@ TEST_F(TcpLink, SilentCutHoldsConnectionsAndDeliversAfterIt) {
 // An end that gives up during a silent cut: the other end learns of it only after the cut, and
 // after the bytes sent before the close (as TCP delivers data before its FIN).
 TEST_F(TcpLink, CloseDuringSilentCutReachesThePeerAfterItsBytes) {
-  ASSERT_NO_FATAL_FAILURE(start({"--cut-at", "1.5+1.5", "--cut-mode", "silent"}));
   tcp::socket gateway(io_);
   std::optional<tcp::socket> surface;
-  ASSERT_NO_FATAL_FAILURE(connect(gateway, surface));
-  exchange(io_, gateway, *surface, "ping", "pong");
-
-  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 begins (silent)", 10s));
+  ASSERT_NO_FATAL_FAILURE(connect_then_wait_for_silent_cut(gateway, surface));
   const std::string last = payload(500, 11);
   boost::system::error_code ec;
   asio::write(gateway, asio::buffer(last), ec);
@@ -292,14 +296,7 @@ TEST_F(TcpLink, CloseDuringSilentCutReachesThePeerAfterItsBytes) {
   gateway.close();
   PendingRead read;
   start_read(*surface, read, last.size());
-  EXPECT_FALSE(run_until(
-      io_, [&] { return read.done(); }, 500ms));
-  EXPECT_FALSE(output_has(*emulator_, "cut 1/1 ends")) << "the cut ended before the check";
-
-  ASSERT_TRUE(emulator_->wait_for_line("link-emulator: cut 1/1 ends", 10s));
-  ASSERT_TRUE(run_until(
-      io_, [&] { return read.done(); }, 10s));
-  EXPECT_FALSE(*read.result) << read.result->message();
+  ASSERT_NO_FATAL_FAILURE(expect_held_until_the_cut_ends(read));
   EXPECT_TRUE(read.data == last);
   EXPECT_TRUE(closes(io_, *surface));
   EXPECT_EQ(emulator_->stop(), 0);
