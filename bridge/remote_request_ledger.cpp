@@ -5,10 +5,11 @@ namespace canbridge::bridge {
 std::optional<RemoteRequestLedger::End> RemoteRequestLedger::open(
     RequestId id, GatewayId gateway, SessionId session, Effect effect, TimePoint now,
     std::chrono::milliseconds within) {
-  if (session == 0) return End::not_sent;
-  const TimePoint deadline = now + within;
-  requests_[id] = Request{gateway, session, effect, within, deadline, false};
-  deadlines_.emplace(deadline, id);
+  RequestLife life;
+  if (session == 0) return life.refused();
+  life.sent(now, effect, now + within);
+  requests_[id] = Request{gateway, session, within, life};
+  deadlines_.emplace(life.deadline(), id);
   return std::nullopt;
 }
 
@@ -19,9 +20,8 @@ bool RemoteRequestLedger::on_progress(RequestId id, GatewayId from, TimePoint no
   const TimePoint later = now + request.within;
   // Running at the gateway: waiting for its answer again, whatever the surface asked before (a
   // cancel already sent still ends it, and is answered).
-  if (later > request.deadline || request.overdue) {
-    request.overdue = false;
-    move_deadline(id, request, later);
+  if (later > request.life.deadline() || request.life.awaiting()) {
+    move_deadline(id, request, [later](RequestLife& life) { life.running(later); });
   }
   return true;
 }
@@ -30,15 +30,16 @@ std::optional<RemoteRequestLedger::End> RemoteRequestLedger::on_result(RequestId
                                                                        Result result) {
   const auto it = requests_.find(id);
   if (it == requests_.end() || it->second.gateway != from) return std::nullopt;
-  const Request request = it->second;
+  RequestLife life = it->second.life;
   close(id);
   switch (result) {
     case Result::done:
+      life.answered();
       return End::answered;
-    case Result::cancelled_not_started:
-      return End::timed_out;  // the surface's cancel: it never ran
-    case Result::cancelled_running:
-      return unanswered(request);  // stopped halfway: a write may have landed
+    case Result::cancelled_not_started:  // the surface's cancel: it never ran
+      return life.end_unanswered(MayHaveRun::no_never_started);
+    case Result::cancelled_running:  // stopped halfway: a write may have landed
+      return life.end_unanswered(MayHaveRun::yes);
   }
   return End::answered;
 }
@@ -54,16 +55,17 @@ RemoteRequestLedger::Due RemoteRequestLedger::on_time(TimePoint now) {
   while (!deadlines_.empty() && deadlines_.begin()->first <= now) {
     const RequestId id = deadlines_.begin()->second;
     Request& request = requests_.at(id);
-    if (request.overdue) {
-      due.ended.push_back({id, unanswered(request)});
+    if (request.life.awaiting()) {
+      RequestLife life = request.life;
       close(id);
+      due.ended.push_back({id, life.end_unanswered(MayHaveRun::yes)});
       continue;
     }
     // The answer is late: whatever held it (a stalled surface, a cut link), the gateway still
     // holds it and resends it on the next link. The cancel makes sure it never starts late.
-    request.overdue = true;
     due.cancels.emplace_back(id, request.gateway);
-    move_deadline(id, request, now + options_.resend_window);
+    const TimePoint window_end = now + options_.resend_window;
+    move_deadline(id, request, [window_end](RequestLife& life) { life.await_answer(window_end); });
   }
   return due;
 }
@@ -72,12 +74,15 @@ std::vector<RemoteRequestLedger::Ended> RemoteRequestLedger::on_gateway_session(
                                                                                 SessionId session) {
   std::vector<Ended> ended;
   if (session == 0) return ended;
+  std::vector<std::pair<RequestId, RequestLife>> gone;
   for (const auto& [id, request] : requests_) {
-    if (request.gateway == gateway && request.session != session) {
-      ended.push_back({id, unanswered(request)});
-    }
+    if (request.gateway == gateway && request.session != session)
+      gone.emplace_back(id, request.life);
   }
-  for (const Ended& e : ended) close(e.id);
+  for (auto& [id, life] : gone) {
+    close(id);  // by its deadline, before the end moves it
+    ended.push_back({id, life.end_unanswered(MayHaveRun::yes)});
+  }
   return ended;
 }
 
@@ -94,19 +99,13 @@ std::optional<RemoteRequestLedger::GatewayId> RemoteRequestLedger::gateway_of(Re
 
 bool RemoteRequestLedger::overdue(RequestId id) const {
   const auto it = requests_.find(id);
-  return it != requests_.end() && it->second.overdue;
-}
-
-void RemoteRequestLedger::move_deadline(RequestId id, Request& request, TimePoint deadline) {
-  deadlines_.erase({request.deadline, id});
-  request.deadline = deadline;
-  deadlines_.emplace(deadline, id);
+  return it != requests_.end() && it->second.life.awaiting();
 }
 
 void RemoteRequestLedger::close(RequestId id) {
   const auto it = requests_.find(id);
   if (it == requests_.end()) return;
-  deadlines_.erase({it->second.deadline, id});
+  deadlines_.erase({it->second.life.deadline(), id});
   requests_.erase(it);
 }
 

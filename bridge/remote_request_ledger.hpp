@@ -1,7 +1,7 @@
-// The life of every request the surface's remote access hands to a gateway, from sending to the
-// one end its client is told, decided in one place so that no request is reported failed when it
-// may have been done. Pure: request ids, gateway sessions, results and an injected time in; what
-// to send (cancels) and how each request ended out.
+// The requests the surface's remote access has handed to gateways, each followed from sending to
+// the one end its client is told by the rules of bridge/request_life.hpp, so that no request is
+// reported failed when it may have been done. Pure: request ids, gateway sessions, results and an
+// injected time in; what to send (cancels) and how each request ended out.
 //
 // A request is *open* until its answer deadline, then *overdue*: the surface asks the gateway to
 // cancel it and keeps waiting, for `resend_window` more, for the gateway's one answer. The
@@ -21,6 +21,8 @@
 #include <utility>
 #include <vector>
 
+#include "bridge/request_life.hpp"
+
 namespace canbridge::bridge {
 
 class RemoteRequestLedger {
@@ -38,11 +40,9 @@ class RemoteRequestLedger {
     std::chrono::milliseconds resend_window{10000};
   };
 
-  // What the request may do to the node: decides how an end without an answer is told.
-  enum class Effect : std::uint8_t {
-    none,          // reads (SDO upload, the node table): running it twice or not at all is harmless
-    changes_node,  // writes, NMT, set-node-id, flash, LSS
-  };
+  // What the request may do to the node: decides how an end without an answer is told. Reads
+  // (SDO upload, the node table) change nothing; writes, NMT, set-node-id, flash and LSS do.
+  using Effect = RequestEffect;
 
   // What the gateway answered.
   enum class Result : std::uint8_t {
@@ -51,12 +51,11 @@ class RemoteRequestLedger {
     cancelled_running,      // the surface's cancel stopped it while it ran on the bus
   };
 
-  enum class End : std::uint8_t {
-    answered,         // the gateway's result, as it says
-    not_sent,         // never handed to a gateway (none connected): never executed
-    timed_out,        // no result in time, and it never ran or changes nothing
-    outcome_unknown,  // it may have run: no answer can come any more, the node must be read back
-  };
+  // answered: the gateway's result, as it says; not_sent: never handed to a gateway (none
+  // connected), never executed; timed_out: no result in time, and it never ran or changes
+  // nothing; outcome_unknown: it may have run, no answer can come any more, the node must be
+  // read back.
+  using End = RequestEnd;
   struct Ended {
     RequestId id = 0;
     End end = End::answered;
@@ -97,17 +96,19 @@ class RemoteRequestLedger {
   struct Request {
     GatewayId gateway = 0;
     SessionId session = 0;
-    Effect effect = Effect::none;
     std::chrono::milliseconds within{0};
-    TimePoint deadline;
-    bool overdue = false;  // past its answer deadline, cancel sent; deadline: the window's end
+    // Open until its answer deadline; then overdue (awaiting): its cancel sent, the answer
+    // awaited until the resend window's end.
+    RequestLife life;
   };
 
-  // The end of a request no answer can come for any more.
-  static End unanswered(const Request& request) {
-    return request.effect == Effect::none ? End::timed_out : End::outcome_unknown;
+  // Moves `request`'s deadline (in deadlines_ too) by `change`, a RequestLife transition.
+  template <typename Change>
+  void move_deadline(RequestId id, Request& request, Change&& change) {
+    deadlines_.erase({request.life.deadline(), id});
+    change(request.life);
+    deadlines_.emplace(request.life.deadline(), id);
   }
-  void move_deadline(RequestId id, Request& request, TimePoint deadline);
   void close(RequestId id);
 
   Options options_;

@@ -19,6 +19,18 @@ can::Frame SdoLinkGuard::abort_for(canopen::NodeId node, const Node& n) {
        static_cast<std::uint8_t>(kLinkDownAbort >> 24)});
 }
 
+RequestEffect SdoLinkGuard::effect_of(const Node& n) {
+  switch (n.expect) {
+    case Expect::download_initiate:
+    case Expect::download_segment:
+    case Expect::block_download_initiate:
+    case Expect::block_download:
+      return RequestEffect::changes_node;
+    default:
+      return RequestEffect::none;
+  }
+}
+
 void SdoLinkGuard::note_request(Node& n, const can::Frame& frame) {
   const std::uint8_t first = frame.data[0];
   // Inside a block download sub-block every master frame is a segment (its first byte a
@@ -137,7 +149,7 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
   n.owned = true;
   n.gateway = gateway;
   if (address->function_base != canopen::cob::sdo_tx) return true;
-  if (n.aborted && !n.pending) {
+  if (n.request.told()) {
     ++counters_.late_responses_dropped;
     return false;
   }
@@ -146,8 +158,8 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
     return false;
   }
   // Executed before the cut, its answer brought by the next link.
-  if (end_wait(n)) ++counters_.answers_recovered;
-  n.pending = false;
+  leave_wait(n);
+  if (n.request.answered() == RequestLife::Answer::recovered) ++counters_.answers_recovered;
   // A step answered: nothing more may come, except inside block transfers.
   if (n.expect != Expect::block_download && n.expect != Expect::block_upload &&
       n.expect != Expect::untracked) {
@@ -172,9 +184,8 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   const canopen::NodeId node = request_node(frame);
   if (node == 0 || frame.data[0] >> 5 == 4) return std::nullopt;  // not a request, or an abort
   Node& n = nodes_[node];
-  end_wait(n);
-  n.pending = false;
-  n.aborted = true;
+  leave_wait(n);
+  n.request.refused();
   n.expect = Expect::nothing;
   ++counters_.aborted_not_forwarded;
   return abort_for(node, n);
@@ -190,7 +201,7 @@ void SdoLinkGuard::on_request_withdrawn(const can::Frame& request) {
   }
   // Only the master's last request to a node can be pending: one withdrawn request per pending
   // node stands for it, any other was given up by its master when it sent a newer one.
-  if (n.pending && !n.withdrawn) {
+  if (n.request.pending() && !n.withdrawn) {
     n.withdrawn = true;
     ++counters_.withdrawn_pending;
     return;
@@ -199,20 +210,18 @@ void SdoLinkGuard::on_request_withdrawn(const can::Frame& request) {
 }
 
 bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
-  if (options_.transfer_open_for.count() <= 0 || now - n.asked <= options_.transfer_open_for) {
-    return true;
-  }
+  if (n.request.asker_still_waits(now, options_.transfer_open_for)) return true;
   ++counters_.stale_aborts_dropped;
   return false;
 }
 
 std::optional<can::Frame> SdoLinkGuard::abort_in_flight(canopen::NodeId node, Node& n,
                                                         Clock::time_point now) {
-  end_wait(n);
-  n.pending = false;
+  leave_wait(n);
   // Aborted either way: a late answer to it must not reach the master any more than the abort
-  // may.
-  n.aborted = true;
+  // may. The one abort code says the same as the master's own time-out would: the request may
+  // have run (the end RequestLife decides is timed out or outcome unknown).
+  n.request.end_unanswered(MayHaveRun::yes);
   n.expect = Expect::nothing;
   if (!still_open(n, now)) return std::nullopt;
   ++counters_.aborted_in_flight;
@@ -223,14 +232,12 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::
   std::vector<can::Frame> aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
-    if (!n.owned || n.gateway != gateway || !n.pending) continue;
+    if (!n.owned || n.gateway != gateway || !n.request.pending()) continue;
     // The request may have reached the gateway before the cut: its answer waits there, in the
     // gateway's reliable stream, and crosses once a new link resumes it.
-    if (now - n.asked < options_.answer_wait) {
-      if (!n.awaiting_recovery) {
-        n.awaiting_recovery = true;
-        ++awaiting_;
-      }
+    if (now - n.request.sent_at() < options_.answer_wait) {
+      if (!n.request.awaiting()) ++awaiting_;
+      n.request.await_answer(n.request.sent_at() + options_.answer_wait);
       continue;
     }
     if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
@@ -242,8 +249,8 @@ std::optional<SdoLinkGuard::Clock::time_point> SdoLinkGuard::next_deadline() con
   if (awaiting_ == 0) return std::nullopt;
   std::optional<Clock::time_point> earliest;
   for (const Node& n : nodes_) {
-    if (!n.awaiting_recovery) continue;
-    const Clock::time_point due = n.asked + options_.answer_wait;
+    if (!n.request.awaiting()) continue;
+    const Clock::time_point due = n.request.deadline();
     if (!earliest || due < *earliest) earliest = due;
   }
   return earliest;
@@ -254,7 +261,7 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_restart(GatewayId gateway, Cloc
   if (awaiting_ == 0) return aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
-    if (!n.awaiting_recovery || n.gateway != gateway) continue;
+    if (!n.request.awaiting() || n.gateway != gateway) continue;
     if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
   }
   return aborts;
@@ -265,7 +272,7 @@ std::vector<can::Frame> SdoLinkGuard::on_time(Clock::time_point now) {
   if (awaiting_ == 0) return aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
-    if (!n.awaiting_recovery || now - n.asked < options_.answer_wait) continue;
+    if (!n.request.awaiting() || !n.request.due(now)) continue;
     if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
   }
   return aborts;
@@ -278,17 +285,21 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   const std::uint8_t command = request.data[0] >> 5;
   if (command == 4) return std::nullopt;  // the master's own abort needs no answer
   Node& n = nodes_[node];
-  if (n.owned && !n.pending) return std::nullopt;  // answered already
-  end_wait(n);
+  if (n.owned && !n.request.pending()) return std::nullopt;  // answered already
+  leave_wait(n);
   Node answer = n;
   if (!n.owned && (command == 1 || command == 2 || command == 5 || command == 6)) {
     answer.mux[0] = request.data[1];
     answer.mux[1] = request.data[2];
     answer.mux[2] = request.data[3];
   }
-  n.pending = false;
-  n.aborted = n.owned;
-  if (n.owned) n.expect = Expect::nothing;
+  if (n.owned) {
+    // Given up by the backbone after it left the surface, or with the process it went to.
+    n.request.end_unanswered(MayHaveRun::yes);
+    n.expect = Expect::nothing;
+  } else {
+    n.request.clear();
+  }
   if (n.owned && !still_open(n, now)) return std::nullopt;
   ++counters_.aborted_discarded;
   return abort_for(node, answer);

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "bridge/gateway_claims.hpp"
+#include "bridge/request_life.hpp"
 #include "can/frame.hpp"
 #include "canopen/cob_id.hpp"
 
@@ -146,29 +147,28 @@ class SdoLinkGuard {
   struct Node {
     bool owned = false;
     GatewayId gateway = 0;
-    bool pending = false;             // a request went out and no response came back yet
-    bool aborted = false;             // the guard aborted a request; no newer one went out
+    // The master's last request to the node: open until its response, awaiting it across a lost
+    // link, or told (aborted) so that a late response never reaches the master.
+    RequestLife request;
     std::uint8_t mux[3] = {0, 0, 0};  // index (LE) and sub-index of the transfer in progress
     Expect expect = Expect::untracked;
-    std::uint8_t toggle = 0;    // segments: bit 4 of the master's segment request
-    Clock::time_point asked{};  // when the pending request went out
+    std::uint8_t toggle = 0;  // segments: bit 4 of the master's segment request
     // The pending request was withdrawn (on_request_withdrawn): an older one still in the
     // queue was answered before.
     bool withdrawn = false;
-    // In flight when its gateway's link dropped: its answer may still come on the next link,
-    // until asked + Options::answer_wait.
-    bool awaiting_recovery = false;
   };
   // The pending request of `n` ends aborted (or stale, past the transfer's life): the abort for
   // its master, if one is still wanted.
   std::optional<can::Frame> abort_in_flight(canopen::NodeId node, Node& n, Clock::time_point now);
-  // Ends `n`'s wait for an answer across a lost link; true if it was waiting.
-  bool end_wait(Node& n) {
-    if (!n.awaiting_recovery) return false;
-    n.awaiting_recovery = false;
+  // Keeps the count of nodes whose request awaits its answer right: called before `n`'s request
+  // leaves that stage. True if it was awaiting.
+  bool leave_wait(const Node& n) {
+    if (!n.request.awaiting()) return false;
     --awaiting_;
     return true;
   }
+  // What the node's pending request may change (downloads write; uploads only read).
+  static RequestEffect effect_of(const Node& n);
   // Notes the master's request on a node the guard follows.
   static void note_request(Node& n, const can::Frame& frame);
   // True if `response` can answer the request `n` has pending.
@@ -183,7 +183,7 @@ class SdoLinkGuard {
 
   Options options_;
   std::array<Node, 128> nodes_{};
-  std::size_t awaiting_ = 0;  // nodes with awaiting_recovery set
+  std::size_t awaiting_ = 0;  // nodes whose request awaits its answer
   Counters counters_;
 };
 
@@ -197,25 +197,26 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (!n.owned) return {};
   const bool master_abort =
       frame.data[0] == 0x80 || (n.expect != Expect::block_download && frame.data[0] >> 5 == 4);
-  end_wait(n);         // if it waited, the master moved on (a newer request, or its own abort)
+  leave_wait(n);       // if it waited, the master moved on (a newer request, or its own abort)
   if (master_abort) {  // nothing is in flight any more
-    n.pending = false;
+    n.request.forget();
     n.expect = Expect::nothing;
     return {};
   }
   note_request(n, frame);
   if (!gateway_up(n.gateway)) {
     ++counters_.aborted_at_once;
-    n.pending = false;
+    n.request.refused();
     n.expect = Expect::nothing;
-    n.aborted = true;
     return {false, abort_for(node, n)};
   }
-  // The end of a block upload gets no answer.
-  n.pending = n.expect != Expect::nothing;
-  n.aborted = false;
   n.withdrawn = false;
-  n.asked = now;
+  // The end of a block upload gets no answer.
+  if (n.expect == Expect::nothing) {
+    n.request.clear();
+  } else {
+    n.request.sent(now, effect_of(n));
+  }
   return {};
 }
 
