@@ -15,6 +15,7 @@
 
 #include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
+#include "tests/support/temp_key_dir.hpp"
 
 namespace canbridge {
 namespace {
@@ -26,10 +27,11 @@ using test::RawCanSocket;
 
 constexpr std::uint32_t kFrames = 2500;  // well above the gateway's 1024-frame high watermark
 
+// In a directory of this process's own: the rig's guests share the host's /tmp, and tests that
+// run at the same time must not read each other's configs.
 std::string write_file(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + name;
-  std::ofstream(path) << text;
-  return path;
+  static test::TempKeyDir dir;
+  return dir.file(name, text, 0644);
 }
 
 // An SDO upload request to surface node 34 (module 1's local node 2) numbered `seq`.

@@ -17,6 +17,7 @@
 
 #include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
+#include "tests/support/temp_key_dir.hpp"
 
 namespace canbridge {
 namespace {
@@ -27,10 +28,11 @@ using test::ChildProcess;
 using test::RawCanSocket;
 using Clock = std::chrono::steady_clock;
 
+// In a directory of this process's own: the rig's guests share the host's /tmp, and tests that
+// run at the same time must not read each other's configs.
 std::string write_file(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + name;
-  std::ofstream(path) << text;
-  return path;
+  static test::TempKeyDir dir;
+  return dir.file(name, text, 0644);
 }
 
 // The integer after `"key":` in the object that follows `anchor` (e.g. a bus's interface);

@@ -9,6 +9,7 @@
 
 #include "tests/support/process.hpp"
 #include "tests/support/raw_can.hpp"
+#include "tests/support/temp_key_dir.hpp"
 
 namespace canbridge {
 namespace {
@@ -26,10 +27,11 @@ using test::receive_until;
 // tunnel.
 constexpr std::chrono::milliseconds kGap = 5000ms;
 
+// In a directory of this process's own: the rig's guests share the host's /tmp, and tests that
+// run at the same time must not read each other's configs.
 std::string write_file(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + name;
-  std::ofstream(path) << text;
-  return path;
+  static test::TempKeyDir dir;
+  return dir.file(name, text, 0644);
 }
 
 void cansend(const std::string& bus, const std::string& frame) {

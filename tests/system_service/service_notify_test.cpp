@@ -20,6 +20,7 @@
 
 #include "tests/support/notify_listener.hpp"
 #include "tests/support/process.hpp"
+#include "tests/support/temp_key_dir.hpp"
 
 namespace canbridge {
 namespace {
@@ -31,10 +32,11 @@ using test::NotifyListener;
 constexpr auto kWatchdogTimeout = 200ms;  // WATCHDOG_USEC; keep-alives every 100 ms
 constexpr auto kEvent = 10s;              // upper bound of every awaited step
 
+// In a directory of this process's own: the rig's guests share the host's /tmp, and tests that
+// run at the same time must not read each other's configs.
 std::string write_file(const std::string& name, const std::string& text) {
-  const std::string path = ::testing::TempDir() + name;
-  std::ofstream(path) << text;
-  return path;
+  static test::TempKeyDir dir;
+  return dir.file(name, text, 0644);
 }
 
 // A canbridge role whose service manager is `listener`.
