@@ -9,7 +9,9 @@
 //       [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms 500] [--cycle --duration 10]
 //       [--psk-name NAME]
 //   either with [--bind ADDRESS]: connect from this local address (e.g. 127.0.0.2, any of
-//   127/8 on Linux), so the flood comes from another source than a real peer on the same host
+//   127/8 on Linux), so the flood comes from another source than a real peer on the same host;
+//   with [--sources N] the connections take turns among the N addresses from --bind on
+//   (127.0.2.1 ... 127.0.2.N), a flood from many hosts that a per-source throttle cannot stop
 //
 // --kind psk runs a real TLS 1.3 handshake (OpenSSL, as a gateway does) offering a fresh random
 // key: every even one under --psk-name (a configured gateway's name: a wrong key), every odd one
@@ -60,7 +62,8 @@ using namespace asio::experimental::awaitable_operators;
 struct Options {
   std::string host = "127.0.0.1";
   std::string port;
-  std::string bind;  // local address to connect from; empty: the kernel picks
+  std::string bind;         // local address to connect from; empty: the kernel picks
+  std::size_t sources = 1;  // with bind: that many consecutive IPv4 addresses, in turn
   std::size_t idle = 0;
   std::size_t bad_handshakes = 0;
   std::size_t concurrency = 0;  // 0: idle: all at once; handshakes: 1 (one after another)
@@ -94,7 +97,7 @@ void usage() {
          "  [--concurrency C] [--rate CONNECTS_PER_S] [--duration S] [--no-reopen]\n"
          "  [--kind mixed|bytes|garbage|tls|hello|psk] [--linger-ms MS] [--report-ms MS] "
          "[--cycle]\n"
-         "  [--psk-name NAME] [--bind LOCAL_ADDRESS]\n";
+         "  [--psk-name NAME] [--bind LOCAL_ADDRESS [--sources N]]\n";
 }
 
 bool parse(int argc, char** argv, Options& o) {
@@ -112,6 +115,8 @@ bool parse(int argc, char** argv, Options& o) {
       o.port = v.substr(colon + 1);
     } else if (arg == "--bind") {
       o.bind = value();
+    } else if (arg == "--sources") {
+      o.sources = std::stoul(value());
     } else if (arg == "--idle") {
       o.idle = std::stoul(value());
     } else if (arg == "--bad-handshakes") {
@@ -139,6 +144,9 @@ bool parse(int argc, char** argv, Options& o) {
     }
   }
   if (o.port.empty() || (o.idle == 0) == (o.bad_handshakes == 0)) return false;
+  if (o.sources == 0 || o.sources > 65536 || (o.sources > 1 && o.bind.empty())) {
+    throw std::invalid_argument("--sources wants 1..65536 and a --bind address to start from");
+  }
   if (o.kind != "mixed" && o.kind != "bytes" && o.kind != "garbage" && o.kind != "tls" &&
       o.kind != "hello" && o.kind != "psk") {
     throw std::invalid_argument(
@@ -211,6 +219,10 @@ class Flood {
       bind_address_ = asio::ip::make_address(options_.bind, ec);
       if (ec) {
         std::cerr << "backbone-flood: --bind " << options_.bind << ": " << ec.message() << "\n";
+        return 2;
+      }
+      if (options_.sources > 1 && !bind_address_->is_v4()) {
+        std::cerr << "backbone-flood: --sources needs an IPv4 --bind address\n";
         return 2;
       }
     }
@@ -303,13 +315,21 @@ class Flood {
       const int on = 1;
       ::setsockopt(socket.native_handle(), IPPROTO_IP, IP_BIND_ADDRESS_NO_PORT, &on, sizeof on);
     }
-    if (!ec) socket.bind(tcp::endpoint(*bind_address_, 0), ec);
+    asio::ip::address local = *bind_address_;
+    if (options_.sources > 1) {  // the next source in turn
+      const auto base = bind_address_->to_v4().to_uint();
+      local = asio::ip::address_v4(
+          static_cast<asio::ip::address_v4::uint_type>(base + next_source_++ % options_.sources));
+    }
+    if (!ec) socket.bind(tcp::endpoint(local, 0), ec);
     if (ec && !warned_bind_) {
       warned_bind_ = true;
       std::cerr << "backbone-flood: cannot bind to " << options_.bind << ": " << ec.message()
                 << "\n";
     }
   }
+
+  std::size_t next_source_ = 0;
 
   void forget(tcp::socket& socket) {
     std::erase(open_, &socket);

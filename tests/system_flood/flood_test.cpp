@@ -210,9 +210,11 @@ class Flood : public ::testing::Test {
   // throttles a source that keeps failing, and a flood from the gateway's own address could not
   // be told apart from the gateway.
   std::unique_ptr<ChildProcess> launch_flood(const std::vector<std::string>& args,
-                                             const std::string& nice) const {
+                                             const std::string& nice,
+                                             const std::vector<std::string>& from = {}) const {
     std::vector<std::string> argv{
         "nice", "-n", nice, FLOOD_BIN, "--connect", "127.0.0.1:" + port_, "--bind", kFloodSource};
+    argv.insert(argv.end(), from.begin(), from.end());
     argv.insert(argv.end(), args.begin(), args.end());
     return std::make_unique<ChildProcess>(argv);
   }
@@ -292,6 +294,8 @@ class Flood : public ::testing::Test {
     return n;
   }
 
+  void failing_handshakes_neither_lock_out_a_gateway_nor_kill_its_link(std::size_t sources);
+
   test::TempKeyDir keys_;
   std::unique_ptr<ChildProcess> surface_, gateway_, flood_, idle_flood_;
   std::string port_, gateway_cfg_, default_gateway_cfg_;
@@ -358,12 +362,12 @@ TEST_F(Flood, FloodsDoNotDelayAGatewaysReconnectionNorKeepTheSurfacesMemory) {
 }
 
 // Issue 27: 64 concurrent TLS-PSK handshakes with wrong keys, cycling, plus 1,100 idle
-// connections, both from one other host (127.0.0.2). The gateway's link, established before the
-// floods, must never be given up (dead or stale) while they run; a gateway restarted during them
-// must be bound within kBindBound; and the surface's RSS must come back to within 2 MB of its level
-// before the floods. The source throttle (backbone/admission_source_throttle) is what keeps the
-// flood out; main's surface (CANBRIDGE_FLOOD_SURFACE_BIN) fails this test.
-TEST_F(Flood, FailingHandshakesFromOneHostNeitherLockOutAGatewayNorKillItsLink) {
+// connections, from `sources` other hosts (127.0.0.2 on). The gateway's link, established before
+// the floods, must never be given up (dead or stale) while they run; a gateway restarted during
+// them must be bound within kBindBound; and the surface's RSS must come back to within 2 MB of its
+// level before the floods.
+void Flood::failing_handshakes_neither_lock_out_a_gateway_nor_kill_its_link(std::size_t sources) {
+  const std::vector<std::string> from{"--sources", std::to_string(sources)};
   // What a session logs when it gives a link up for silence, or because its own process did
   // not run for longer than the peer waits (session_core): either is a link lost to load.
   const std::vector<std::string> kLinkLost{"link dead, closing it", "stale ("};
@@ -388,13 +392,14 @@ TEST_F(Flood, FailingHandshakesFromOneHostNeitherLockOutAGatewayNorKillItsLink) 
   // At the surface's own priority: niced, the flood gets too little of the rig's one CPU to
   // lock anyone out (main's surface passed every assertion with it at nice 19).
   idle_flood_ = launch_flood(
-      {"--idle", std::to_string(kFloodPeers), "--duration", "120", "--report-ms", "500"}, "0");
+      {"--idle", std::to_string(kFloodPeers), "--duration", "120", "--report-ms", "500"}, "0",
+      from);
   ASSERT_TRUE(idle_flood_->wait_for_line("backbone-flood: progress", kStep))
       << idle_flood_->output();
   flood_ = launch_flood({"--bad-handshakes", std::to_string(kFloodPeers), "--concurrency", "64",
                          "--kind", "psk", "--psk-name", "flood-gateway", "--linger-ms", "5000",
                          "--cycle", "--duration", "120", "--report-ms", "500"},
-                        "0");
+                        "0", from);
   // The established link under both floods: the handshake flood's own clock, not a sleep.
   while (flood_elapsed_s(*flood_) < kFloodedLinkS && !flood_->finished()) {
     ASSERT_TRUE(flood_->wait_for_line("backbone-flood: progress", kStep)) << flood_->output();
@@ -438,6 +443,18 @@ TEST_F(Flood, FailingHandshakesFromOneHostNeitherLockOutAGatewayNorKillItsLink) 
   EXPECT_EQ(gateway_dead, 0) << "the gateway gave an established link up";
   EXPECT_LE(worst, kBindBoundMs) << "the floods delayed the gateway's bind";
   EXPECT_LE(rss_after - rss_before, kRssSlackKb) << "the surface kept memory after the floods";
+}
+
+// From one host the source throttle (backbone/admission_source_throttle) is what keeps the flood
+// out; main's surface (CANBRIDGE_FLOOD_SURFACE_BIN) fails this test.
+TEST_F(Flood, FailingHandshakesFromOneHostNeitherLockOutAGatewayNorKillItsLink) {
+  failing_handshakes_neither_lock_out_a_gateway_nor_kill_its_link(1);
+}
+
+// From 64 hosts, each within its own source budget at first: the per-source throttle alone no
+// longer decides who keeps a pending slot.
+TEST_F(Flood, FailingHandshakesFromManyHostsNeitherLockOutAGatewayNorKillItsLink) {
+  failing_handshakes_neither_lock_out_a_gateway_nor_kill_its_link(64);
 }
 
 }  // namespace
