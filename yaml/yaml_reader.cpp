@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cerrno>
 #include <charconv>
@@ -131,18 +132,23 @@ std::string read_config_file(const std::string& path) {
     refuse_file(path, std::string("cannot read the file: ") + std::strerror(errno));
   }
   check_file_status(path, status);
-  // One byte beyond the bound: a file that grew since the fstat is refused, not cut short.
-  std::string text(kMaxConfigFileBytes + 1, '\0');
-  std::size_t filled = 0;
-  while (filled < text.size()) {
-    const ssize_t n = ::read(fd, text.data() + filled, text.size() - filled);
+  // Read up to one byte beyond the bound: a file that grew since the fstat is refused, not cut
+  // short. In chunks, into a string sized by what was read: the text is kept for the life of the
+  // process (to tell a reload's changes), and a buffer sized for the bound would keep 1 MiB of
+  // zeroed, resident memory in every role.
+  std::string text;
+  text.reserve(static_cast<std::size_t>(status.st_size));
+  std::array<char, 16 * 1024> chunk;
+  while (text.size() <= kMaxConfigFileBytes) {
+    const std::size_t want = std::min(chunk.size(), kMaxConfigFileBytes + 1 - text.size());
+    const ssize_t n = ::read(fd, chunk.data(), want);
     if (n < 0 && errno == EINTR) continue;
     if (n < 0) refuse_file(path, std::string("cannot read the file: ") + std::strerror(errno));
     if (n == 0) break;
-    filled += static_cast<std::size_t>(n);
+    text.append(chunk.data(), static_cast<std::size_t>(n));
   }
-  if (filled > kMaxConfigFileBytes) refuse_file(path, "grew while read: " + kFileRule);
-  text.resize(filled);
+  if (text.size() > kMaxConfigFileBytes) refuse_file(path, "grew while read: " + kFileRule);
+  text.shrink_to_fit();
   return text;
 }
 

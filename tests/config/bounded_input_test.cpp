@@ -103,6 +103,19 @@ TEST(BoundedInput, OneMebibyteIsReadAndOneByteMoreIsRefused) {
   expect_file_refused(r, over, "is 1048577 bytes");
 }
 
+// The roles keep their config's text for as long as they run (a reload reports what changed): it
+// must cost what the file holds, not the 1 MiB bound (issue 29: the gateway's own memory).
+TEST(BoundedInput, TheTextReadKeepsNoRoomForTheBound) {
+  test::TempKeyDir dir;
+  const std::string sample(3000, '#');
+  const std::string text = read_config_file(write_file(dir, "small.yaml", sample));
+  EXPECT_EQ(text, sample);
+  EXPECT_LT(text.capacity(), 2 * sample.size());
+  // Longer than one read's chunk, still exactly what the file holds.
+  const std::string longer(100 * 1024 + 7, '#');
+  EXPECT_EQ(read_config_file(write_file(dir, "longer.yaml", longer)), longer);
+}
+
 TEST(BoundedInput, AMissingFileSaysWhy) {
   const auto ps = problems_of([] { load_surface("/nonexistent/surface.yaml"); });
   ASSERT_EQ(ps.size(), 1u);
