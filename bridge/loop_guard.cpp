@@ -4,7 +4,8 @@ namespace canbridge::bridge {
 
 LoopGuard::LoopGuard(std::chrono::milliseconds window, std::size_t capacity)
     : window_(window), capacity_(capacity == 0 ? 1 : capacity) {
-  live_.reserve(capacity_);
+  // Not reserved for `capacity`: the table grows with the frames written within the window, so a
+  // module bus the surface seldom writes to does not keep a bucket array for 8,192 of them.
 }
 
 // FNV-1a over what makes two frames the same on the wire (timestamps do not).

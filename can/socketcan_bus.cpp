@@ -93,19 +93,24 @@ void from_kernel(const can_frame& cf, Frame& f) {
   if (!f.is_remote()) std::memcpy(f.data.data(), cf.data, f.len);
 }
 
-// A fixed-capacity FIFO: the transmit queue allocates once, at open.
+// A bounded FIFO whose storage grows with the deepest backlog it has held, up to its capacity:
+// a transmit queue sized for bursts (8,192 frames in the samples) costs no resident memory on a
+// bus that never backs up, and it is not given back, so a bus that did back up once does not
+// allocate again on the hot path.
 class FrameRing {
  public:
-  explicit FrameRing(std::size_t capacity) : slots_(capacity) {}
-  bool full() const { return size_ == slots_.size(); }
+  explicit FrameRing(std::size_t capacity) : capacity_(capacity) {}
+  bool full() const { return size_ == capacity_; }
   bool empty() const { return size_ == 0; }
   std::size_t size() const { return size_; }
   const Frame& at(std::size_t i) const { return slots_[(head_ + i) % slots_.size()]; }
   void push_back(const Frame& f) {
+    if (size_ == slots_.size()) grow();
     slots_[(head_ + size_) % slots_.size()] = f;
     ++size_;
   }
   void pop_front(std::size_t n) {
+    if (n == 0) return;
     head_ = (head_ + n) % slots_.size();
     size_ -= n;
   }
@@ -124,6 +129,17 @@ class FrameRing {
   }
 
  private:
+  // Doubles the storage (from 64 slots), the frames kept in order from the front.
+  void grow() {
+    std::vector<Frame> bigger;
+    bigger.reserve(std::min(capacity_, std::max<std::size_t>(64, slots_.size() * 2)));
+    for (std::size_t i = 0; i < size_; ++i) bigger.push_back(at(i));
+    bigger.resize(bigger.capacity());
+    slots_ = std::move(bigger);
+    head_ = 0;
+  }
+
+  std::size_t capacity_;
   std::vector<Frame> slots_;
   std::size_t head_ = 0;
   std::size_t size_ = 0;
