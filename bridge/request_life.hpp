@@ -34,9 +34,9 @@ enum class RequestEnd : std::uint8_t {
 
 // What is known of whether a request without an answer reached its node.
 enum class MayHaveRun : std::uint8_t {
-  no_never_sent,      // withheld or withdrawn before it left this side
-  no_never_started,   // the gateway confirmed it removed the request before running it
-  yes,                // it left this side: sent, acknowledged or running, no answer
+  no_never_sent,     // withheld or withdrawn before it left this side
+  no_never_started,  // the gateway confirmed it removed the request before running it
+  yes,               // it left this side: sent, acknowledged or running, no answer
 };
 
 class RequestLife {
@@ -45,10 +45,10 @@ class RequestLife {
   using TimePoint = Clock::time_point;
 
   enum class Stage : std::uint8_t {
-    idle,       // nothing asked, or the last request was answered or given up by its asker
-    open,       // sent; its answer is expected on the live link (by deadline(), if one is set)
-    awaiting,   // its link was lost or its answer is overdue: it may still come, by deadline()
-    told,       // ended unanswered and its asker told so: a later answer is late
+    idle,      // nothing asked, or the last request was answered or given up by its asker
+    open,      // sent; its answer is expected on the live link (by deadline(), if one is set)
+    awaiting,  // its link was lost or its answer is overdue: it may still come, by deadline()
+    told,      // ended unanswered and its asker told so: a later answer is late
   };
 
   // Sent at `now`, by an asker who may change the node (`effect`); `deadline`: when the answer is
