@@ -4,8 +4,10 @@ namespace canbridge::bridge {
 
 LoopGuard::LoopGuard(std::chrono::milliseconds window, std::size_t capacity)
     : window_(window), capacity_(capacity == 0 ? 1 : capacity) {
-  // Not reserved for `capacity`: the table grows with the frames written within the window, so a
-  // module bus the surface seldom writes to does not keep a bucket array for 8,192 of them.
+  // Reserved for the whole bound (~70 KiB at 8,192 frames), although memory is otherwise kept to
+  // what is used: without it the psk burst crossed ~6 % slower (qemu rig, six bursts each way,
+  // alternated in one boot: median 13,226 against 14,044 frames/s), for reasons not found.
+  live_.reserve(capacity_);
 }
 
 // FNV-1a over what makes two frames the same on the wire (timestamps do not).
