@@ -12,6 +12,7 @@
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/role_statistics_fill.hpp"
+#include "bridge/surface_pdop.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -525,26 +526,18 @@ void Surface::on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes) {
 // A packet goes on the bus as the node sent it, under its surface id (docs/pdop.md section 2),
 // so a master on the surface bus sees PDOP unchanged.
 void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
+  const auto speaks_for = [&](canopen::NodeId node) { return table_.speaks_for(from.id, node); };
   for (const v1::PdopPacket& p : packets.packets()) {
     const std::string& data = p.data();
-    const std::span<const std::uint8_t> bytes(reinterpret_cast<const std::uint8_t*>(data.data()),
-                                              data.size());
-    const std::uint16_t base = canopen::pdop::tpdo_base(p.pdo());
     const bool announced =
         std::find(from.modules.begin(), from.modules.end(), p.module_id()) != from.modules.end();
-    std::vector<can::Frame> fragments;
-    if (announced && base != 0 && p.surface_node() >= 1 &&
-        p.surface_node() <= canopen::pdop::kMaxNode &&
-        !table_.speaks_for(from.id, static_cast<canopen::NodeId>(p.surface_node()))) {
-      drop_not_its_own(from, NotItsOwn::outside_claims, base + p.surface_node());
+    PdopPacketToBus to_bus = surface_pdop_packet(p, announced, speaks_for);
+    if (to_bus.verdict == PdopPacketToBus::Verdict::not_its_own) {
+      drop_not_its_own(from, NotItsOwn::outside_claims, to_bus.cob_id);
       continue;
     }
-    if (announced && base != 0 && p.surface_node() >= 1 &&
-        p.surface_node() <= canopen::pdop::kMaxNode) {
-      fragments =
-          canopen::pdop::fragment(base, static_cast<canopen::NodeId>(p.surface_node()), bytes);
-    }
-    if (fragments.empty()) {
+    const std::vector<can::Frame>& fragments = to_bus.fragments;
+    if (to_bus.verdict != PdopPacketToBus::Verdict::to_bus) {
       ++counters_.pdop_malformed;
       warn_.warn(Warn::kPdopMalformed,
                  "surface: gateway '{}' sent a PDO Packet with module {} node {} TPDO {} and {} "
@@ -574,6 +567,8 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                  from.name, p.surface_node(), p.pdo());
     }
     if (pdop_observer_) {
+      const std::span<const std::uint8_t> bytes(reinterpret_cast<const std::uint8_t*>(data.data()),
+                                                data.size());
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
                       static_cast<canopen::NodeId>(p.surface_node()), p.pdo(), bytes,
                       p.first_fragment_us(), p.duration_us(), p.probable_repeat()});
@@ -591,26 +586,8 @@ void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
                v1::PdopDiscard::Reason_Name(d.reason()), d.fragments());
   }
   for (const v1::RpdopOutcome& o : reports.outcomes()) {
-    using canopen::pdop::AckStatus;
-    AckStatus status = AckStatus::out_of_memory;
-    switch (o.result()) {
-      case v1::RpdopOutcome::COMPLETE:
-        status = AckStatus::complete;
-        break;
-      case v1::RpdopOutcome::RECEIVER_ABORT:
-        status = o.status() >= 0x80 && o.status() <= 0xFF ? static_cast<AckStatus>(o.status())
-                                                          : AckStatus::out_of_memory;
-        break;
-      case v1::RpdopOutcome::TIMEOUT:
-        status = AckStatus::timeout;
-        break;
-      case v1::RpdopOutcome::REFUSED_SIZE:
-        status = AckStatus::oversize;
-        break;
-      default:  // busy, cancelled, no such node: the node could not take it
-        break;
-    }
-    if (status == AckStatus::complete) {
+    const canopen::pdop::AckStatus status = rpdop_ack_status(o);
+    if (status == canopen::pdop::AckStatus::complete) {
       ++counters_.rpdop_complete;
     } else {
       ++counters_.rpdop_failed;
