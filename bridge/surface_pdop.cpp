@@ -3,7 +3,7 @@
 namespace canbridge::bridge {
 
 PdopPacketToBus surface_pdop_packet(const v1::PdopPacket& packet, bool announced,
-                                      const std::function<bool(canopen::NodeId)>& speaks_for) {
+                                    const std::function<bool(canopen::NodeId)>& speaks_for) {
   PdopPacketToBus out;
   const std::uint16_t base = canopen::pdop::tpdo_base(packet.pdo());
   if (!announced || base == 0 || packet.surface_node() < 1 ||
@@ -17,10 +17,10 @@ PdopPacketToBus surface_pdop_packet(const v1::PdopPacket& packet, bool announced
     return out;
   }
   const std::string& data = packet.data();
-  out.fragments = canopen::pdop::fragment(
-      base, node,
-      std::span<const std::uint8_t>(reinterpret_cast<const std::uint8_t*>(data.data()),
-                                    data.size()));
+  out.fragments =
+      canopen::pdop::fragment(base, node,
+                              std::span<const std::uint8_t>(
+                                  reinterpret_cast<const std::uint8_t*>(data.data()), data.size()));
   if (!out.fragments.empty()) out.verdict = PdopPacketToBus::Verdict::to_bus;
   return out;
 }

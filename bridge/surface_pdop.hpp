@@ -31,7 +31,7 @@ struct PdopPacketToBus {
 // the gateway's claims cover a surface node. A packet goes on the bus as the node sent it, under
 // its surface id, so a master on the surface bus sees PDOP unchanged.
 PdopPacketToBus surface_pdop_packet(const v1::PdopPacket& packet, bool announced,
-                                      const std::function<bool(canopen::NodeId)>& speaks_for);
+                                    const std::function<bool(canopen::NodeId)>& speaks_for);
 
 // The status a master sees for the gateway's outcome of its RPDOP packet: the node's own abort
 // status where the node answered, the nearest PDOP status otherwise (a node that could not take

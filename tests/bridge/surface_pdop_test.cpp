@@ -41,8 +41,8 @@ TEST(SurfacePdop, AClaimedNodesPacketGoesOnTheBusAsItsFragments) {
 }
 
 TEST(SurfacePdop, ANodeOutsideTheClaimsIsNotItsOwnAndNamesTheCobId) {
-  const PdopPacketToBus out = surface_pdop_packet(
-      packet(7, 1, 10), true, [](canopen::NodeId node) { return node != 7; });
+  const PdopPacketToBus out =
+      surface_pdop_packet(packet(7, 1, 10), true, [](canopen::NodeId node) { return node != 7; });
   EXPECT_EQ(out.verdict, Verdict::not_its_own);
   EXPECT_EQ(out.cob_id, 0x187u);
   EXPECT_TRUE(out.fragments.empty());
@@ -59,8 +59,7 @@ TEST(SurfacePdop, WhatNoFrameSequenceCanCarryIsRefused) {
   EXPECT_EQ(surface_pdop_packet(packet(5, 5, 10), true, never).verdict, Verdict::cannot_be_put);
   EXPECT_EQ(surface_pdop_packet(packet(0, 1, 10), true, never).verdict, Verdict::cannot_be_put);
   EXPECT_EQ(surface_pdop_packet(packet(32, 1, 10), true, never).verdict, Verdict::cannot_be_put);
-  EXPECT_EQ(surface_pdop_packet(packet(5, 1, 0), true, kClaimsAll).verdict,
-            Verdict::cannot_be_put);
+  EXPECT_EQ(surface_pdop_packet(packet(5, 1, 0), true, kClaimsAll).verdict, Verdict::cannot_be_put);
 }
 
 TEST(SurfacePdop, AnRpdopOutcomeIsTheStatusTheMasterReads) {
