@@ -354,10 +354,13 @@ void Gateway::hint_loader_boot_on_cia301(const NodeEvent& e) {
       map_.surface_of(e.module_index, e.local) != 0) {
     return;
   }
-  warn_.warn(Warn::kLoaderBootOnCia301,
-             "gateway {}: module {}: a boot-up on 0x{:03X} (node {}) has no surface id; on a qd "
-             "module that is node {}'s loader boot-up (0x720 + node id): if this module's nodes "
-             "use the qd profile, set 'profile: qd' for it (later ones only in the node table)",
+  // A hint, not a warning: a CiA 301 module may carry qd nodes among others (the demo does), whose
+  // applications work there and whose loaders are then simply not reachable.
+  warn_.hint(Warn::kLoaderBootOnCia301,
+             "gateway {}: module {}: a boot-up on 0x{:03X} (node {}) has no surface id: most "
+             "likely node {}'s qd loader announcing itself (0x720 + node id), which a cia301 "
+             "module does not map; to reach the loaders of a module of qd nodes, set 'profile: "
+             "qd' for it (said once; later ones counted as untranslatable)",
              name_, modules_[e.module_index].id, 0x700u + e.local, e.local, e.local - kLoaderBase);
 }
 

@@ -19,6 +19,13 @@ class WarnOnce {
     seen_.set(kind);
     spdlog::warn(fmt, std::forward<Args>(args)...);
   }
+  // The same, once, at info level: a hint about something that is often, not always, a mistake.
+  template <typename... Args>
+  void hint(std::size_t kind, spdlog::format_string_t<Args...> fmt, Args&&... args) {
+    if (kind >= Kinds || seen_.test(kind)) return;
+    seen_.set(kind);
+    spdlog::info(fmt, std::forward<Args>(args)...);
+  }
 
  private:
   std::bitset<Kinds> seen_;

@@ -36,7 +36,7 @@ class LoaderHint : public ::testing::Test {
  protected:
   void SetUp() override {
     sink_ = std::make_shared<spdlog::sinks::ostream_sink_st>(warnings_);
-    sink_->set_level(spdlog::level::warn);
+    sink_->set_level(spdlog::level::info);  // the hint is an info line
     spdlog::default_logger()->sinks().push_back(sink_);
   }
   void TearDown() override {
@@ -81,7 +81,9 @@ TEST_F(LoaderHint, QdLoaderBootUpsOnACia301ModuleAreNamedOnce) {
                      {Frame::standard(0x722, {0x00}), Frame::standard(0x725, {0x00})}, {34, 37});
   EXPECT_EQ(occurrences(log, "profile: qd"), 1u) << log;
   EXPECT_NE(log.find("0x722 (node 34)"), std::string::npos) << log;
-  EXPECT_NE(log.find("node 2's loader boot-up"), std::string::npos) << log;
+  EXPECT_NE(log.find("node 2's qd loader"), std::string::npos) << log;
+  EXPECT_EQ(log.find("[warning]"), std::string::npos) << "a hint, not a warning: " << log;
+  EXPECT_NE(log.find("[info]"), std::string::npos) << log;
 }
 
 // A mapped node's boot-up, and a node above 63 (no loader id), get no hint; nor does a qd module,
