@@ -34,7 +34,6 @@ std::optional<RemoteRequestLedger::End> RemoteRequestLedger::on_result(RequestId
   close(id);
   switch (result) {
     case Result::done:
-      life.answered();
       return End::answered;
     case Result::cancelled_not_started:  // the surface's cancel: it never ran
       return life.end_unanswered(MayHaveRun::no_never_started);

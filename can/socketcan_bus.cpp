@@ -131,10 +131,9 @@ class FrameRing {
  private:
   // Doubles the storage (from 64 slots), the frames kept in order from the front.
   void grow() {
-    std::vector<Frame> bigger;
-    bigger.reserve(std::min(capacity_, std::max<std::size_t>(64, slots_.size() * 2)));
-    for (std::size_t i = 0; i < size_; ++i) bigger.push_back(at(i));
-    bigger.resize(bigger.capacity());
+    const std::size_t slots = std::min(capacity_, std::max<std::size_t>(64, slots_.size() * 2));
+    std::vector<Frame> bigger(slots);
+    for (std::size_t i = 0; i < size_; ++i) bigger[i] = at(i);
     slots_ = std::move(bigger);
     head_ = 0;
   }
