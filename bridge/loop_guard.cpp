@@ -5,8 +5,8 @@ namespace canbridge::bridge {
 LoopGuard::LoopGuard(std::chrono::milliseconds window, std::size_t capacity)
     : window_(window), capacity_(capacity == 0 ? 1 : capacity) {
   // Reserved for the whole bound (~70 KiB at 8,192 frames), although memory is otherwise kept to
-  // what is used: without it the psk burst crossed ~6 % slower (qemu rig, six bursts each way,
-  // alternated in one boot: median 13,226 against 14,044 frames/s), for reasons not found.
+  // what is used: without it the psk burst crossed slower in an ad-hoc A/B in the qemu rig
+  // (commit a26d7e8 has its figures), for reasons not found.
   live_.reserve(capacity_);
 }
 
