@@ -24,15 +24,21 @@ bool is_sdo_request(const can::Frame& f) {
   return !f.is_extended() && f.id > 0x600 && f.id <= 0x67F;
 }
 
-std::size_t withdraw_sdo_requests(std::string& payload, const WithdrawnObserver& withdrawn) {
+bool is_sdo_request_to(const can::Frame& f, std::uint8_t node) {
+  return is_sdo_request(f) && (node == 0 || f.id == 0x600u + node);
+}
+
+std::size_t withdraw_sdo_requests(std::string& payload, const WithdrawnObserver& withdrawn,
+                                  std::uint8_t node) {
   v1::Payload parsed;
   std::vector<can::Frame> frames;
   if (!parsed.ParseFromString(payload) || !parsed.has_frames() ||
       decode_frame_batch(parsed.frames(), frames) != BatchError::none) {
     return 0;
   }
-  const auto kept = std::stable_partition(frames.begin(), frames.end(),
-                                          [](const can::Frame& f) { return !is_sdo_request(f); });
+  const auto kept =
+      std::stable_partition(frames.begin(), frames.end(),
+                            [node](const can::Frame& f) { return !is_sdo_request_to(f, node); });
   const auto removed = static_cast<std::size_t>(frames.end() - kept);
   if (removed == 0) return 0;
   if (withdrawn) std::for_each(kept, frames.end(), withdrawn);
@@ -107,9 +113,10 @@ bool FrameOutbox::push(std::uint32_t module_id, const can::Frame& frame,
   return result != backbone::SchedulerPush::refused;
 }
 
-void FrameOutbox::withdraw_queued_sdo_requests(const WithdrawnObserver& withdrawn) {
+void FrameOutbox::withdraw_queued_sdo_requests(const WithdrawnObserver& withdrawn,
+                                               std::uint8_t node) {
   counters_.sdo_requests_withdrawn += queue_.erase_if([&](const Entry& entry) {
-    if (!is_sdo_request(entry.frame)) return false;
+    if (!is_sdo_request_to(entry.frame, node)) return false;
     if (withdrawn) withdrawn(entry.frame);
     return true;
   });

@@ -49,16 +49,19 @@ std::string lanes_summary(const OutboxCounters& counters);
 
 // True for an SDO request on a default server channel (0x601-0x67F).
 bool is_sdo_request(const can::Frame& frame);
+// True for an SDO request to `node` (any node if it is 0).
+bool is_sdo_request_to(const can::Frame& frame, std::uint8_t node);
 
 // Sees each SDO request withdrawn, so that its sender can account for its answer.
 using WithdrawnObserver = std::function<void(const can::Frame& request)>;
 
-// SDO requests (0x601-0x67F) removed from one serialized Payload this outbox produced, for the
-// unacknowledged ones a session would resend: the other frames stay, in order. Returns how many
-// were removed (0 leaves `payload` untouched; an unparsable payload is left alone); `withdrawn`
-// (if set) sees each.
+// SDO requests (0x601-0x67F; only those to `node`, if it is not 0) removed from one serialized
+// Payload this outbox produced, for the unacknowledged ones a session would resend: the other
+// frames stay, in order. Returns how many were removed (0 leaves `payload` untouched; an
+// unparsable payload is left alone); `withdrawn` (if set) sees each.
 std::size_t withdraw_sdo_requests(std::string& payload,
-                                  const WithdrawnObserver& withdrawn = nullptr);
+                                  const WithdrawnObserver& withdrawn = nullptr,
+                                  std::uint8_t node = 0);
 
 class FrameOutbox {
  public:
@@ -96,11 +99,12 @@ class FrameOutbox {
   // FrameBatch payloads: a run of frames of one module and one reliability per payload.
   void produce(backbone::PayloadSink& sink);
 
-  // SDO requests (0x601-0x67F) queued now are never sent: the surface has answered them with an
-  // abort because the peer's link went down, and a node must not execute later a request its
-  // master was told failed. Frames queued afterwards are not affected. `withdrawn` (if set)
-  // sees each.
-  void withdraw_queued_sdo_requests(const WithdrawnObserver& withdrawn = nullptr);
+  // SDO requests (0x601-0x67F; only those to `node`, if it is not 0) queued now are never sent:
+  // the surface has answered them with an abort (the peer's link went down, or the answer is
+  // overdue), and a node must not execute later a request its master was told failed. Frames
+  // queued afterwards are not affected. `withdrawn` (if set) sees each.
+  void withdraw_queued_sdo_requests(const WithdrawnObserver& withdrawn = nullptr,
+                                    std::uint8_t node = 0);
 
   // Whether the batches may use FrameBatch.head_runs: on when the peer's hello says it decodes
   // them (protocol minor >= kHeadRunsMinor); set on every link, before it carries anything.

@@ -158,7 +158,7 @@ bool SdoLinkGuard::on_gateway_frame(GatewayId gateway, const can::Frame& frame) 
     return false;
   }
   // Executed before the cut, its answer brought by the next link.
-  leave_wait(n);
+  leave_timed(n);
   if (n.request.answered() == RequestLife::Answer::recovered) ++counters_.answers_recovered;
   // A step answered: nothing more may come, except inside block transfers.
   if (n.expect != Expect::block_download && n.expect != Expect::block_upload &&
@@ -184,7 +184,7 @@ std::optional<can::Frame> SdoLinkGuard::on_not_forwarded(const can::Frame& frame
   const canopen::NodeId node = request_node(frame);
   if (node == 0 || frame.data[0] >> 5 == 4) return std::nullopt;  // not a request, or an abort
   Node& n = nodes_[node];
-  leave_wait(n);
+  leave_timed(n);
   n.request.refused();
   n.expect = Expect::nothing;
   ++counters_.aborted_not_forwarded;
@@ -215,16 +215,17 @@ bool SdoLinkGuard::still_open(const Node& n, Clock::time_point now) {
   return false;
 }
 
-std::optional<can::Frame> SdoLinkGuard::abort_in_flight(canopen::NodeId node, Node& n,
-                                                        Clock::time_point now) {
-  leave_wait(n);
+std::optional<can::Frame> SdoLinkGuard::abort_unanswered(canopen::NodeId node, Node& n,
+                                                         Clock::time_point now,
+                                                         std::uint64_t& aborted) {
+  leave_timed(n);
   // Aborted either way: a late answer to it must not reach the master any more than the abort
   // may. The one abort code says the same as the master's own time-out would: the request may
   // have run (the end RequestLife decides is timed out or outcome unknown).
   n.request.end_unanswered(MayHaveRun::yes);
   n.expect = Expect::nothing;
   if (!still_open(n, now)) return std::nullopt;
-  ++counters_.aborted_in_flight;
+  ++aborted;
   return abort_for(node, n);
 }
 
@@ -236,20 +237,22 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::
     // The request may have reached the gateway before the cut: its answer waits there, in the
     // gateway's reliable stream, and crosses once a new link resumes it.
     if (now - n.request.sent_at() < options_.answer_wait) {
-      if (!n.request.awaiting()) ++awaiting_;
+      if (!timed(n)) ++timed_;
       n.request.await_answer(n.request.sent_at() + options_.answer_wait);
       continue;
     }
-    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
+    if (auto abort = abort_unanswered(node, n, now, counters_.aborted_in_flight)) {
+      aborts.push_back(*abort);
+    }
   }
   return aborts;
 }
 
 std::optional<SdoLinkGuard::Clock::time_point> SdoLinkGuard::next_deadline() const {
-  if (awaiting_ == 0) return std::nullopt;
+  if (timed_ == 0) return std::nullopt;
   std::optional<Clock::time_point> earliest;
   for (const Node& n : nodes_) {
-    if (!n.request.awaiting()) continue;
+    if (!timed(n)) continue;
     const Clock::time_point due = n.request.deadline();
     if (!earliest || due < *earliest) earliest = due;
   }
@@ -258,22 +261,35 @@ std::optional<SdoLinkGuard::Clock::time_point> SdoLinkGuard::next_deadline() con
 
 std::vector<can::Frame> SdoLinkGuard::on_gateway_restart(GatewayId gateway, Clock::time_point now) {
   std::vector<can::Frame> aborts;
-  if (awaiting_ == 0) return aborts;
+  if (timed_ == 0) return aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
     if (!n.request.awaiting() || n.gateway != gateway) continue;
-    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
+    if (auto abort = abort_unanswered(node, n, now, counters_.aborted_in_flight)) {
+      aborts.push_back(*abort);
+    }
   }
   return aborts;
 }
 
-std::vector<can::Frame> SdoLinkGuard::on_time(Clock::time_point now) {
+std::vector<can::Frame> SdoLinkGuard::on_time(Clock::time_point now, const Withdraw& withdraw) {
   std::vector<can::Frame> aborts;
-  if (awaiting_ == 0) return aborts;
+  if (timed_ == 0) return aborts;
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
-    if (!n.request.awaiting() || !n.request.due(now)) continue;
-    if (auto abort = abort_in_flight(node, n, now)) aborts.push_back(*abort);
+    if (!timed(n) || !n.request.due(now)) continue;
+    if (n.request.awaiting()) {  // its link was lost: withdrawn then (Surface::on_gateway_down)
+      if (auto abort = abort_unanswered(node, n, now, counters_.aborted_in_flight)) {
+        aborts.push_back(*abort);
+      }
+      continue;
+    }
+    // Overdue on a live link: lost on the line (and given up by the gateway's stream), still on
+    // its way, or never answered by its node.
+    if (withdraw) withdraw(node);
+    if (auto abort = abort_unanswered(node, n, now, counters_.aborted_overdue)) {
+      aborts.push_back(*abort);
+    }
   }
   return aborts;
 }
@@ -286,7 +302,7 @@ std::optional<can::Frame> SdoLinkGuard::on_request_discarded(const can::Frame& r
   if (command == 4) return std::nullopt;  // the master's own abort needs no answer
   Node& n = nodes_[node];
   if (n.owned && !n.request.pending()) return std::nullopt;  // answered already
-  leave_wait(n);
+  leave_timed(n);
   Node answer = n;
   if (!n.owned && (command == 1 || command == 2 || command == 5 || command == 6)) {
     answer.mux[0] = request.data[1];

@@ -1,12 +1,14 @@
 // Keeps a surface master's SDO client from hanging on nodes whose gateway link is down: a request
 // to such a node is answered at once with abort 0x05040000 (SDO protocol timed out) instead of
 // silence; a request in flight when a link drops gets its answer if the next link brings it in
-// time, else the same abort before its master's own time-out (docs/canopen-bridging.md).
+// time, else the same abort before its master's own time-out, and so does one whose answer is
+// overdue on a live link (docs/canopen-bridging.md).
 #pragma once
 
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -32,11 +34,13 @@ class SdoLinkGuard {
     // reaches a master that has moved on and cannot place it, so it is dropped and counted
     // instead. Zero: no bound.
     std::chrono::milliseconds transfer_open_for{0};
-    // How long after a request went out its answer may still be delivered when the request was
-    // in flight as its gateway's link dropped: the gateway may have executed it, and its answer
-    // then crosses on the next link. Past this, the master gets the abort instead (a little
-    // before its own time-out, so that it learns the real outcome is unknown from the abort
-    // rather than from silence). Zero: the abort at once, when the link drops.
+    // How long after a request went out its answer may still be delivered. Past this, the master
+    // gets the abort instead (a little before its own time-out, so that it learns the real
+    // outcome is unknown from the abort rather than from silence), whether the link dropped
+    // meanwhile (the gateway may have executed the request; its answer crosses on the next link
+    // if that comes in time) or is still up (the answer was lost on a bad line, the gateway gave
+    // it up after reliable_max_age_ms, or the node never answered). Zero: no deadline; the abort
+    // comes at once when the link drops, and a live link's request waits for its answer.
     std::chrono::milliseconds answer_wait{0};
   };
 
@@ -46,6 +50,8 @@ class SdoLinkGuard {
   struct Counters {
     std::uint64_t aborted_at_once = 0;    // requests to a node whose gateway was down
     std::uint64_t aborted_in_flight = 0;  // requests pending when their gateway went down
+    // Requests on a live link whose answer had not come within Options::answer_wait.
+    std::uint64_t aborted_overdue = 0;
     // Requests pending when their gateway went down whose answer the next link brought in time.
     std::uint64_t answers_recovered = 0;
     std::uint64_t late_responses_dropped = 0;  // answers to requests the master saw aborted
@@ -114,11 +120,16 @@ class SdoLinkGuard {
   // requests waiting for one get their aborts now.
   std::vector<can::Frame> on_gateway_restart(GatewayId gateway, Clock::time_point now = {});
 
-  // When the first request waiting for its answer across a lost link must be given up; nullopt
-  // when none waits.
+  // When the first pending request must be given up (Options::answer_wait); nullopt when none
+  // has a deadline.
   std::optional<Clock::time_point> next_deadline() const;
-  // The aborts of the requests whose answer did not come in time (Options::answer_wait).
-  std::vector<can::Frame> on_time(Clock::time_point now);
+  // The aborts of the requests whose answer did not come in time (Options::answer_wait). For one
+  // whose link is still up, `withdraw(node)` is called first: the surface takes the node's SDO
+  // requests out of what it has queued or sent unacknowledged, so that a request its master is
+  // about to be told failed cannot reach the node later (it reports each withdrawn request with
+  // on_request_withdrawn()).
+  using Withdraw = std::function<void(canopen::NodeId node)>;
+  std::vector<can::Frame> on_time(Clock::time_point now, const Withdraw& withdraw = nullptr);
 
   // A request forwarded earlier will never reach its node (the backbone gave it up: too old, or
   // queued for a gateway process that is gone): the abort for its master, unless the master has
@@ -158,14 +169,17 @@ class SdoLinkGuard {
     bool withdrawn = false;
   };
   // The pending request of `n` ends aborted (or stale, past the transfer's life): the abort for
-  // its master, if one is still wanted.
-  std::optional<can::Frame> abort_in_flight(canopen::NodeId node, Node& n, Clock::time_point now);
-  // Keeps the count of nodes whose request awaits its answer right: called before `n`'s request
-  // leaves that stage. True if it was awaiting.
-  bool leave_wait(const Node& n) {
-    if (!n.request.awaiting()) return false;
-    --awaiting_;
-    return true;
+  // its master, if one is still wanted (counted in `aborted`).
+  std::optional<can::Frame> abort_unanswered(canopen::NodeId node, Node& n, Clock::time_point now,
+                                             std::uint64_t& aborted);
+  // Whether `n`'s pending request has a deadline (Options::answer_wait).
+  static bool timed(const Node& n) {
+    return n.request.pending() && n.request.deadline() != Clock::time_point::max();
+  }
+  // Keeps the count of nodes whose pending request has a deadline right: called before `n`'s
+  // request leaves that state.
+  void leave_timed(const Node& n) {
+    if (timed(n)) --timed_;
   }
   // What the node's pending request may change (downloads write; uploads only read).
   static RequestEffect effect_of(const Node& n);
@@ -183,7 +197,7 @@ class SdoLinkGuard {
 
   Options options_;
   std::array<Node, 128> nodes_{};
-  std::size_t awaiting_ = 0;  // nodes whose request awaits its answer
+  std::size_t timed_ = 0;  // nodes whose pending request has a deadline (timed())
   Counters counters_;
 };
 
@@ -197,7 +211,7 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   if (!n.owned) return {};
   const bool master_abort =
       frame.data[0] == 0x80 || (n.expect != Expect::block_download && frame.data[0] >> 5 == 4);
-  leave_wait(n);       // if it waited, the master moved on (a newer request, or its own abort)
+  leave_timed(n);      // if it waited, the master moved on (a newer request, or its own abort)
   if (master_abort) {  // nothing is in flight any more
     n.request.forget();
     n.expect = Expect::nothing;
@@ -214,6 +228,9 @@ SdoLinkGuard::Verdict SdoLinkGuard::on_surface_frame(const can::Frame& frame,
   // The end of a block upload gets no answer.
   if (n.expect == Expect::nothing) {
     n.request.clear();
+  } else if (options_.answer_wait.count() > 0) {
+    n.request.sent(now, effect_of(n), now + options_.answer_wait);
+    ++timed_;
   } else {
     n.request.sent(now, effect_of(n));
   }

@@ -132,9 +132,15 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
         flush_relay();
       });
   deadlines_.add(
-      "SDO answers across a lost link", [this] { return guard_.next_deadline(); },
+      "SDO answers due", [this] { return guard_.next_deadline(); },
       [this](DeadlineDriver::TimePoint now) {
-        for (const can::Frame& abort : guard_.on_time(now)) send_to_bus(abort);
+        const auto withdraw = [this](canopen::NodeId node) {
+          const auto owner = guard_.owner_of(node);
+          if (owner && *owner < by_id_.size() && by_id_[*owner] != nullptr) {
+            withdraw_sdo_requests_to(*by_id_[*owner], node);
+          }
+        };
+        for (const can::Frame& abort : guard_.on_time(now, withdraw)) send_to_bus(abort);
       });
 }
 
@@ -632,17 +638,21 @@ void Surface::on_gateway_down(Gateway& gateway) {
   if (stopped_) return;
   // The master is told below that these requests failed: the node must never execute them
   // later, when the link returns.
-  // Each withdrawn request is accounted for by how its master gets its answer (the guard's
-  // withdrawn counters add up to the withdrawn ones).
-  const auto account = [this](const can::Frame& request) { guard_.on_request_withdrawn(request); };
-  gateway.outbox.withdraw_queued_sdo_requests(account);
-  gateway.stream.edit_unacked([&](std::string& payload) {
-    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload, account);
-  });
+  withdraw_sdo_requests_to(gateway, 0);
   for (const can::Frame& abort : guard_.on_gateway_down(gateway.id, deadlines_.now())) {
     send_to_bus(abort);
   }
   deadlines_.reschedule();  // requests that wait for an answer from the next link
+}
+
+void Surface::withdraw_sdo_requests_to(Gateway& gateway, std::uint8_t node) {
+  // Each withdrawn request is accounted for by how its master gets its answer (the guard's
+  // withdrawn counters add up to the withdrawn ones).
+  const auto account = [this](const can::Frame& request) { guard_.on_request_withdrawn(request); };
+  gateway.outbox.withdraw_queued_sdo_requests(account, node);
+  gateway.stream.edit_unacked([&](std::string& payload) {
+    counters_.sdo_requests_withdrawn_unacked += withdraw_sdo_requests(payload, account, node);
+  });
 }
 
 // The old process's answers are gone with it: nothing waits for them any more.
@@ -692,6 +702,7 @@ SurfaceCounters Surface::counters() const {
                   guard_.counters().aborted_not_forwarded;
   c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
   c.sdo_answers_recovered = guard_.counters().answers_recovered;
+  c.sdo_aborted_overdue = guard_.counters().aborted_overdue;
   c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
   c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
   c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;

@@ -142,6 +142,10 @@ class Surface {
   void on_frames(Gateway& from, const v1::FrameBatch& batch);
   void on_node_events(Gateway& from, const v1::NodeEvents& events);
   void on_gateway_down(Gateway& gateway);
+  // Takes the SDO requests to `node` (every node, if 0) out of what is queued for `gateway` and
+  // what it was sent unacknowledged: their master is told they failed, so they must never reach
+  // a node later. The guard accounts for each.
+  void withdraw_sdo_requests_to(Gateway& gateway, std::uint8_t node);
   void on_gateway_restart(Gateway& gateway);
   // A frame meant for `gateway` that will never be sent: counted, an open SDO request aborted.
   void on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop why);

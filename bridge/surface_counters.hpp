@@ -42,6 +42,8 @@ struct SurfaceCounters {
   std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
   // Answers to requests in flight when their link dropped, brought by the next link in time.
   std::uint64_t sdo_answers_recovered = 0;
+  // SDO requests aborted on a live link: no answer within four fifths of the master's time-out.
+  std::uint64_t sdo_aborted_overdue = 0;
   std::uint64_t sdo_stale_responses_dropped = 0;  // answers that cannot answer the pending request
   // Link-down aborts not sent: the request was older than its master can still be waiting.
   std::uint64_t sdo_stale_aborts_dropped = 0;

@@ -42,6 +42,7 @@ RoleStatistics surface_statistics(const SurfaceStatsSnapshot& snapshot) {
       {"aborted-link-down", c.sdo_aborted},
       {"aborted-given-up", c.sdo_aborted_dropped},
       {"answers-recovered", c.sdo_answers_recovered},
+      {"aborted-overdue", c.sdo_aborted_overdue},
       {"withdrawn-pending", c.sdo_withdrawn_pending},
       {"withdrawn-answered-before", c.sdo_withdrawn_answered_before},
       {"withdrawn-untracked", c.sdo_withdrawn_untracked},
@@ -59,7 +60,7 @@ std::string surface_stats_line(const SurfaceStatsSnapshot& snapshot) {
       "surface {}: {}/{} gateway(s) up, bus->backbone {} frames, backbone->bus {}, conflated {}, "
       "process-dropped {}, reliable-refused {}, reliable sent {} resent {}, dead-links {}, "
       "refusals {}/{}, sdo-aborted-link-down {} (withdrawn {}: pending {} answered-before {} "
-      "untracked {}, answers recovered {}, late answers dropped {}, "
+      "untracked {}, answers recovered {}, overdue aborted {}, late answers dropped {}, "
       "stale answers dropped {}, stale aborts dropped {}), "
       "reliable dropped too-old {} gateway-restart {} (sdo aborted {}) expired-unacked {}, "
       "stale-links {}, "
@@ -76,14 +77,15 @@ std::string surface_stats_line(const SurfaceStatsSnapshot& snapshot) {
       c.session.refusals_sent, c.session.refusals_received, c.sdo_aborted,
       c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
       c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_answers_recovered,
-      c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped, c.sdo_stale_aborts_dropped,
-      c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped,
-      c.reliable_expired_unacked, c.session.stale_links_closed, c.echoes_dropped, c.bus_refused,
-      c.dropped_no_gateway, c.dropped_unclaimed, c.malformed_payloads + c.session.malformed,
-      c.unknown_module, c.node_events, c.pdop_packets, c.pdop_packet_bytes, c.pdop_discards,
-      c.pdop_malformed, c.pdop_probable_repeats, c.pdop_bus_refused, c.rpdop_forwarded,
-      c.rpdop_complete, c.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line,
-      c.outbox.batches_sent, c.outbox.queued, session_counters_text(c.session),
+      c.sdo_aborted_overdue, c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped,
+      c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart,
+      c.sdo_aborted_dropped, c.reliable_expired_unacked, c.session.stale_links_closed,
+      c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
+      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
+      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
+      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, c.from_bus,
+      c.frames_received, c.process_lost_on_line, c.outbox.batches_sent, c.outbox.queued,
+      session_counters_text(c.session),
       bus_counters_text(snapshot.bus.interface, snapshot.bus.counters), c.bus_waited,
       c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {

@@ -398,6 +398,37 @@ TEST(FrameOutbox, SdoRequestsAreWithdrawnFromAProducedPayload) {
   EXPECT_EQ(garbage, "\xff\x01");
 }
 
+// A request whose answer is overdue on a live link: only that node's requests go, from the queue
+// and from what was sent unacknowledged; the other nodes' requests and every other frame stay.
+TEST(FrameOutbox, TheSdoRequestsOfOneNodeAreWithdrawnAndNoOther) {
+  FrameOutbox outbox({});
+  const can::Frame to_37 = can::Frame::standard(0x625, {0x40, 0x00, 0x18, 0x01, 0, 0, 0, 0});
+  const can::Frame to_38 = can::Frame::standard(0x626, {0x40, 0x00, 0x18, 0x01, 0, 0, 0, 0});
+  const can::Frame nmt = can::Frame::standard(0x000, {0x82, 0x25});
+  for (const auto& f : {to_37, nmt, to_38})
+    ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate, kNow));
+  FakeSink sink;
+  ASSERT_TRUE(drain(outbox, sink));
+  std::string payload = sink.sent.at(0).bytes;
+  std::vector<can::Frame> seen;
+  EXPECT_EQ(withdraw_sdo_requests(
+                payload, [&](const can::Frame& f) { seen.push_back(f); }, 0x25),
+            1u);
+  EXPECT_EQ(seen, std::vector{to_37});
+  FakeSink edited;
+  edited.sent.push_back({payload, true, 0});
+  EXPECT_EQ(decode(edited).at(0).frames, (std::vector{nmt, to_38}));
+
+  for (const auto& f : {to_37, to_38}) ASSERT_TRUE(outbox.push(kAnyModule, f, kConflate, kNow));
+  seen.clear();
+  outbox.withdraw_queued_sdo_requests([&](const can::Frame& f) { seen.push_back(f); }, 0x26);
+  EXPECT_EQ(seen, std::vector{to_38});
+  EXPECT_EQ(outbox.counters().sdo_requests_withdrawn, 1u);
+  FakeSink rest;
+  ASSERT_TRUE(drain(outbox, rest));
+  EXPECT_EQ(all_frames(decode(rest)), std::vector{to_37});
+}
+
 TEST(FrameOutbox, AFullReliableQueueRefusesAndCounts) {
   FrameOutbox::Options options;
   options.max_reliable_frames = 4;

@@ -523,6 +523,76 @@ TEST_F(SdoLinkGuardRecovery, ANewerRequestOfTheMasterEndsTheWait) {
   EXPECT_TRUE(guard.on_time(t0 + 900ms).empty());
 }
 
+// Issue 27, a flake of system_sdo_noisy: 24 requests reached their nodes over a live link whose
+// line kept corrupting the answers' batch; the gateway gave the answers up after
+// reliable_max_age_ms, the link never died, and the guard, which only acted on a lost link, left
+// the master to its own time-out. Removing the deadline of requests on a live link
+// (SdoLinkGuard::on_surface_frame) makes this test fail.
+TEST_F(SdoLinkGuardRecovery, AnAnswerOverdueOnALiveLinkGetsTheAbortBeforeTheMastersTimeOut) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  EXPECT_EQ(guard.next_deadline(), t0 + 800ms);
+  std::vector<canopen::NodeId> withdrawn;
+  const auto withdraw = [&](canopen::NodeId node) {
+    // Called while the request is still pending, so that it is accounted as the pending one.
+    guard.on_request_withdrawn(kRead1018);
+    withdrawn.push_back(node);
+  };
+  EXPECT_TRUE(guard.on_time(t0 + 799ms, withdraw).empty());
+  EXPECT_TRUE(withdrawn.empty());
+  const auto aborts = guard.on_time(t0 + 800ms, withdraw);
+  ASSERT_EQ(aborts.size(), 1u);
+  EXPECT_EQ(aborts[0], abort_of(0x5A2, 0x1018, 0x01));
+  EXPECT_EQ(withdrawn, std::vector<canopen::NodeId>{34});  // before the abort: none runs later
+  EXPECT_EQ(guard.counters().aborted_overdue, 1u);
+  EXPECT_EQ(guard.counters().aborted_in_flight, 0u);
+  EXPECT_EQ(guard.counters().withdrawn_pending, 1u);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  // The answer, should it come after all, is late: the master was told.
+  EXPECT_FALSE(guard.on_gateway_frame(1, answer_1018));
+  EXPECT_EQ(guard.counters().late_responses_dropped, 1u);
+  // And a link that drops afterwards owes the master nothing more.
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 900ms).empty());
+}
+
+TEST_F(SdoLinkGuardRecovery, AnAnswerInTimeOnALiveLinkEndsTheDeadline) {
+  ASSERT_TRUE(send(kRead1018, t0));
+  EXPECT_TRUE(guard.on_gateway_frame(1, answer_1018));
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  EXPECT_TRUE(guard.on_time(t0 + 800ms).empty());
+  EXPECT_EQ(guard.counters().answers_recovered, 0u);  // delivered, not recovered
+  // Each request of the master has its own deadline, counted from when it went out.
+  ASSERT_TRUE(send(kRead1018, t0 + 1000ms));
+  EXPECT_EQ(guard.next_deadline(), t0 + 1800ms);
+  // The link drops: the request waits for the next one until the same deadline.
+  up = false;
+  EXPECT_TRUE(guard.on_gateway_down(1, t0 + 1500ms).empty());
+  EXPECT_EQ(guard.next_deadline(), t0 + 1800ms);
+  ASSERT_EQ(guard.on_time(t0 + 1800ms).size(), 1u);
+  EXPECT_EQ(guard.counters().aborted_in_flight, 1u);
+  EXPECT_EQ(guard.counters().aborted_overdue, 0u);
+}
+
+TEST_F(SdoLinkGuardRecovery, EachFrameOfABlockDownloadMovesItsDeadline) {
+  const auto send_bytes = [&](std::initializer_list<std::uint8_t> bytes,
+                              SdoLinkGuard::Clock::time_point at) {
+    return send(can::Frame::standard(0x622, bytes), at);
+  };
+  ASSERT_TRUE(send_bytes({0xC6, 0x00, 0x1F, 0x01, 0, 1, 0, 0}, t0));  // initiate, 256 bytes
+  EXPECT_TRUE(guard.on_gateway_frame(
+      1, can::Frame::standard(0x5A2, {0xA4, 0x00, 0x1F, 0x01, 127, 0, 0, 0})));
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+  ASSERT_TRUE(send_bytes({0x01, 1, 2, 3, 4, 5, 6, 7}, t0 + 10ms));   // segment 1
+  ASSERT_TRUE(send_bytes({0x02, 1, 2, 3, 4, 5, 6, 7}, t0 + 500ms));  // segment 2
+  EXPECT_EQ(guard.next_deadline(), t0 + 1300ms);
+}
+
+TEST(SdoLinkGuard, WithoutAnAnswerWaitNoRequestHasADeadline) {
+  SdoLinkGuard guard;
+  (void)guard.on_gateway_frame(1, kHeartbeat34);
+  ASSERT_TRUE(guard.on_surface_frame(kRead1018, [](auto) { return true; }).forward);
+  EXPECT_EQ(guard.next_deadline(), std::nullopt);
+}
+
 TEST_F(SdoLinkGuardRecovery, ANewGatewayProcessEndsTheWaitAtOnce) {
   ASSERT_TRUE(send(kRead1018, t0));
   up = false;

@@ -544,6 +544,30 @@ TEST_F(SurfaceGateways, TheAnswerToARequestInFlightAtACutComesWithTheNextLink) {
       io, [&] { return master.count(0x580 + kSurfaceNodeA) > 1; }, 1700ms));
 }
 
+// Issue 27: a request whose answer never comes on a live link (lost on a bad line and given up
+// by the gateway's stream, or a node that never answers) gets the abort before its master's own
+// time-out, as one in flight at a cut does; the link stays up and the late answer is dropped.
+TEST_F(SurfaceGateways, ARequestUnansweredOnALiveLinkIsAbortedBeforeTheMastersTimeOut) {
+  start_a_and_b();
+  ASSERT_TRUE(a->node().send(can::Frame::standard(0x700 + kLocal, {0x05})));
+  ASSERT_TRUE(run_until(io, [&] { return master.frames.size() >= 1; }));
+  const auto sent_at = std::chrono::steady_clock::now();
+  ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 1)));
+  ASSERT_TRUE(run_until(io, [&] { return a->node().count(0x600 + kLocal) == 1; }));
+  ASSERT_TRUE(run_until(
+      io, [&] { return master.saw(link_down_abort(kSurfaceNodeA)); }, 5s));
+  const auto aborted_after = std::chrono::steady_clock::now() - sent_at;
+  EXPECT_GE(aborted_after, 1600ms);
+  EXPECT_LT(aborted_after, 2000ms);
+  EXPECT_TRUE(a->connected());
+  EXPECT_EQ(surface.counters().sdo_aborted_overdue, 1u);
+  EXPECT_EQ(surface.counters().sdo_aborted, 0u);  // no link went down
+  // The node answers after all: too late, never passed to the master.
+  ASSERT_TRUE(a->node().send(sdo_response(kLocal, 1)));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().sdo_late_responses_dropped == 1; }));
+  EXPECT_EQ(master.count(0x580 + kSurfaceNodeA), 1u);
+}
+
 }  // namespace
 }  // namespace canbridge::bridge
 
