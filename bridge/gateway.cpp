@@ -26,28 +26,6 @@ std::chrono::nanoseconds steady_to_unix_offset() {
       std::chrono::steady_clock::now().time_since_epoch());
 }
 
-v1::NodeEvent::Kind to_proto(NodeEvent::Kind kind) {
-  switch (kind) {
-    case NodeEvent::Kind::discovered:
-      return v1::NodeEvent::DISCOVERED;
-    case NodeEvent::Kind::booted:
-      return v1::NodeEvent::BOOTED;
-    case NodeEvent::Kind::state_changed:
-      return v1::NodeEvent::STATE_CHANGED;
-    case NodeEvent::Kind::lost:
-      return v1::NodeEvent::LOST;
-    case NodeEvent::Kind::recovered:
-      return v1::NodeEvent::RECOVERED;
-    case NodeEvent::Kind::renamed:
-      return v1::NodeEvent::RENAMED;
-    case NodeEvent::Kind::rename_unconfirmed:
-      return v1::NodeEvent::RENAME_UNCONFIRMED;
-    case NodeEvent::Kind::loader_booted:
-      return v1::NodeEvent::LOADER_BOOTED;
-  }
-  return v1::NodeEvent::KIND_UNSPECIFIED;
-}
-
 std::vector<GatewayPdopWork::Module> pdop_modules_of(const std::vector<GatewayModule>& modules) {
   std::vector<GatewayPdopWork::Module> pdop;
   for (const GatewayModule& m : modules) {
@@ -60,6 +38,12 @@ std::vector<GatewayRemote::Module> remote_modules_of(const std::vector<GatewayMo
   std::vector<GatewayRemote::Module> remote;
   for (const GatewayModule& m : modules) remote.push_back({m.id, m.lss});
   return remote;
+}
+
+std::vector<ModuleId> module_ids_of(const std::vector<GatewayModule>& modules) {
+  std::vector<ModuleId> ids;
+  for (const GatewayModule& m : modules) ids.push_back(m.id);
+  return ids;
 }
 }  // namespace
 
@@ -74,6 +58,7 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       remote_(map_, node_table_, remote_modules_of(modules_), remote,
               [this](std::size_t m, canopen::NodeId node) { return sdo_.transfer_open(m, node); }),
       deadlines_(executor_),
+      reports_(map_, node_table_, module_ids_of(modules_), tuning.outbox.max_node_event_payloads),
       pdop_(map_, pdop_modules_of(modules_), name_),
       tuning_(tuning),
       outbox_(tuning_.outbox),
@@ -314,34 +299,22 @@ void Gateway::queue_node_events() {
   follow_node_events();
   events_followed_ = 0;  // node_events_ is emptied below
   if (node_events_.empty()) return;
-  v1::Payload payload;
-  v1::NodeEvents& out = *payload.mutable_node_events();
+  std::string claims;
   if (claims_changed_) {
     // A node moved in the live map: the surface routes its new surface id here from now on, and
     // the next hello carries the same claims.
     identity_.application = encode_claims(claims_of(map_));
-    out.mutable_claims()->ParseFromString(identity_.application);
+    claims = identity_.application;
     claims_changed_ = false;
   }
   for (const NodeEvent& e : node_events_) {
-    const auto m = e.module_index;
-    spdlog::info("gateway {}: {}", name_, to_string(e, modules_[m].id));
+    spdlog::info("gateway {}: {}", name_, to_string(e, modules_[e.module_index].id));
     hint_loader_boot_on_cia301(e);
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
-    v1::NodeEvent& o = *out.add_events();
-    describe_node(m, e.local, e.state, e.boot_count, o);
-    o.set_kind(to_proto(e.kind));
-    o.set_previous_local_node(e.previous_local);
-    o.set_previous_surface_node(e.previous_surface ? e.previous_surface
-                                : e.previous_local ? map_.surface_of(m, e.previous_local)
-                                                   : 0);
   }
-  const std::size_t events = node_events_.size();
-  counters_.node_events += events;
+  if (reports_.queue_events(node_events_, claims)) warn_events_dropped();
   node_events_.clear();
-  bound_node_events();
-  events_out_.push_back({payload.SerializeAsString(), events});
   stream_.wake();
 }
 
@@ -364,68 +337,18 @@ void Gateway::hint_loader_boot_on_cia301(const NodeEvent& e) {
              name_, modules_[e.module_index].id, 0x700u + e.local, e.local, e.local - kLoaderBase);
 }
 
-void Gateway::bound_node_events() {
-  // Bounded: a link down for hours must not grow the queue without end. The oldest go first;
-  // the surface learns the current state from the next events and from the heartbeats. A
-  // snapshot stays (a node that keeps its state sends nothing more): the queue may exceed the
-  // bound by the snapshot's payloads, one per module.
-  if (events_out_.size() < std::max<std::size_t>(tuning_.outbox.max_node_event_payloads, 1)) {
-    return;
-  }
-  const auto oldest = std::find_if(events_out_.begin(), events_out_.end(),
-                                   [](const QueuedEvents& q) { return !q.snapshot; });
-  if (oldest == events_out_.end()) return;
-  counters_.node_events_dropped += oldest->events;
-  events_out_.erase(oldest);
+void Gateway::warn_events_dropped() {
   warn_.warn(Warn::kEventsDropped,
              "gateway: node events dropped: the backbone link is down too long (counted)");
 }
 
-// The fields every node event carries: which node (module, local and surface id) and how it is.
-void Gateway::describe_node(std::size_t m, NodeId local, NmtState state, std::uint32_t boot_count,
-                            v1::NodeEvent& o) const {
-  o.set_module_id(modules_[m].id);
-  o.set_local_node(local);
-  o.set_surface_node(map_.surface_of(m, local));
-  o.set_nmt_state(static_cast<std::uint32_t>(state));
-  o.set_boot_count(boot_count);
-  const NodeRecord* record = node_table_.node(m, local);
-  o.set_in_loader(record && record->loader == LoaderState::in_loader);
-}
-
 void Gateway::queue_node_snapshot(const v1::Hello& surface) {
   snapshot_surface_ = surface.session_id();
-  // A snapshot still queued was for a surface process that never got it: this one supersedes it.
-  std::erase_if(events_out_, [](const QueuedEvents& q) { return q.snapshot; });
-  std::size_t nodes = 0;
-  std::size_t lost = 0;
-  // One payload per module: each stays far below one write (at most 2 x 127 small events).
-  for (std::size_t m = 0; m < modules_.size(); ++m) {
-    v1::Payload payload;
-    v1::NodeEvents& out = *payload.mutable_node_events();
-    node_table_.for_each_known(m, [&](NodeId local, const NodeRecord& record) {
-      // What the discovery of the node in its present state says; a lost node is then lost, as
-      // the surface counts a LOST after it (the last state kept, as in the table).
-      v1::NodeEvent& o = *out.add_events();
-      describe_node(m, local, record.state, record.boot_count, o);
-      o.set_kind(v1::NodeEvent::DISCOVERED);
-      ++nodes;
-      if (record.lost) {
-        v1::NodeEvent& l = *out.add_events();
-        l = o;
-        l.set_kind(v1::NodeEvent::LOST);
-        ++lost;
-      }
-    });
-    if (out.events_size() == 0) continue;
-    const auto events = static_cast<std::size_t>(out.events_size());
-    counters_.node_events += events;
-    bound_node_events();
-    events_out_.push_back({payload.SerializeAsString(), events, true});
-  }
+  const NodeReportQueue::Snapshot sent = reports_.queue_snapshot();
+  if (sent.dropped) warn_events_dropped();
   spdlog::info(
       "gateway {}: surface {} has not heard from this gateway: its {} node(s) sent ({} lost)",
-      name_, backbone::describe_peer(surface), nodes, lost);
+      name_, backbone::describe_peer(surface), sent.nodes, sent.lost);
   stream_.wake();
 }
 
@@ -447,11 +370,10 @@ void Gateway::produce(backbone::PayloadSink& sink) {
   // Results of services the surface asked for: few and small (a flash image goes the other way).
   produce_remote(sink);
   // Events first: they are few, and a master's view of a node should not lag its frames.
-  while (!events_out_.empty()) {
-    std::string& payload = events_out_.front().payload;
-    if (sink.room() < payload.size() + 16 || !sink.reliable_room(payload.size())) break;
-    sink.send_reliable(std::move(payload));
-    events_out_.pop_front();
+  while (std::string* payload = reports_.front()) {
+    if (sink.room() < payload->size() + 16 || !sink.reliable_room(payload->size())) break;
+    sink.send_reliable(std::move(*payload));
+    reports_.pop();
   }
   outbox_.produce(sink);
 }
@@ -691,6 +613,8 @@ GatewayCounters Gateway::counters() const {
     c.bus_refused += w->queue().dropped() + w->refused();
   }
   c.translation = translator_.drops();
+  c.node_events = reports_.counters().events;
+  c.node_events_dropped = reports_.counters().events_dropped;
   c.sdo_values_rewritten = sdo_.counters().values_rewritten;
   c.sdo_values_unmapped = sdo_.counters().values_unmapped;
   c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;

@@ -27,6 +27,7 @@
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/loop_guard.hpp"
 #include "bridge/module_sdo_tracking.hpp"
+#include "bridge/node_report_queue.hpp"
 #include "bridge/role_statistics.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -130,10 +131,8 @@ class Gateway {
   // A surface process the gateway has not reported to (the first ever, a restarted one) learns
   // every node the table knows, in their states now, from these events: behind what is queued.
   void queue_node_snapshot(const v1::Hello& surface);
-  void describe_node(std::size_t module_index, NodeId local, NmtState state,
-                     std::uint32_t boot_count, v1::NodeEvent& out) const;
-  // The bound on queued node event payloads: the oldest goes first, a snapshot never.
-  void bound_node_events();
+  // Said once when the bound on queued node events dropped some.
+  void warn_events_dropped();
   void produce(backbone::PayloadSink& sink);
 
   // Hands the PDOP work's fragments to their modules' BusWriters, each batch whole.
@@ -171,14 +170,7 @@ class Gateway {
   DeadlineDriver deadlines_;
   std::vector<NodeEvent> node_events_;  // of the input being handled
   std::size_t events_followed_ = 0;     // node_events_[0, this) went through follow_rename
-  struct QueuedEvents {
-    std::string payload;  // a serialized NodeEvents payload
-    std::size_t events;
-    // Part of a node table snapshot: never dropped by the bound, since no later event repeats
-    // the state of a node that stays in it.
-    bool snapshot = false;
-  };
-  std::deque<QueuedEvents> events_out_;  // oldest first
+  NodeReportQueue reports_;             // node events and snapshots waiting for the link
   // The surface process (its hello's session id) the node table was last sent to; 0: none yet.
   std::uint64_t snapshot_surface_ = 0;
   GatewayPdopWork pdop_;
