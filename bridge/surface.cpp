@@ -11,6 +11,7 @@
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
 #include "bridge/line_loss_counter.hpp"
+#include "bridge/node_event_text.hpp"
 #include "bridge/role_statistics_fill.hpp"
 #include "bridge/surface_pdop.hpp"
 #include "coro/spawn_owned.hpp"
@@ -474,39 +475,11 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
         table_.speaks_for(from.id, static_cast<canopen::NodeId>(e.surface_node()))) {
       guard_.note_owner(from.id, static_cast<canopen::NodeId>(e.surface_node()));
     }
-    const std::string node = fmt::format("gateway '{}' module {} node {} (surface {})", from.name,
-                                         e.module_id(), e.local_node(), e.surface_node());
-    switch (e.kind()) {
-      case v1::NodeEvent::BOOTED:
-        spdlog::info("surface: {} booted (boot-up {} seen by the gateway)", node, e.boot_count());
-        break;
-      case v1::NodeEvent::STATE_CHANGED:
-        spdlog::info("surface: {} is {}", node, canopen::nmt_state_name(e.nmt_state()));
-        break;
-      case v1::NodeEvent::LOST:
-        spdlog::warn("surface: {} lost: its heartbeat stopped", node);
-        break;
-      case v1::NodeEvent::RECOVERED:
-        spdlog::info("surface: {} is back ({})", node, canopen::nmt_state_name(e.nmt_state()));
-        break;
-      case v1::NodeEvent::RENAMED:
-        spdlog::info("surface: {} renamed from node {} (surface {})", node, e.previous_local_node(),
-                     e.previous_surface_node());
-        break;
-      case v1::NodeEvent::RENAME_UNCONFIRMED:
-        spdlog::warn("surface: {}: set-node-id sent, no boot-up on the new id in time", node);
-        break;
-      case v1::NodeEvent::DISCOVERED:
-        spdlog::info("surface: {} found ({})", node, canopen::nmt_state_name(e.nmt_state()));
-        break;
-      case v1::NodeEvent::LOADER_BOOTED:
-        spdlog::info("surface: {} is in its loader", node);
-        break;
-      default:
-        spdlog::debug("surface: {}: node event of unknown kind {}", node,
-                      static_cast<int>(e.kind()));
-        break;
-    }
+    // Levels in NodeEventLine::Level order.
+    constexpr spdlog::level::level_enum kLevels[] = {spdlog::level::debug, spdlog::level::info,
+                                                     spdlog::level::warn};
+    const NodeEventLine line = node_event_line(from.name, e);
+    spdlog::log(kLevels[static_cast<int>(line.level)], "surface: {}", line.text);
   }
 }
 
