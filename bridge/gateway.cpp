@@ -40,6 +40,12 @@ std::vector<GatewayRemote::Module> remote_modules_of(const std::vector<GatewayMo
   return remote;
 }
 
+// How long after start the loader census waits: every node running its application has sent a
+// heartbeat by then (producer times are rarely above 1 s), so only silent ids are asked.
+constexpr std::chrono::milliseconds kLoaderCensusAfter{2000};
+// A loader answers the census at once; an absent node never does.
+constexpr std::chrono::milliseconds kLoaderCensusTimeout{200};
+
 std::vector<ModuleId> module_ids_of(const std::vector<GatewayModule>& modules) {
   std::vector<ModuleId> ids;
   for (const GatewayModule& m : modules) ids.push_back(m.id);
@@ -75,6 +81,13 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       [this](DeadlineDriver::TimePoint now) {
         node_table_.tick(now, node_events_);
         queue_node_events();
+      });
+  deadlines_.add(
+      "loader census", [this] { return loader_census_at_; },
+      [this](DeadlineDriver::TimePoint now) {
+        loader_census_at_.reset();
+        probe_unknown_qd_nodes(now);
+        after_remote_input();
       });
   deadlines_.add(
       "remote services", [this] { return remote_.next_deadline(); },
@@ -166,8 +179,30 @@ void Gateway::start() {
     });
     writers_[m]->start();
   }
+  // A qd node that entered its loader before the gateway started announced it to nobody, and a
+  // loader sends nothing on its own: the census asks the ids still unknown once the others have
+  // been heard.
+  const bool has_qd = std::any_of(map_.modules().begin(), map_.modules().end(),
+                                  [](const auto& m) { return m.profile == IdProfile::qd; });
+  if (has_qd) loader_census_at_ = DeadlineDriver::Clock::now() + kLoaderCensusAfter;
   coro::spawn_owned(executor_, deadlines_.run(),
                     [this](const std::string& why) { on_task_end("deadline driver", why); });
+}
+
+void Gateway::probe_unknown_qd_nodes(DeadlineDriver::TimePoint now) {
+  for (std::size_t m = 0; m < map_.modules().size(); ++m) {
+    if (map_.modules()[m].profile != IdProfile::qd) continue;
+    std::vector<NodeId> unknown;
+    for (NodeId local = 1; local <= max_node_id(IdProfile::qd); ++local) {
+      if (map_.surface_of(m, local) != 0 && node_table_.node(m, local) == nullptr) {
+        unknown.push_back(local);
+      }
+    }
+    if (unknown.empty()) continue;
+    spdlog::info("gateway {}: module {}: asking {} silent id(s) whether they wait in their loader",
+                 name_, modules_[m].id, unknown.size());
+    remote_.probe_loaders(m, unknown, kLoaderCensusTimeout, now);
+  }
 }
 
 // A gateway with one loop gone is up but deaf to a bus (or blind to its node table): worse than
@@ -205,6 +240,14 @@ void Gateway::after_remote_input() {
     }
   }
   remote_.bus_frames().clear();
+  // The census's finds: listed like nodes that booted into their loader.
+  if (const auto found = remote_.take_found_in_loader(); !found.empty()) {
+    const auto now = NodeTable::Clock::now();
+    for (const GatewayRemote::FoundInLoader& f : found) {
+      node_table_.on_found_in_loader(f.module_index, f.local, now, node_events_);
+    }
+    queue_node_events();
+  }
   deadlines_.reschedule();
   stream_.wake();
 }

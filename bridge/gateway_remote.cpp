@@ -305,8 +305,34 @@ std::size_t GatewayRemote::pending() const {
   return n;
 }
 
+void GatewayRemote::probe_loaders(std::size_t module_index,
+                                  const std::vector<canopen::NodeId>& locals,
+                                  std::chrono::milliseconds timeout, TimePoint now) {
+  if (module_index >= modules_.size()) return;
+  for (const canopen::NodeId local : locals) {
+    v1::RemoteRequest r;
+    r.set_request_id(kProbeIdBit | ++probes_sent_);
+    r.set_module_id(modules_[module_index].id);
+    r.set_local_node(local);
+    r.set_timeout_ms(static_cast<std::uint32_t>(timeout.count()));
+    r.mutable_sdo()->set_upload(true);
+    r.mutable_sdo()->set_index(canopen::firmware_objects::flash_status);
+    r.mutable_sdo()->set_subindex(1);
+    probes_[r.request_id()] = {module_index, local};
+    on_request(r, now);
+  }
+}
+
 void GatewayRemote::answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
                            std::string data) {
+  if ((id & kProbeIdBit) != 0) {  // probe_loaders(): the gateway's own question
+    if (const auto probe = probes_.find(id); probe != probes_.end()) {
+      if (abort_code == 0) found_in_loader_.push_back(probe->second);
+      probes_.erase(probe);
+    }
+    remember(id);
+    return;
+  }
   v1::RemoteResult& r = results_.emplace_back();
   r.set_request_id(id);
   r.set_abort_code(abort_code);

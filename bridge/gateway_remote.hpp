@@ -81,6 +81,20 @@ class GatewayRemote {
   // from the surface master to it must not reach the bus (the gateway answers it with an abort).
   bool transferring(std::size_t module_index, canopen::NodeId local) const;
 
+  // Asks each of `locals` on module `module_index` whether it waits in its qd loader, with the
+  // flash probe's upload of 1F57h:01 (a loader answers it; an application says the object does
+  // not exist): for nodes the gateway has not heard from since it started, which may have entered
+  // their loader before it and stay silent there. Each waits for a master's open transfer with
+  // the node, as any transfer of the gateway does, and gives up after `timeout`. What the loaders
+  // answered comes out of take_found_in_loader(); nothing reaches the surface.
+  void probe_loaders(std::size_t module_index, const std::vector<canopen::NodeId>& locals,
+                     std::chrono::milliseconds timeout, TimePoint now);
+  struct FoundInLoader {
+    std::size_t module_index = 0;
+    canopen::NodeId local = 0;
+  };
+  std::vector<FoundInLoader> take_found_in_loader() { return std::exchange(found_in_loader_, {}); }
+
   // Output, taken by the gateway.
   std::vector<BusFrames>& bus_frames() { return bus_frames_; }
   bool has_results() const { return !results_.empty(); }
@@ -159,6 +173,12 @@ class GatewayRemote {
   std::unordered_set<std::uint64_t> finished_;
   std::deque<std::uint64_t> finished_order_;  // oldest first, at most kRememberedIds
   std::size_t flashes_running_ = 0;           // bus frames are shown to every running flash
+  // probe_loaders(): its requests' ids (kProbeIdBit set: the surface's ids never reach it) and
+  // the node each asks.
+  static constexpr std::uint64_t kProbeIdBit = std::uint64_t{1} << 63;
+  std::uint64_t probes_sent_ = 0;
+  std::map<std::uint64_t, FoundInLoader> probes_;
+  std::vector<FoundInLoader> found_in_loader_;
   Counters counters_;
 };
 

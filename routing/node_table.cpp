@@ -267,6 +267,26 @@ void NodeTable::on_loader_boot_up(std::size_t module_index, NodeId local, TimePo
               LoaderState::in_loader, now, out);
 }
 
+void NodeTable::on_found_in_loader(std::size_t module_index, NodeId local, TimePoint now,
+                                   std::vector<NodeEvent>& out) {
+  if (module_index >= modules_.size()) return;
+  Module& m = modules_[module_index];
+  if (m.profile != IdProfile::qd || local == 0 || local >= m.slots.size()) return;
+  Slot& s = m.slots[local];
+  NodeRecord& r = s.record;
+  if (r.known) return;
+  r = NodeRecord{};
+  r.known = true;
+  r.state = NmtState::boot_up;
+  r.loader = LoaderState::in_loader;
+  r.last_seen = now;
+  forget_gaps(s);
+  s.timing = false;
+  s.heartbeat_off = false;
+  set_deadline(s, due(m, s));
+  out.push_back(event(NodeEvent::Kind::discovered, module_index, local, r, now));
+}
+
 void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::Kind kind,
                             NmtState state, LoaderState loader, TimePoint now,
                             std::vector<NodeEvent>& out) {

@@ -168,6 +168,13 @@ class NodeTable {
   // (never reported lost) until it is heard again. False when the node is not in the table.
   bool note_heartbeat_time(std::size_t module_index, NodeId local,
                            std::chrono::milliseconds producer_time);
+  // The gateway found the node waiting in its qd loader (the loader answered its probe of
+  // 1F57h:01) without having heard the loader's boot-up: it booted before the gateway started, and
+  // a loader sends nothing on its own. Recorded in the loader (not watched, as after a loader
+  // boot-up, but with no boot counted) and reported discovered; nothing for a node the table knows
+  // (it was heard meanwhile, and that says more).
+  void on_found_in_loader(std::size_t module_index, NodeId local, TimePoint now,
+                          std::vector<NodeEvent>& out);
 
   // Reports the nodes silent for their lost_after (`lost`) and the pending renames whose window
   // ended (`rename_unconfirmed`, before any `lost` of the same tick).

@@ -513,6 +513,31 @@ TEST(GatewayRemote, ACorruptImageFailsNamingTheStepAndLeavesTheNodeInItsLoader) 
   EXPECT_EQ(rig.results.size(), 1u);
 }
 
+// Issue 28, the loader census: of the ids asked, the node in its loader is found, the one
+// running its application (it has no 1F57h) and the absent one are not; nothing of it reaches the
+// surface or the results.
+TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
+  sim::NodeSpec stuck = node_spec(4, sim::NodeKind::qd);
+  stuck.loader.application_valid = false;  // stays in its loader from power-on
+  Rig rig({stuck, node_spec(5, sim::NodeKind::qd)}, {}, IdProfile::qd);
+  rig.advance(10ms);
+  ASSERT_TRUE(rig.node(4).in_loader());
+  ASSERT_FALSE(rig.node(5).in_loader());
+  rig.core->probe_loaders(0, {4, 5, 6}, 200ms, rig.now);
+  rig.run();
+  for (int i = 0; i < 5; ++i) rig.advance(100ms);  // node 6 never answers
+  const auto found = rig.core->take_found_in_loader();
+  ASSERT_EQ(found.size(), 1u);
+  EXPECT_EQ(found[0].module_index, 0u);
+  EXPECT_EQ(found[0].local, 4);
+  EXPECT_TRUE(rig.core->take_found_in_loader().empty());  // taken once
+  EXPECT_TRUE(rig.results.empty());
+  for (const Frame& f : rig.surface) {
+    EXPECT_FALSE(is_sdo_response_of(f, 4) || is_sdo_response_of(f, 5)) << f.id;
+  }
+  EXPECT_EQ(rig.core->pending(), 0u);
+}
+
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
 // (its own PeerStream over an in-memory link) that sends RemoteRequest payloads and frames.
 class GatewayWithScriptedSurface : public ::testing::Test {

@@ -435,6 +435,39 @@ TEST(NodeTable, QdLoaderBootUpRecordsLoaderStateForTheNode) {
   EXPECT_EQ(rig.table.node(m, 6)->loader, LoaderState::in_application);
 }
 
+// The gateway's loader census found a node waiting in its loader since before the gateway
+// started: recorded there, discovered, no boot counted, not watched; a node the table knows, or
+// one on a cia301 module, is left alone.
+TEST(NodeTable, ANodeFoundInItsLoaderIsRecordedThereOnce) {
+  Rig rig;
+  const auto qd = rig.table.add_module(IdProfile::qd);
+  const auto cia301 = rig.table.add_module(IdProfile::cia301);
+  Events found;
+  rig.table.on_found_in_loader(qd, 7, t0, found);
+  ASSERT_EQ(kinds(found), std::vector<Kind>{Kind::discovered});
+  EXPECT_EQ(found[0].local, 7);
+  const NodeRecord* r = rig.table.node(qd, 7);
+  ASSERT_NE(r, nullptr);
+  EXPECT_EQ(r->loader, LoaderState::in_loader);
+  EXPECT_EQ(r->state, NmtState::boot_up);
+  EXPECT_EQ(r->loader_boot_count, 0u);
+  EXPECT_EQ(r->boot_count, 0u);
+  EXPECT_EQ(rig.table.counts(qd), (NodeCounts{.in_loader = 1}));
+  EXPECT_FALSE(rig.table.next_deadline());
+  // Heard meanwhile, or known already: the table keeps what it heard.
+  rig.bus(qd, heartbeat(8, kOp), t0);
+  found.clear();
+  rig.table.on_found_in_loader(qd, 8, t0, found);
+  rig.table.on_found_in_loader(qd, 7, t0, found);
+  rig.table.on_found_in_loader(cia301, 7, t0, found);
+  EXPECT_TRUE(found.empty());
+  EXPECT_EQ(rig.table.node(qd, 8)->loader, LoaderState::in_application);
+  EXPECT_EQ(rig.table.node(cia301, 7), nullptr);
+  // Its application's boot-up moves it out, as after a loader boot-up.
+  ASSERT_EQ(kinds(rig.bus(qd, boot_up(7), t0 + 1s)), std::vector<Kind>{Kind::booted});
+  EXPECT_EQ(r->loader, LoaderState::in_application);
+}
+
 TEST(NodeTable, QdSlotsOtherThanTheLoaderBootUpAreNoNodes) {
   Rig rig;
   const auto m = rig.table.add_module(IdProfile::qd);

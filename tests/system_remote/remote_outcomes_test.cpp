@@ -15,6 +15,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <regex>
 #include <set>
 #include <string>
 #include <string_view>
@@ -277,6 +278,60 @@ TEST_F(RemoteOutcomes, AGatewayKilledWithWritesInFlightLeavesNoFailureThatWasDon
       EXPECT_FALSE(is_write_of(e.frame, kFirst + i))
           << "write " << i + 1 << " ran in the new gateway process, after its answer";
     }
+  }
+}
+
+// Issue 28, "loader nodes are listed": a qd node that entered its loader before the gateway
+// started announced it to nobody that is still there, and a loader sends nothing on its own. The
+// new gateway's census asks the ids it has not heard from (an upload of 1F57h:01, which only the
+// loader has) and lists the node in its loader. Fails without the census (Gateway::start() never
+// setting loader_census_at_): the node list never shows local 1.
+TEST_F(RemoteOutcomes, ANodeWaitingInItsLoaderBeforeTheGatewayStartedIsListed) {
+  BusLog vcan2("vcan2");
+  // Net 3 node 1 (qd-a) stops its program: its loader announces itself and stays (seeds/003).
+  const std::string stop = client_->ask("[1] 3 1 w 0x1F51 1 u8 0", kEvent);
+  ASSERT_EQ(stop, "[1] OK");
+  ASSERT_TRUE(vcan2.wait_for(
+      0, [](const Frame& f) { return f == Frame::standard(0x721, {0x00}); }, kEvent))
+      << "no loader boot-up";
+  // A new gateway process: it never heard that boot-up.
+  ASSERT_EQ(processes_->gateway->stop(), 0) << processes_->gateway->output();
+  const std::size_t restarted_at = vcan2.mark();
+  ASSERT_NO_FATAL_FAILURE(processes_->restart_gateway());
+  ASSERT_TRUE(processes_->gateway->wait_for_line("wait in their loader", kEvent))
+      << processes_->gateway->output();
+  // The probe on the module bus, as candump would show it: node 1 is asked, and answers with its
+  // flash status; node 2, which beats, is not asked.
+  const auto asked = [](std::uint32_t node) {
+    return [node](const Frame& f) {
+      return f.id == 0x600u + node && f.len == 8 && f.data[0] == 0x40 && f.data[1] == 0x57 &&
+             f.data[2] == 0x1F && f.data[3] == 0x01;
+    };
+  };
+  ASSERT_TRUE(vcan2.wait_for(restarted_at, asked(1), kEvent));
+  ASSERT_TRUE(vcan2.wait_for(
+      restarted_at,
+      [](const Frame& f) {
+        return f.id == 0x581 && f.len == 8 && f.data[0] == 0x43 && f.data[1] == 0x57;
+      },
+      kEvent))
+      << "the loader did not answer";
+  // The node list shows it in its loader (the surface learns it from the new gateway's events).
+  const std::regex loader_row(
+      "node net=3 module=2 gateway=remote-gateway local=1 surface=5 \\S+ \\S+ state=loader ");
+  bool listed = false;
+  std::string all;
+  const auto until = std::chrono::steady_clock::now() + kEvent;
+  for (int n = 10; !listed && std::chrono::steady_clock::now() < until; ++n) {
+    const std::string seq = "[" + std::to_string(n) + "]";
+    client_->send(seq + " 3 nodes\n");
+    all.clear();
+    for (const auto& l : client_->lines_until(seq + " OK", kEvent)) all += l + "\n";
+    listed = std::regex_search(all, loader_row);
+  }
+  EXPECT_TRUE(listed) << all << processes_->gateway->output();
+  for (const BusLog::Entry& e : vcan2.entries(restarted_at)) {
+    EXPECT_FALSE(asked(2)(e.frame)) << "a beating node was asked";
   }
 }
 
