@@ -17,6 +17,8 @@ constexpr std::uint8_t kTagKeepalive = (v1::Envelope::kKeepaliveFieldNumber << 3
 constexpr std::uint8_t kTagPayload = (v1::Envelope::kPayloadFieldNumber << 3) | 2;
 constexpr std::uint8_t kTagMissing = (v1::Envelope::kMissingFieldNumber << 3) | 2;  // packed
 constexpr std::uint8_t kTagUnreliableSeq = (v1::Envelope::kUnreliableSeqFieldNumber << 3) | 0;
+// Keepalive.sent_through, inside the Keepalive body.
+constexpr std::uint8_t kTagSentThrough = (v1::Keepalive::kSentThroughFieldNumber << 3) | 0;
 
 // Bytes of a varint field (tag + value), or 0 when the value is the default and left out.
 std::size_t varint_field_size(std::uint64_t value) {
@@ -83,12 +85,15 @@ void append_payload_envelope(std::string& out, const EnvelopeHeader& header,
   std::copy(payload.begin(), payload.end(), p);
 }
 
-void append_keepalive_envelope(std::string& out, const EnvelopeHeader& header) {
+void append_keepalive_envelope(std::string& out, const EnvelopeHeader& header,
+                               std::uint64_t sent_through) {
   const std::size_t missing_len = missing_bytes(header.missing);
-  const std::size_t size = header_size(header, missing_len) + 2;
+  const std::size_t body = varint_field_size(sent_through);  // 0: an empty Keepalive
+  const std::size_t size = header_size(header, missing_len) + 1 + varint_size(body) + body;
   std::uint8_t* p = open_envelope(out, header, missing_len, size);
   *p++ = kTagKeepalive;
-  *p = 0;  // an empty Keepalive message
+  p = write_varint(body, p);
+  put_varint_field(kTagSentThrough, sent_through, p);
 }
 
 }  // namespace canbridge::backbone

@@ -22,8 +22,9 @@ struct EnvelopeHeader {
 void append_payload_envelope(std::string& out, const EnvelopeHeader& header,
                              std::span<const std::uint8_t> payload);
 
-// Appends one delimited envelope whose body is an empty Keepalive (it carries the header: an ack,
-// a resend request).
-void append_keepalive_envelope(std::string& out, const EnvelopeHeader& header);
+// Appends one delimited envelope whose body is a Keepalive (it carries the header: an ack, a
+// resend request) naming the highest reliable seq written so far (`sent_through`, 0: none).
+void append_keepalive_envelope(std::string& out, const EnvelopeHeader& header,
+                               std::uint64_t sent_through = 0);
 
 }  // namespace canbridge::backbone

@@ -20,8 +20,9 @@ inline constexpr std::uint32_t kProtocolMajor = 2;
 // 1: a second application payload kind; 2: PDO Packets (three more kinds); 3: Hello.application
 // (a gateway's claims, checked by the surface); 4: Envelope.auth (the serial challenge-response
 // before the hellos, then sealed envelopes); 5: remote access (RemoteRequest and its answers);
-// 6: FrameBatch.head_runs (bridge::kHeadRunsMinor)
-inline constexpr std::uint32_t kProtocolMinor = 6;
+// 6: FrameBatch.head_runs (bridge::kHeadRunsMinor); 7: Keepalive.sent_through (a lost tail is
+// asked for at the next keepalive)
+inline constexpr std::uint32_t kProtocolMinor = 7;
 
 struct SessionOptions {
   // Nothing sent for this long: send a keepalive (it carries the current ack).

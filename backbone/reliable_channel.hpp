@@ -6,6 +6,7 @@
 // Pure: no I/O, no timers; time is passed in by the caller.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -185,7 +186,9 @@ class ReliableSender {
   }
 
   std::uint64_t send_base() const { return send_base_; }  // oldest unacked, or next_seq() if none
-  std::uint64_t next_seq() const { return next_seq_; }    // seq the next push() gets
+  // The highest seq handed out so far, on any link (0: none yet).
+  std::uint64_t highest_sent() const { return highest_sent_; }
+  std::uint64_t next_seq() const { return next_seq_; }  // seq the next push() gets
   std::size_t unacked_count() const { return static_cast<std::size_t>(next_seq_ - send_base_); }
   std::size_t unacked_bytes() const { return unacked_bytes_; }
   // Whether next_to_send() would hand out a message now.
@@ -301,8 +304,15 @@ class ReliableReceiver {
   std::uint64_t first_missing() const { return expected_; }
   // The highest seq seen since the last reset, delivered or not (cumulative_ack() if none).
   std::uint64_t highest_seen() const { return highest_seen_; }
-  // Something after first_missing() has arrived (buffered or dropped), so first_missing() is lost.
+  // Something after first_missing() has arrived (buffered or dropped), or the peer said it sent
+  // it (note_sent_through), so first_missing() is lost.
   bool has_gap() const { return highest_seen_ >= expected_; }
+  // The peer says it has sent every seq up to `seq` (its keepalive): what of that never arrived is
+  // missing, the tail included, which no later message would show as a gap. Bounded by the
+  // reorder window, so a bogus value cannot make the receiver ask for seqs without end.
+  void note_sent_through(std::uint64_t seq) {
+    highest_seen_ = std::max(highest_seen_, std::min(seq, expected_ + max_buffered_messages_));
+  }
 
   // Up to `max_count` seqs, ascending from first_missing(), that are neither delivered nor
   // buffered although a later seq has arrived, within the reorder window (what lies beyond it

@@ -187,6 +187,7 @@ void SessionCore::on_message(std::span<const std::uint8_t> bytes, TimePoint now)
   if (!peer_hello_ok_ || !ready_) return before_ready(now);
   bool wake = on_acks(now);
   if (inbound_.body_case() == v1::Envelope::kPayload) wake = on_payload(now) || wake;
+  if (inbound_.body_case() == v1::Envelope::kKeepalive) wake = on_keepalive(now) || wake;
   // A side that spends seconds on one large read (thousands of frames to write) does not tick
   // meanwhile: its keepalive must not wait for the tick, or the peer declares it dead.
   wake = keepalive_due(now) || wake;
@@ -289,6 +290,17 @@ bool SessionCore::on_acks(TimePoint now) {
     }
   }
   return wake;
+}
+
+// A keepalive names the last reliable seq the peer wrote: a tail lost on the line (nothing came
+// after it to show a gap) is asked for now, not after the peer's retransmission timeout.
+bool SessionCore::on_keepalive(TimePoint now) {
+  ReliableReceiver& receiver = stream_->receiver_;
+  receiver.note_sent_through(inbound_.keepalive().sent_through());
+  if (!receiver.should_request_resend(now, resend_interval())) return false;
+  ++counters_.resend_requests;
+  resend_owed_ = true;
+  return true;
 }
 
 // Delivers the payload; true when an ack or resend request may be owed.
@@ -801,7 +813,7 @@ void SessionCore::fill_stream(std::string& out, TimePoint now) {
   writer.drain_reliable();
   if (writer.room() > 0 && stream_->handlers_.produce) stream_->handlers_.produce(writer);
   if (resend_owed_ || (!writer.wrote() && (ack_owed_ || keepalive_owed_))) {
-    append_keepalive_envelope(out, next_header(0, 0));
+    append_keepalive_envelope(out, next_header(0, 0), stream_->sender_.highest_sent());
     ++counters_.keepalives_sent;
   }
   if (writer.wrote()) {

@@ -100,6 +100,8 @@ class SessionCore {
   void before_ready(TimePoint now);
   bool on_acks(TimePoint now);
   bool on_payload(TimePoint now);
+  // A keepalive's sent_through; true when a resend request is owed.
+  bool on_keepalive(TimePoint now);
   void on_reliable_payload(std::span<const std::uint8_t> view, TimePoint now);
   void on_unreliable_payload(std::span<const std::uint8_t> view);
   void deliver_reliable(std::span<const std::uint8_t> payload);

@@ -95,6 +95,19 @@ TEST(EnvelopeCodec, KeepaliveEnvelopesParseAsWritten) {
   }
 }
 
+// Keepalive.sent_through: written inside the Keepalive body, byte for byte as protobuf would.
+TEST(EnvelopeCodec, AKeepaliveCarriesTheLastSeqWritten) {
+  for (const std::uint64_t sent : {std::uint64_t{1}, std::uint64_t{300}, std::uint64_t{1} << 40}) {
+    std::string out;
+    append_keepalive_envelope(out, {.ack = 7}, sent);
+    const v1::Envelope e = parse_one(out);
+    ASSERT_EQ(e.body_case(), v1::Envelope::kKeepalive);
+    EXPECT_EQ(e.keepalive().sent_through(), sent);
+    EXPECT_EQ(e.ack(), 7u);
+    EXPECT_EQ(out.size(), by_protobuf(e).size());
+  }
+}
+
 TEST(EnvelopeCodec, EnvelopesFollowEachOtherOnOneStream) {
   std::string stream;
   const std::string payload(200, 'p');

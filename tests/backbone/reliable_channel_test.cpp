@@ -611,6 +611,26 @@ TEST(ReliableReceiver, BuffersAfterAGapAndDrainsInOrderOnceItIsFilled) {
   EXPECT_EQ(receiver.counters().gaps, 0u);
 }
 
+// The peer's keepalive names the last seq it sent: a lost tail becomes a gap that can be asked
+// for; a value at or below what arrived changes nothing, a bogus one stays within the window.
+TEST(ReliableReceiver, ATailThePeerSaysItSentIsMissing) {
+  ReliableReceiver receiver(8, 1024);
+  const auto t = ReliableReceiver::TimePoint{} + std::chrono::hours(1);
+  ASSERT_EQ(receiver.accept(1, "a"), ReliableReceiver::Verdict::deliver);
+  receiver.note_sent_through(1);
+  EXPECT_FALSE(receiver.has_gap());
+  EXPECT_FALSE(receiver.should_request_resend(t, std::chrono::milliseconds(100)));
+  receiver.note_sent_through(3);  // 2 and 3 were lost on the line
+  EXPECT_TRUE(receiver.has_gap());
+  EXPECT_EQ(receiver.missing(10), (std::vector<std::uint64_t>{2, 3}));
+  EXPECT_TRUE(receiver.should_request_resend(t, std::chrono::milliseconds(100)));
+  ASSERT_EQ(receiver.accept(2, "b"), ReliableReceiver::Verdict::deliver);
+  ASSERT_EQ(receiver.accept(3, "c"), ReliableReceiver::Verdict::deliver);
+  EXPECT_FALSE(receiver.has_gap());
+  receiver.note_sent_through(std::uint64_t{1} << 60);  // bogus: no further than the window
+  EXPECT_EQ(receiver.missing(100).size(), 9u);  // the expected seq and the window of 8 after it
+}
+
 TEST(ReliableReceiver, DropsDuplicatesOfDeliveredAndOfBufferedMessages) {
   ReliableReceiver receiver;
   ASSERT_EQ(receiver.accept(1, "m1"), Verdict::deliver);

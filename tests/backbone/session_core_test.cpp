@@ -565,7 +565,10 @@ TEST_F(SessionCoreTest, GapsAreRepairedBySelectiveRetransmission) {
   EXPECT_EQ(gateway.stream.sender().unacked_count(), 0u);
 }
 
-TEST_F(SessionCoreTest, ALostTailIsResentAfterTheRetransmitTimeout) {
+// The sender's keepalive names the last seq it wrote (Keepalive.sent_through): a tail lost on the
+// line is asked for at the next keepalive, not one retransmission timeout later. On a 115200 bit/s
+// line with a 1-s timeout that second decided whether an SDO answer reached its master in time.
+TEST_F(SessionCoreTest, ALostTailIsAskedForAtTheSendersNextKeepalive) {
   connect();
   bool lose = true;
   lose_to_surface = [&](const v1::Envelope& e) { return lose && is_data(e) && e.seq() >= 3; };
@@ -573,6 +576,27 @@ TEST_F(SessionCoreTest, ALostTailIsResentAfterTheRetransmitTimeout) {
   exchange();
   EXPECT_EQ(surface.received, range(1, 2));  // no gap is visible: nothing came after 3, 4
   lose = false;
+  advance(test_options().keepalive_interval + 2 * gateway.core->tick_period());
+  EXPECT_LT(test_options().keepalive_interval + 2 * gateway.core->tick_period(),
+            test_options().retransmit_timeout);
+  EXPECT_EQ(surface.received, range(1, 4));
+  EXPECT_GE(surface.counters.resend_requests, 1u);
+  EXPECT_EQ(gateway.counters.reliable_resent, 2u);  // 3 and 4, each once
+  EXPECT_EQ(surface.counters.reliable_duplicates, 0u);
+}
+
+// Without a keepalive that tells of it (an older peer, or its keepalives lost too), the sender's
+// retransmission timeout still brings the tail.
+TEST_F(SessionCoreTest, ALostTailIsResentAfterTheRetransmitTimeout) {
+  connect();
+  bool lose_data = true;
+  lose_to_surface = [&](const v1::Envelope& e) {
+    return (lose_data && is_data(e) && e.seq() >= 3) || e.has_keepalive();
+  };
+  gateway.send(1, 4);
+  exchange();
+  EXPECT_EQ(surface.received, range(1, 2));
+  lose_data = false;
   const auto rto = test_options().retransmit_timeout;
   advance(rto - 2 * gateway.core->tick_period());
   EXPECT_EQ(gateway.counters.reliable_resent, 0u);
@@ -592,6 +616,8 @@ TEST_F(SessionCoreTest, ReliablePayloadsOlderThanMaxAgeBecomeTombstones) {
   lose_to_surface = [&](const v1::Envelope& e) { return lose && is_data(e) && e.seq() >= 2; };
   gateway.send(1, 3);
   exchange();
+  // Every try lost until they are too old (the keepalive's request for them included).
+  advance(o.reliable_max_age + gateway.core->tick_period());
   lose = false;
   advance(o.retransmit_timeout + gateway.core->tick_period());
   EXPECT_EQ(surface.received, std::vector<std::uint64_t>{1});  // 2 and 3 were never delivered
