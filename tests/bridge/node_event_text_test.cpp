@@ -34,6 +34,10 @@ TEST(NodeEventText, EachKindSaysWhatHappened) {
   EXPECT_EQ(node_event_line("g", event(v1::NodeEvent::STATE_CHANGED)).text,
             "gateway 'g' module 2 node 5 (surface 69) is operational");
   EXPECT_EQ(node_event_line("g", event(v1::NodeEvent::LOADER_BOOTED)).level, Level::info);
+  v1::NodeEvent census = event(v1::NodeEvent::DISCOVERED);  // the gateway's loader census
+  census.set_in_loader(true);
+  EXPECT_EQ(node_event_line("g", census).text,
+            "gateway 'g' module 2 node 5 (surface 69) found waiting in its loader");
   EXPECT_EQ(node_event_line("g", event(v1::NodeEvent::RENAME_UNCONFIRMED)).level, Level::warning);
 }
 
