@@ -59,7 +59,11 @@ void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) 
     ++counters_.duplicates;
     return;
   }
-  ++counters_.requests;
+  if ((id & kProbeIdBit) != 0) {
+    ++counters_.loader_probes;  // the gateway's own question, not the surface's request
+  } else {
+    ++counters_.requests;
+  }
   if (request.op_case() == v1::RemoteRequest::kNodes) {
     answer_nodes(request, now);
     return;

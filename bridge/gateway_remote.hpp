@@ -47,6 +47,7 @@ class GatewayRemote {
 
   struct Counters {
     std::uint64_t requests = 0;           // requests taken (duplicates not counted)
+    std::uint64_t loader_probes = 0;      // probe_loaders() questions (not in `requests`)
     std::uint64_t failed = 0;             // results with an abort code (cancelled ones included)
     std::uint64_t cancelled = 0;          // answered "cancelled"
     std::uint64_t duplicates = 0;         // repeated request ids: answered with nothing

@@ -532,6 +532,8 @@ TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
   EXPECT_EQ(found[0].local, 4);
   EXPECT_TRUE(rig.core->take_found_in_loader().empty());  // taken once
   EXPECT_TRUE(rig.results.empty());
+  EXPECT_EQ(rig.core->counters().loader_probes, 3u);
+  EXPECT_EQ(rig.core->counters().requests, 0u);  // the surface asked nothing
   for (const Frame& f : rig.surface) {
     EXPECT_FALSE(is_sdo_response_of(f, 4) || is_sdo_response_of(f, 5)) << f.id;
   }
