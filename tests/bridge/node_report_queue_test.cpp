@@ -13,7 +13,7 @@ namespace canbridge::bridge {
 namespace {
 
 using namespace std::chrono_literals;
-const NodeTable::TimePoint t0 = NodeTable::TimePoint{} + 1000s;
+const NodeTable::TimePoint kHeardAt = NodeTable::TimePoint{} + 1000s;
 
 class NodeReportQueueTest : public ::testing::Test {
  protected:
@@ -45,7 +45,7 @@ class NodeReportQueueTest : public ::testing::Test {
 };
 
 TEST_F(NodeReportQueueTest, AnEventCarriesTheModuleBothIdsAndTheNodesState) {
-  const std::vector<NodeEvent> events = hear(3, 0x05, t0);
+  const std::vector<NodeEvent> events = hear(3, 0x05, kHeardAt);
   ASSERT_FALSE(events.empty());
   EXPECT_FALSE(queue.queue_events(events, ""));
   const v1::NodeEvents sent = take();
@@ -79,11 +79,11 @@ TEST_F(NodeReportQueueTest, ARenameNamesThePreviousIdsAndNewClaimsRideAlong) {
 }
 
 TEST_F(NodeReportQueueTest, ASnapshotReportsEveryKnownNodeAndALostOneAsLost) {
-  (void)hear(1, 0x05, t0);
-  (void)hear(2, 0x7F, t0);
+  (void)hear(1, 0x05, kHeardAt);
+  (void)hear(2, 0x7F, kHeardAt);
   std::vector<NodeEvent> ticked;
-  table.tick(t0 + 60s, ticked);  // both silent since: lost
-  (void)hear(1, 0x05, t0 + 61s);
+  table.tick(kHeardAt + 60s, ticked);  // both silent since: lost
+  (void)hear(1, 0x05, kHeardAt + 61s);
   const NodeReportQueue::Snapshot s = queue.queue_snapshot();
   EXPECT_EQ(s.nodes, 2u);
   EXPECT_EQ(s.lost, 1u);
@@ -106,11 +106,11 @@ TEST_F(NodeReportQueueTest, ASnapshotReportsEveryKnownNodeAndALostOneAsLost) {
 // The bound: a link down for hours queues at most max_payloads payloads
 // of events, the oldest dropped first (counted); the snapshot stays, as nothing repeats it.
 TEST_F(NodeReportQueueTest, TheBoundDropsTheOldestEventsAndNeverTheSnapshot) {
-  (void)hear(1, 0x05, t0);
+  (void)hear(1, 0x05, kHeardAt);
   (void)queue.queue_snapshot();
-  const std::vector<NodeEvent> first = hear(2, 0x05, t0);
-  const std::vector<NodeEvent> second = hear(3, 0x05, t0);
-  const std::vector<NodeEvent> third = hear(4, 0x05, t0);
+  const std::vector<NodeEvent> first = hear(2, 0x05, kHeardAt);
+  const std::vector<NodeEvent> second = hear(3, 0x05, kHeardAt);
+  const std::vector<NodeEvent> third = hear(4, 0x05, kHeardAt);
   EXPECT_FALSE(queue.queue_events(first, ""));  // snapshot + 1: the bound (2) is reached
   EXPECT_TRUE(queue.queue_events(second, ""));  // `first` goes
   EXPECT_TRUE(queue.queue_events(third, ""));   // `second` goes
