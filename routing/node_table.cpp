@@ -272,19 +272,10 @@ void NodeTable::on_found_in_loader(std::size_t module_index, NodeId local, TimeP
   if (module_index >= modules_.size()) return;
   Module& m = modules_[module_index];
   if (m.profile != IdProfile::qd || local == 0 || local >= m.slots.size()) return;
-  Slot& s = m.slots[local];
-  NodeRecord& r = s.record;
-  if (r.known) return;
-  r = NodeRecord{};
-  r.known = true;
-  r.state = NmtState::boot_up;
-  r.loader = LoaderState::in_loader;
-  r.last_seen = now;
-  forget_gaps(s);
-  s.timing = false;
-  s.heartbeat_off = false;
-  set_deadline(s, due(m, s));
-  out.push_back(event(NodeEvent::Kind::discovered, module_index, local, r, now));
+  if (m.slots[local].record.known) return;
+  // As a loader boot-up records it, but discovered: no boot of either kind is counted.
+  record_boot(module_index, local, NodeEvent::Kind::discovered, NmtState::boot_up,
+              LoaderState::in_loader, now, out);
 }
 
 void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::Kind kind,
@@ -298,7 +289,8 @@ void NodeTable::record_boot(std::size_t module_index, NodeId local, NodeEvent::K
     r = NodeRecord{};
     r.known = true;
   }
-  ++(kind == NodeEvent::Kind::loader_booted ? r.loader_boot_count : r.boot_count);
+  if (kind == NodeEvent::Kind::loader_booted) ++r.loader_boot_count;
+  if (kind == NodeEvent::Kind::booted) ++r.boot_count;
   r.lost = false;
   r.state = state;
   r.loader = loader;

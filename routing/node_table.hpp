@@ -235,7 +235,8 @@ class NodeTable {
                   std::vector<NodeEvent>& out);
   void on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                          std::vector<NodeEvent>& out);
-  // What an application or loader boot-up does to the node's record: a count, the state, fresh
+  // What an application or loader boot-up does to the node's record: a count (`kind` booted or
+  // loader_booted; discovered, for a node found in its loader, counts none), the state, fresh
   // timing, and one event.
   void record_boot(std::size_t module_index, NodeId local, NodeEvent::Kind kind, NmtState state,
                    LoaderState loader, TimePoint now, std::vector<NodeEvent>& out);
