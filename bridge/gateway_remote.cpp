@@ -55,15 +55,25 @@ std::chrono::milliseconds GatewayRemote::timeout_of(const v1::RemoteRequest& req
 
 void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) {
   const std::uint64_t id = request.request_id();
+  if ((id & kProbeIdBit) != 0) {
+    // The gateway's own ids (probe_loaders): taken from a peer, the request could be mistaken for
+    // a probe and its answer kept here. It is refused, answered, and never remembered, so a probe
+    // of the same id is not taken for its duplicate.
+    ++counters_.requests;
+    ++counters_.failed;
+    push_result(id, kBadCommand, "request ids from 2^63 up are reserved for the gateway");
+    return;
+  }
   if (known_id(id)) {
     ++counters_.duplicates;
     return;
   }
-  if ((id & kProbeIdBit) != 0) {
-    ++counters_.loader_probes;  // the gateway's own question, not the surface's request
-  } else {
-    ++counters_.requests;
-  }
+  ++counters_.requests;
+  take(request, now);
+}
+
+void GatewayRemote::take(const v1::RemoteRequest& request, TimePoint now) {
+  const std::uint64_t id = request.request_id();
   if (request.op_case() == v1::RemoteRequest::kNodes) {
     answer_nodes(request, now);
     return;
@@ -323,28 +333,33 @@ void GatewayRemote::probe_loaders(std::size_t module_index,
     r.mutable_sdo()->set_index(canopen::firmware_objects::flash_status);
     r.mutable_sdo()->set_subindex(1);
     probes_[r.request_id()] = {module_index, local};
-    on_request(r, now);
+    ++counters_.loader_probes;
+    take(r, now);
   }
 }
 
 void GatewayRemote::answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
                            std::string data) {
-  if ((id & kProbeIdBit) != 0) {  // probe_loaders(): the gateway's own question
-    if (const auto probe = probes_.find(id); probe != probes_.end()) {
-      if (abort_code == 0) found_in_loader_.push_back(probe->second);
-      probes_.erase(probe);
-    }
+  if (const auto probe = probes_.find(id); probe != probes_.end()) {
+    // probe_loaders(): the gateway's own question, answered to nobody but itself.
+    if (abort_code == 0) found_in_loader_.push_back(probe->second);
+    probes_.erase(probe);
     remember(id);
     return;
   }
+  if (abort_code != 0) ++counters_.failed;
+  push_result(id, abort_code, std::move(detail), std::move(data));
+  progress_.erase(id);
+  remember(id);
+}
+
+void GatewayRemote::push_result(std::uint64_t id, std::uint32_t abort_code, std::string detail,
+                                std::string data) {
   v1::RemoteResult& r = results_.emplace_back();
   r.set_request_id(id);
   r.set_abort_code(abort_code);
   r.set_detail(std::move(detail));
   r.set_data(std::move(data));
-  if (abort_code != 0) ++counters_.failed;
-  progress_.erase(id);
-  remember(id);
 }
 
 void GatewayRemote::answer_nodes(const v1::RemoteRequest& request, TimePoint now) {

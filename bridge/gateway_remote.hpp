@@ -138,6 +138,12 @@ class GatewayRemote {
   };
   using LaneKey = std::pair<std::size_t, canopen::NodeId>;
 
+  // A request taken from the surface, or a probe (probe_loaders): validated, queued on its
+  // node's lane, started when it can run.
+  void take(const v1::RemoteRequest& request, TimePoint now);
+  // The one result of request `id`, queued for the surface.
+  void push_result(std::uint64_t id, std::uint32_t abort_code, std::string detail,
+                   std::string data = {});
   void answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
               std::string data = {});
   // A running SDO transfer's progress, at most every kProgressEvery (unreliable, latest wins).
@@ -174,8 +180,8 @@ class GatewayRemote {
   std::unordered_set<std::uint64_t> finished_;
   std::deque<std::uint64_t> finished_order_;  // oldest first, at most kRememberedIds
   std::size_t flashes_running_ = 0;           // bus frames are shown to every running flash
-  // probe_loaders(): its requests' ids (kProbeIdBit set: the surface's ids never reach it) and
-  // the node each asks.
+  // probe_loaders(): its requests' ids (kProbeIdBit set: a surface request carrying it is
+  // refused by on_request) and the node each asks.
   static constexpr std::uint64_t kProbeIdBit = std::uint64_t{1} << 63;
   std::uint64_t probes_sent_ = 0;
   std::map<std::uint64_t, FoundInLoader> probes_;

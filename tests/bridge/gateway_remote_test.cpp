@@ -540,6 +540,31 @@ TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
   EXPECT_EQ(rig.core->pending(), 0u);
 }
 
+// The census's ids are the gateway's own (top bit set). A surface request that carries one, even
+// the id of a probe still running, gets its own answer (refused) instead of being taken for the
+// probe and kept here; and the probe still finds its loader.
+TEST(GatewayRemote, ARequestIdOfTheCensusFromTheSurfaceIsRefusedNotSwallowed) {
+  sim::NodeSpec stuck = node_spec(4, sim::NodeKind::qd);
+  stuck.loader.application_valid = false;
+  Rig rig({stuck}, {}, IdProfile::qd);
+  rig.advance(10ms);
+  rig.core->probe_loaders(0, {4}, 200ms, rig.now);  // its id: 2^63 + 1
+  constexpr std::uint64_t kFirstProbeId = (std::uint64_t{1} << 63) | 1;
+  v1::RemoteRequest read = sdo_request(kFirstProbeId, 4, true, 0x1000);
+  rig.request(read);
+  ASSERT_NE(rig.result(kFirstProbeId), nullptr);
+  EXPECT_NE(rig.result(kFirstProbeId)->abort_code(), 0u);
+  EXPECT_NE(rig.result(kFirstProbeId)->detail().find("reserved"), std::string::npos);
+  rig.request(read);  // again: answered again, never taken for a duplicate
+  EXPECT_EQ(rig.results.size(), 2u);
+  for (int i = 0; i < 5; ++i) rig.advance(100ms);
+  const auto found = rig.core->take_found_in_loader();
+  ASSERT_EQ(found.size(), 1u);
+  EXPECT_EQ(found[0].local, 4);
+  EXPECT_EQ(rig.core->counters().requests, 2u);
+  EXPECT_EQ(rig.core->counters().loader_probes, 1u);
+}
+
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
 // (its own PeerStream over an in-memory link) that sends RemoteRequest payloads and frames.
 class GatewayWithScriptedSurface : public ::testing::Test {
