@@ -235,10 +235,10 @@ std::vector<can::Frame> SdoLinkGuard::on_gateway_down(GatewayId gateway, Clock::
     Node& n = nodes_[node];
     if (!n.owned || n.gateway != gateway || !n.request.pending()) continue;
     // The request may have reached the gateway before the cut: its answer waits there, in the
-    // gateway's reliable stream, and crosses once a new link resumes it.
-    if (now - n.request.sent_at() < options_.answer_wait) {
-      if (!timed(n)) ++timed_;
-      n.request.await_answer(n.request.sent_at() + options_.answer_wait);
+    // gateway's reliable stream, and crosses once a new link resumes it, until the deadline the
+    // request has had since it was sent (Options::answer_wait; without one, none waits).
+    if (timed(n) && !n.request.due(now)) {
+      n.request.await_answer(n.request.deadline());
       continue;
     }
     if (auto abort = abort_unanswered(node, n, now, counters_.aborted_in_flight)) {
@@ -278,16 +278,13 @@ std::vector<can::Frame> SdoLinkGuard::on_time(Clock::time_point now, const Withd
   for (canopen::NodeId node = 1; node <= canopen::kMaxNodeId; ++node) {
     Node& n = nodes_[node];
     if (!timed(n) || !n.request.due(now)) continue;
-    if (n.request.awaiting()) {  // its link was lost: withdrawn then (Surface::on_gateway_down)
-      if (auto abort = abort_unanswered(node, n, now, counters_.aborted_in_flight)) {
-        aborts.push_back(*abort);
-      }
-      continue;
-    }
-    // Overdue on a live link: lost on the line (and given up by the gateway's stream), still on
-    // its way, or never answered by its node.
-    if (withdraw) withdraw(node);
-    if (auto abort = abort_unanswered(node, n, now, counters_.aborted_overdue)) {
+    // Awaiting: its link was lost, and it was withdrawn then (Surface::on_gateway_down). Else
+    // overdue on a live link: lost on the line (and given up by the gateway's stream), still on
+    // its way, or never answered by its node; withdrawn now.
+    const bool link_lost = n.request.awaiting();
+    if (!link_lost && withdraw) withdraw(node);
+    if (auto abort = abort_unanswered(
+            node, n, now, link_lost ? counters_.aborted_in_flight : counters_.aborted_overdue)) {
       aborts.push_back(*abort);
     }
   }
