@@ -119,6 +119,7 @@ NmtCommand to_nmt(canopen::AsciiNmt nmt) {
 std::string state_text(const NodeRow& row) {
   if (row.lost) return "lost";
   if (row.in_loader) return "loader";
+  if (row.nmt_state == static_cast<std::uint8_t>(canopen::NmtState::unknown)) return "unknown";
   const std::string name = canopen::nmt_state_name(row.nmt_state);
   return name == "unknown" ? std::to_string(row.nmt_state) : name;
 }

@@ -39,7 +39,7 @@ RoleStatistics gateway_statistics(const GatewayStatsSnapshot& snapshot) {
   s.drops.push_back({"unknown-module", c.unknown_module});
   s.drops.push_back({"node-events-dropped", c.node_events_dropped});
   const NodeCounts& n = snapshot.nodes;
-  s.nodes = {n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost};
+  s.nodes = {n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost, n.unknown};
   return s;
 }
 

@@ -29,6 +29,11 @@ NodeEventLine node_event_line(std::string_view gateway, const v1::NodeEvent& e) 
               fmt::format("{}: set-node-id sent, no boot-up on the new id in time", node)};
     case v1::NodeEvent::DISCOVERED:
       if (e.in_loader()) return {Level::info, fmt::format("{} found waiting in its loader", node)};
+      if (e.nmt_state() == static_cast<std::uint32_t>(canopen::NmtState::unknown)) {
+        return {Level::info,
+                fmt::format("{} found answering (no heartbeat; state unknown until it sends one)",
+                            node)};
+      }
       return {Level::info,
               fmt::format("{} found ({})", node, canopen::nmt_state_name(e.nmt_state()))};
     case v1::NodeEvent::LOADER_BOOTED:

@@ -62,7 +62,10 @@ struct NodeSummary {
   std::uint64_t stopped = 0;
   std::uint64_t in_loader = 0;
   std::uint64_t lost = 0;
-  std::uint64_t total() const { return operational + pre_operational + stopped + in_loader + lost; }
+  std::uint64_t unknown = 0;  // alive (answers SDO), state never reported (NodeRecord::state)
+  std::uint64_t total() const {
+    return operational + pre_operational + stopped + in_loader + lost + unknown;
+  }
 };
 
 struct RoleStatistics {

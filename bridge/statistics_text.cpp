@@ -202,8 +202,8 @@ std::string statistics_json(const RoleStatistics& s, const RoleRates& r) {
   const NodeSummary& n = s.nodes;
   j += fmt::format(
       ",\"nodes\":{{\"total\":{},\"operational\":{},\"pre_operational\":{},\"stopped\":{},"
-      "\"in_loader\":{},\"lost\":{}}}}}",
-      n.total(), n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost);
+      "\"in_loader\":{},\"lost\":{},\"unknown\":{}}}}}",
+      n.total(), n.operational, n.pre_operational, n.stopped, n.in_loader, n.lost, n.unknown);
   return j;
 }
 
@@ -311,6 +311,7 @@ std::string statistics_prometheus(const RoleStatistics& s) {
   e.sample("canbridge_nodes", "state=\"stopped\"", n.stopped);
   e.sample("canbridge_nodes", "state=\"loader\"", n.in_loader);
   e.sample("canbridge_nodes", "state=\"lost\"", n.lost);
+  e.sample("canbridge_nodes", "state=\"unknown\"", n.unknown);
   return e.take();
 }
 

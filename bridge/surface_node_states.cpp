@@ -79,10 +79,13 @@ NodeSummary SurfaceNodeStates::summary(const LinkUp& link_up) const {
       gateway = std::get<0>(key);
       up = link_up(gateway);
     }
-    const auto state = static_cast<canopen::NmtState>(node.nmt_state & 0x7F);  // no toggle bit
+    // No toggle bit, except in the bridge's own mark for a state nothing has told.
+    const auto unknown = static_cast<std::uint32_t>(canopen::NmtState::unknown);
+    const auto state =
+        static_cast<canopen::NmtState>(node.nmt_state == unknown ? unknown : node.nmt_state & 0x7F);
     c.add(state, node.lost || !up, node.in_loader);
   }
-  return {c.operational, c.pre_operational, c.stopped, c.in_loader, c.lost};
+  return {c.operational, c.pre_operational, c.stopped, c.in_loader, c.lost, c.unknown};
 }
 
 }  // namespace canbridge::bridge

@@ -46,6 +46,9 @@ enum class NmtState : std::uint8_t {
   stopped = 0x04,
   operational = 0x05,
   pre_operational = 0x7F,
+  // Not a heartbeat byte (the toggle bit is never part of a state): the bridge's mark for a node
+  // heard by other frames (an SDO answer, an EMCY) whose state no heartbeat or boot-up has told.
+  unknown = 0xFF,
 };
 
 // "operational", ...: the state byte of a heartbeat (toggle bit stripped) for logs.

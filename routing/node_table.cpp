@@ -100,7 +100,7 @@ std::string to_string(const NodeCounts& c) {
   return "nodes " + std::to_string(c.total()) + ": " + std::to_string(c.operational) + " op, " +
          std::to_string(c.pre_operational) + " pre-op, " + std::to_string(c.stopped) +
          " stopped, " + std::to_string(c.in_loader) + " loader, " + std::to_string(c.lost) +
-         " lost";
+         " lost" + (c.unknown != 0 ? ", " + std::to_string(c.unknown) + " unknown" : "");
 }
 
 NodeTable::NodeTable(NodeTableOptions options)
@@ -124,8 +124,10 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
                              std::vector<NodeEvent>& out) {
   // The one branch every frame other than NMT error control (0x700..0x77F) takes, plus one.
   if ((frame.id & ~kNodeBits) != canopen::cob::heartbeat) {
-    if ((frame.id & ~kNodeBits) == canopen::cob::emcy) on_emcy(module_index, frame, now);
-    if ((frame.id & ~kNodeBits) == canopen::cob::sdo_tx) on_sdo_answer(module_index, frame);
+    if ((frame.id & ~kNodeBits) == canopen::cob::emcy) on_emcy(module_index, frame, now, out);
+    if ((frame.id & ~kNodeBits) == canopen::cob::sdo_tx) {
+      on_sdo_answer(module_index, frame, now, out);
+    }
     return;
   }
   // Extended, remote (a master's node-guarding request) and error frames have flags.
@@ -159,34 +161,60 @@ void NodeTable::on_bus_frame(std::size_t module_index, const can::Frame& frame, 
   }
 }
 
-void NodeTable::on_sdo_answer(std::size_t module_index, const can::Frame& frame) {
+NodeRecord* NodeTable::note_answering(std::size_t module_index, NodeId local, TimePoint now,
+                                      std::vector<NodeEvent>& out) {
+  Module& m = modules_[module_index];
+  // pdop / qd: slot 0 of nodes 1..31 (bits 6-5 name other objects).
+  if (local == 0 || local > m.max_node) return nullptr;
+  Slot& s = m.slots[local];
+  NodeRecord& r = s.record;
+  if (r.known && !r.lost) {
+    if (!r.heartbeat_seen) r.last_seen = now;
+    return &r;
+  }
+  const bool was_lost = r.lost;
+  if (!r.known) {
+    r = NodeRecord{};
+    r.known = true;
+    r.state = NmtState::unknown;
+  }
+  // Alive with no heartbeat to watch: watched again from its next heartbeat.
+  r.lost = false;
+  r.heartbeat_seen = false;
+  r.last_seen = now;
+  forget_gaps(s);
+  s.timing = false;
+  set_deadline(s, TimePoint::max());
+  out.push_back(event(was_lost ? NodeEvent::Kind::recovered : NodeEvent::Kind::discovered,
+                      module_index, local, r, now));
+  return &r;
+}
+
+void NodeTable::on_sdo_answer(std::size_t module_index, const can::Frame& frame, TimePoint now,
+                              std::vector<NodeEvent>& out) {
+  // Any SDO server frame has 8 bytes (CiA 301); a shorter one is some other use of the id.
+  if (!frame.is_standard_data() || frame.len != 8 || module_index >= modules_.size()) return;
+  const auto local = static_cast<NodeId>(frame.id & kNodeBits);
+  NodeRecord* r = note_answering(module_index, local, now, out);
   // Only an expedited upload answer of 4 bytes (43h) for 1000h:00: the device type.
-  if (!frame.is_standard_data() || frame.len != 8 || frame.data[0] != 0x43 ||
-      frame.data[1] != 0x00 || frame.data[2] != 0x10 || frame.data[3] != 0x00 ||
-      module_index >= modules_.size()) {
+  if (r == nullptr || frame.data[0] != 0x43 || frame.data[1] != 0x00 || frame.data[2] != 0x10 ||
+      frame.data[3] != 0x00) {
     return;
   }
-  Module& m = modules_[module_index];
-  const auto local = static_cast<NodeId>(frame.id & kNodeBits);
-  if (local == 0 || local > m.max_node) return;
-  NodeRecord& r = m.slots[local].record;
-  if (!r.known) return;
-  r.device_type =
+  r->device_type =
       static_cast<std::uint32_t>(frame.data[4] | (frame.data[5] << 8) | (frame.data[6] << 16) |
                                  (static_cast<std::uint32_t>(frame.data[7]) << 24));
 }
 
-void NodeTable::on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now) {
+void NodeTable::on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now,
+                        std::vector<NodeEvent>& out) {
   if (!frame.is_standard_data() || frame.len < 3 || module_index >= modules_.size()) return;
-  Module& m = modules_[module_index];
   const auto local = static_cast<NodeId>(frame.id & kNodeBits);
-  // pdop / qd: EMCY is slot 0 of nodes 1..31 (bits 6-5 name other objects).
-  if (local == 0 || local > m.max_node) return;
-  NodeRecord& r = m.slots[local].record;
-  if (!r.known) return;  // a record starts at the node's first heartbeat or boot-up
-  r.last_emcy_code = static_cast<std::uint16_t>(frame.data[0] | (frame.data[1] << 8));
-  r.last_emcy_register = frame.data[2];
-  r.last_emcy_at = now;
+  NodeRecord* r = note_answering(module_index, local, now, out);
+  if (r == nullptr) return;
+  r->last_emcy_code = static_cast<std::uint16_t>(frame.data[0] | (frame.data[1] << 8));
+  r->last_emcy_register = frame.data[2];
+  r->last_emcy_at = now;
 }
 
 void NodeTable::on_heartbeat(std::size_t module_index, NodeId local, NmtState state, TimePoint now,
@@ -272,7 +300,8 @@ void NodeTable::on_found_in_loader(std::size_t module_index, NodeId local, TimeP
   if (module_index >= modules_.size()) return;
   Module& m = modules_[module_index];
   if (m.profile != IdProfile::qd || local == 0 || local >= m.slots.size()) return;
-  if (m.slots[local].record.known) return;
+  const NodeRecord& r = m.slots[local].record;
+  if (r.known && r.state != NmtState::unknown) return;
   // As a loader boot-up records it, but discovered: no boot of either kind is counted.
   record_boot(module_index, local, NodeEvent::Kind::discovered, NmtState::boot_up,
               LoaderState::in_loader, now, out);
@@ -541,6 +570,8 @@ void NodeCounts::add(NmtState state, bool is_lost, bool is_in_loader) {
     ++operational;
   } else if (state == NmtState::stopped) {
     ++stopped;
+  } else if (state == NmtState::unknown) {
+    ++unknown;
   } else {
     ++pre_operational;
   }
@@ -563,6 +594,7 @@ NodeCounts NodeTable::counts() const {
     all.stopped += c.stopped;
     all.in_loader += c.in_loader;
     all.lost += c.lost;
+    all.unknown += c.unknown;
   }
   return all;
 }

@@ -39,7 +39,9 @@ struct NodeRecord {
   // alive, with no heartbeat to lose; it was reported lost 3 s after every boot.
   bool heartbeat_seen = false;
   // Last NMT state the node reported. A boot-up puts it in pre_operational (CiA 301: the node
-  // enters pre-operational autonomously after its boot-up); boot_up only while in the qd loader.
+  // enters pre-operational autonomously after its boot-up); boot_up only while in the qd loader;
+  // unknown for a node known only by an SDO answer or an EMCY (it booted before the gateway
+  // started, with its heartbeat off): alive, in a state nothing has told.
   NmtState state = NmtState::boot_up;
   LoaderState loader = LoaderState::none;
   std::uint32_t boot_count = 0;         // application boot-ups (0x700 + n, state 00h)
@@ -110,12 +112,15 @@ struct NodeCounts {
   std::size_t stopped = 0;
   std::size_t in_loader = 0;
   std::size_t lost = 0;
-  std::size_t total() const { return operational + pre_operational + stopped + in_loader + lost; }
+  std::size_t unknown = 0;  // alive (SDO answers, EMCY), state never reported: see NodeRecord
+  std::size_t total() const {
+    return operational + pre_operational + stopped + in_loader + lost + unknown;
+  }
   // Counts one node in its one place (the gateway's table and the surface's view count alike).
   void add(NmtState state, bool is_lost, bool is_in_loader);
   friend bool operator==(const NodeCounts&, const NodeCounts&) = default;
 };
-// "nodes 7: 5 op, 1 pre-op, 0 stopped, 0 loader, 1 lost"
+// "nodes 7: 5 op, 1 pre-op, 0 stopped, 0 loader, 1 lost" (", 2 unknown" only when there are)
 std::string to_string(const NodeCounts& counts);
 
 struct NodeTableOptions {
@@ -146,8 +151,11 @@ class NodeTable {
   std::size_t module_count() const { return modules_.size(); }
 
   // Every frame read on module `module_index`'s bus. Only NMT error control (0x700..0x77F,
-  // standard data frame of exactly 1 byte) and EMCY of known nodes (0x081..0x0FF, at least 3
-  // bytes: kept in the record) are looked at; every other frame costs two compares.
+  // standard data frame of exactly 1 byte), EMCY (0x081..0x0FF, at least 3 bytes: kept in the
+  // record) and SDO answers (0x581..0x5FF) are looked at; every other frame costs three compares.
+  // An EMCY or SDO answer of a node the table does not know (it booted before the gateway, with
+  // its heartbeat off) lists it alive in state unknown, not watched; of a lost node, recovers it
+  // the same way: it answers, whatever its heartbeat does.
   // A steady heartbeat of a known node in the same state appends nothing and allocates nothing.
   // Events are appended to `out` (never cleared here).
   void on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now,
@@ -172,7 +180,8 @@ class NodeTable {
   // 1F57h:01) without having heard the loader's boot-up: it booted before the gateway started, and
   // a loader sends nothing on its own. Recorded in the loader (not watched, as after a loader
   // boot-up, but with no boot counted) and reported discovered; nothing for a node the table knows
-  // (it was heard meanwhile, and that says more).
+  // from a heartbeat or boot-up (it was heard meanwhile, and that says more). A node known only by
+  // its SDO answers (state unknown) may be this very loader answering: it is recorded in it.
   void on_found_in_loader(std::size_t module_index, NodeId local, TimePoint now,
                           std::vector<NodeEvent>& out);
 
@@ -228,9 +237,15 @@ class NodeTable {
 
   void on_heartbeat(std::size_t module_index, NodeId local, NmtState state, TimePoint now,
                     std::vector<NodeEvent>& out);
-  void on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now);
-  // An SDO answer (0x580 + n) carrying 1000h:00: the node's device type (NodeRecord).
-  void on_sdo_answer(std::size_t module_index, const can::Frame& frame);
+  void on_emcy(std::size_t module_index, const can::Frame& frame, TimePoint now,
+               std::vector<NodeEvent>& out);
+  // An SDO answer (0x580 + n): the node answers; one carrying 1000h:00 gives its device type.
+  void on_sdo_answer(std::size_t module_index, const can::Frame& frame, TimePoint now,
+                     std::vector<NodeEvent>& out);
+  // A frame only an alive node sends (SDO answer, EMCY) from `local`: listed when unknown,
+  // recovered when lost. The record, or nullptr when `local` is no node id of the module.
+  NodeRecord* note_answering(std::size_t module_index, NodeId local, TimePoint now,
+                             std::vector<NodeEvent>& out);
   void on_boot_up(std::size_t module_index, NodeId local, TimePoint now,
                   std::vector<NodeEvent>& out);
   void on_loader_boot_up(std::size_t module_index, NodeId local, TimePoint now,

@@ -39,6 +39,11 @@ TEST(NodeEventText, EachKindSaysWhatHappened) {
   EXPECT_EQ(node_event_line("g", census).text,
             "gateway 'g' module 2 node 5 (surface 69) found waiting in its loader");
   EXPECT_EQ(node_event_line("g", event(v1::NodeEvent::RENAME_UNCONFIRMED)).level, Level::warning);
+  v1::NodeEvent answering = event(v1::NodeEvent::DISCOVERED);  // heard only by its SDO answer
+  answering.set_nmt_state(0xFF);
+  EXPECT_EQ(node_event_line("g", answering).text,
+            "gateway 'g' module 2 node 5 (surface 69) found answering (no heartbeat; state "
+            "unknown until it sends one)");
 }
 
 TEST(NodeEventText, AKindThisVersionDoesNotKnowIsOnlyADebugLine) {

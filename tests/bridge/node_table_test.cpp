@@ -342,6 +342,74 @@ TEST(NodeTable, ANodeWithoutHeartbeatIsNeverLostForItsSilence) {
   EXPECT_TRUE(rig.tick(t0 + 2h).empty());
 }
 
+// Issue 28: a node with its heartbeat off that booted before the gateway is heard only by what it
+// answers. An SDO answer or an EMCY lists it alive, in a state nothing has told (unknown), never
+// watched for a heartbeat; its first heartbeat tells the state and starts the watch. A lost node
+// that answers is back, not watched: it answers, whatever its heartbeat does.
+TEST(NodeTable, ANodeHeardOnlyByItsAnswersIsAliveInAnUnknownState) {
+  Rig rig;
+  const auto m = rig.table.add_module(IdProfile::cia301);
+  // 1000h:00 = 0x000F0191, node 4's answer to the gateway's census.
+  const Frame device_type =
+      Frame::standard(0x584, {0x43, 0x00, 0x10, 0x00, 0x91, 0x01, 0x0F, 0x00});
+  const Events found = rig.bus(m, device_type, t0);
+  ASSERT_EQ(kinds(found), std::vector<Kind>{Kind::discovered});
+  EXPECT_EQ(found[0].state, NmtState::unknown);
+  const NodeRecord* r = rig.table.node(m, 4);
+  ASSERT_NE(r, nullptr);
+  EXPECT_EQ(r->state, NmtState::unknown);
+  EXPECT_FALSE(r->heartbeat_seen);
+  EXPECT_EQ(r->device_type, 0x000F0191u);
+  EXPECT_FALSE(rig.table.next_deadline());
+  EXPECT_TRUE(rig.tick(t0 + 1h).empty());
+  EXPECT_FALSE(r->lost);
+  EXPECT_TRUE(rig.bus(m, device_type, t0 + 1h).empty());  // known: no second event
+  EXPECT_EQ(rig.table.counts(m), (NodeCounts{.unknown = 1}));
+  EXPECT_EQ(to_string(rig.table.counts()),
+            "nodes 1: 0 op, 0 pre-op, 0 stopped, 0 loader, 0 lost, 1 unknown");
+  // An EMCY does the same, and is kept.
+  ASSERT_EQ(kinds(rig.bus(m, Frame::standard(0x085, {0x10, 0x81, 0x11, 0, 0, 0, 0, 0}), t0)),
+            std::vector<Kind>{Kind::discovered});
+  EXPECT_EQ(rig.table.node(m, 5)->last_emcy_code, 0x8110);
+  EXPECT_EQ(rig.table.node(m, 5)->state, NmtState::unknown);
+  // The first heartbeat tells the state and starts the watch.
+  const Events told = rig.bus(m, heartbeat(4, kOp), t0 + 1h);
+  ASSERT_EQ(kinds(told), std::vector<Kind>{Kind::state_changed});
+  EXPECT_EQ(told[0].previous_state, NmtState::unknown);
+  EXPECT_EQ(r->state, NmtState::operational);
+  EXPECT_TRUE(r->heartbeat_seen);
+  ASSERT_TRUE(rig.table.next_deadline());
+  // Its heartbeat stops (1017h set to 0 behind the bridge's back): lost, then its SDO answer
+  // brings it back in its last state, no longer watched.
+  ASSERT_EQ(kinds(rig.tick(t0 + 1h + 3s)), std::vector<Kind>{Kind::lost});
+  const Events back = rig.bus(m, device_type, t0 + 2h);
+  ASSERT_EQ(kinds(back), std::vector<Kind>{Kind::recovered});
+  EXPECT_EQ(back[0].state, NmtState::operational);
+  EXPECT_FALSE(r->lost);
+  EXPECT_FALSE(r->heartbeat_seen);
+  EXPECT_FALSE(rig.table.next_deadline());
+  // Short frames on those ids are something else: no node.
+  EXPECT_TRUE(rig.bus(m, Frame::standard(0x586, {0x43, 0x00, 0x10, 0x00}), t0).empty());
+  EXPECT_TRUE(rig.bus(m, Frame::standard(0x087, {0x10, 0x81}), t0).empty());
+  EXPECT_EQ(rig.table.node(m, 6), nullptr);
+  EXPECT_EQ(rig.table.node(m, 7), nullptr);
+}
+
+// On a qd module the census's upload of 1F57h:01 is answered by the loader on the node's own SDO
+// channel: the answer lists the node (state unknown) before the census reports it in its loader,
+// which then records it there.
+TEST(NodeTable, ALoaderHeardByItsSdoAnswerIsThenFoundInItsLoader) {
+  Rig rig;
+  const auto qd = rig.table.add_module(IdProfile::qd);
+  ASSERT_EQ(kinds(rig.bus(qd, Frame::standard(0x583, {0x43, 0x57, 0x1F, 0x01, 1, 0, 0, 0}), t0)),
+            std::vector<Kind>{Kind::discovered});
+  Events found;
+  rig.table.on_found_in_loader(qd, 3, t0, found);
+  ASSERT_EQ(kinds(found), std::vector<Kind>{Kind::discovered});
+  EXPECT_EQ(rig.table.node(qd, 3)->loader, LoaderState::in_loader);
+  EXPECT_EQ(rig.table.counts(qd), (NodeCounts{.in_loader = 1}));
+}
+
 TEST(NodeTable, ObservedLostAfterHasAFloorButNoCeiling) {
   Rig rig;
   const auto m = rig.table.add_module(IdProfile::cia301);

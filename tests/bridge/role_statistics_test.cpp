@@ -118,7 +118,7 @@ TEST(StatisticsJson, EveryCounterAndRateOnOneLine) {
       R"("drops":{"total":4,"per_s":2.0,"by_reason":{"untranslatable-unknown-node":4,)"
       R"("conflated":0}},)"
       R"("nodes":{"total":3,"operational":2,"pre_operational":0,"stopped":0,"in_loader":0,)"
-      R"("lost":1}})");
+      R"("lost":1,"unknown":0}})");
 }
 
 TEST(StatisticsJson, StringsAreEscaped) {

@@ -71,6 +71,16 @@ TEST_F(SurfaceNodeStatesTest, ADiscoveredNodeCountsInItsHeartbeatsState) {
   EXPECT_EQ(summary(), counts(1, 0, 1, 0, 0));
 }
 
+// A node the gateway heard only by its SDO answers (heartbeat off, booted before the gateway):
+// counted apart, never as pre-operational (its 0xFF mark must not lose its top bit as a toggle).
+TEST_F(SurfaceNodeStatesTest, ANodeInAStateNothingToldCountsUnknown) {
+  EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::DISCOVERED, 1, 5, 0xFF)));
+  const NodeSummary n = states.summary([](SurfaceNodeStates::GatewayId) { return true; });
+  EXPECT_EQ(n.unknown, 1u);
+  EXPECT_EQ(n.total(), 1u);
+  EXPECT_EQ(summary(), counts(0, 0, 0, 0, 0));
+}
+
 TEST_F(SurfaceNodeStatesTest, AStateChangeMovesTheNodeBetweenCounts) {
   states.apply(0, event(v1::NodeEvent::BOOTED, 1, 5));
   EXPECT_TRUE(states.apply(0, event(v1::NodeEvent::STATE_CHANGED, 1, 5, kNmtOperational)));
