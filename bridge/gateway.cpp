@@ -40,11 +40,11 @@ std::vector<GatewayRemote::Module> remote_modules_of(const std::vector<GatewayMo
   return remote;
 }
 
-// How long after start the loader census waits: every node running its application has sent a
-// heartbeat by then (producer times are rarely above 1 s), so only silent ids are asked.
-constexpr std::chrono::milliseconds kLoaderCensusAfter{2000};
-// A loader answers the census at once; an absent node never does.
-constexpr std::chrono::milliseconds kLoaderCensusTimeout{200};
+// How long after start the census waits: every node running its application with a heartbeat
+// has sent one by then (producer times are rarely above 1 s), so only silent ids are asked.
+constexpr std::chrono::milliseconds kCensusAfter{2000};
+// A node answers the census at once; an absent node never does.
+constexpr std::chrono::milliseconds kCensusTimeout{200};
 
 std::vector<ModuleId> module_ids_of(const std::vector<GatewayModule>& modules) {
   std::vector<ModuleId> ids;
@@ -83,10 +83,10 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
         queue_node_events();
       });
   deadlines_.add(
-      "loader census", [this] { return loader_census_at_; },
+      "census", [this] { return census_at_; },
       [this](DeadlineDriver::TimePoint now) {
-        loader_census_at_.reset();
-        probe_unknown_qd_nodes(now);
+        census_at_.reset();
+        ask_silent_nodes(now);
         after_remote_input();
       });
   deadlines_.add(
@@ -179,29 +179,33 @@ void Gateway::start() {
     });
     writers_[m]->start();
   }
-  // A qd node that entered its loader before the gateway started announced it to nobody, and a
-  // loader sends nothing on its own: the census asks the ids still unknown once the others have
-  // been heard.
-  const bool has_qd = std::any_of(map_.modules().begin(), map_.modules().end(),
-                                  [](const auto& m) { return m.profile == IdProfile::qd; });
-  if (has_qd) loader_census_at_ = DeadlineDriver::Clock::now() + kLoaderCensusAfter;
+  // A node that booted before the gateway started announced it to nobody: a qd node waiting in
+  // its loader sends nothing on its own, nor does an application with its heartbeat off. The
+  // census asks the ids still unknown once the others have been heard.
+  census_at_ = DeadlineDriver::Clock::now() + kCensusAfter;
   coro::spawn_owned(executor_, deadlines_.run(),
                     [this](const std::string& why) { on_task_end("deadline driver", why); });
 }
 
-void Gateway::probe_unknown_qd_nodes(DeadlineDriver::TimePoint now) {
+void Gateway::ask_silent_nodes(DeadlineDriver::TimePoint now) {
   for (std::size_t m = 0; m < map_.modules().size(); ++m) {
-    if (map_.modules()[m].profile != IdProfile::qd) continue;
+    const IdProfile profile = map_.modules()[m].profile;
     std::vector<NodeId> unknown;
-    for (NodeId local = 1; local <= max_node_id(IdProfile::qd); ++local) {
+    for (NodeId local = 1; local <= max_node_id(profile); ++local) {
       if (map_.surface_of(m, local) != 0 && node_table_.node(m, local) == nullptr) {
         unknown.push_back(local);
       }
     }
     if (unknown.empty()) continue;
-    spdlog::info("gateway {}: module {}: asking {} silent id(s) whether they wait in their loader",
-                 name_, modules_[m].id, unknown.size());
-    remote_.probe_loaders(m, unknown, kLoaderCensusTimeout, now);
+    // qd: whether it waits in its loader (an application's refusal lists it as well).
+    const auto question = profile == IdProfile::qd ? GatewayRemote::CensusQuestion::in_loader
+                                                   : GatewayRemote::CensusQuestion::present;
+    spdlog::info("gateway {}: module {}: asking {} silent id(s) {}", name_, modules_[m].id,
+                 unknown.size(),
+                 question == GatewayRemote::CensusQuestion::in_loader
+                     ? "whether they wait in their loader"
+                     : "for their device type (a node with its heartbeat off is listed)");
+    remote_.ask_silent_nodes(m, unknown, question, kCensusTimeout, now);
   }
 }
 

@@ -140,9 +140,9 @@ class Gateway {
   // Remote services: their frames to the buses, the driver re-armed, results to the stream, the
   // loaders the census found to the node table.
   void after_remote_input();
-  // The loader census: the ids of qd modules the node table does not know yet are asked whether
-  // they wait in their loader (GatewayRemote::probe_loaders).
-  void probe_unknown_qd_nodes(DeadlineDriver::TimePoint now);
+  // The census: the mapped ids the node table does not know yet are asked whether they are there
+  // (qd: whether they wait in their loader; GatewayRemote::ask_silent_nodes).
+  void ask_silent_nodes(DeadlineDriver::TimePoint now);
   // A surface master's SDO request to a node the gateway runs its own transfer with: not
   // written; answered toward the surface with abort 0x08000021 (counted). True when refused.
   bool refuse_colliding_sdo(std::size_t module_index, const can::Frame& local);
@@ -177,8 +177,8 @@ class Gateway {
   NodeReportQueue reports_;             // node events and snapshots waiting for the link
   // The surface process (its hello's session id) the node table was last sent to; 0: none yet.
   std::uint64_t snapshot_surface_ = 0;
-  // When the loader census runs (once, kLoaderCensusAfter after start, if a module is qd).
-  std::optional<DeadlineDriver::TimePoint> loader_census_at_;
+  // When the census runs (once, kCensusAfter after start).
+  std::optional<DeadlineDriver::TimePoint> census_at_;
   GatewayPdopWork pdop_;
   BackboneTuning tuning_;
   backbone::SessionLink::Identity identity_;

@@ -56,9 +56,9 @@ std::chrono::milliseconds GatewayRemote::timeout_of(const v1::RemoteRequest& req
 void GatewayRemote::on_request(const v1::RemoteRequest& request, TimePoint now) {
   const std::uint64_t id = request.request_id();
   if ((id & kProbeIdBit) != 0) {
-    // The gateway's own ids (probe_loaders): taken from a peer, the request could be mistaken for
-    // a probe and its answer kept here. It is refused, answered, and never remembered, so a probe
-    // of the same id is not taken for its duplicate.
+    // The gateway's own ids (ask_silent_nodes): taken from a peer, the request could be mistaken
+    // for a probe and its answer kept here. It is refused, answered, and never remembered, so a
+    // probe of the same id is not taken for its duplicate.
     ++counters_.requests;
     ++counters_.failed;
     push_result(id, kBadCommand, "request ids from 2^63 up are reserved for the gateway");
@@ -319,9 +319,10 @@ std::size_t GatewayRemote::pending() const {
   return n;
 }
 
-void GatewayRemote::probe_loaders(std::size_t module_index,
-                                  const std::vector<canopen::NodeId>& locals,
-                                  std::chrono::milliseconds timeout, TimePoint now) {
+void GatewayRemote::ask_silent_nodes(std::size_t module_index,
+                                     const std::vector<canopen::NodeId>& locals,
+                                     CensusQuestion question, std::chrono::milliseconds timeout,
+                                     TimePoint now) {
   if (module_index >= modules_.size()) return;
   for (const canopen::NodeId local : locals) {
     v1::RemoteRequest r;
@@ -330,10 +331,15 @@ void GatewayRemote::probe_loaders(std::size_t module_index,
     r.set_local_node(local);
     r.set_timeout_ms(static_cast<std::uint32_t>(timeout.count()));
     r.mutable_sdo()->set_upload(true);
-    r.mutable_sdo()->set_index(canopen::firmware_objects::flash_status);
-    r.mutable_sdo()->set_subindex(1);
-    probes_[r.request_id()] = {module_index, local};
-    ++counters_.loader_probes;
+    if (question == CensusQuestion::in_loader) {
+      r.mutable_sdo()->set_index(canopen::firmware_objects::flash_status);
+      r.mutable_sdo()->set_subindex(1);
+    } else {
+      r.mutable_sdo()->set_index(0x1000);  // device type
+      r.mutable_sdo()->set_subindex(0);
+    }
+    probes_[r.request_id()] = {{module_index, local}, question};
+    ++counters_.census_probes;
     take(r, now);
   }
 }
@@ -341,8 +347,10 @@ void GatewayRemote::probe_loaders(std::size_t module_index,
 void GatewayRemote::answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,
                            std::string data) {
   if (const auto probe = probes_.find(id); probe != probes_.end()) {
-    // probe_loaders(): the gateway's own question, answered to nobody but itself.
-    if (abort_code == 0) found_in_loader_.push_back(probe->second);
+    // ask_silent_nodes(): the gateway's own question, answered to nobody but itself.
+    if (abort_code == 0 && probe->second.question == CensusQuestion::in_loader) {
+      found_in_loader_.push_back(probe->second.node);
+    }
     probes_.erase(probe);
     remember(id);
     return;

@@ -47,7 +47,7 @@ class GatewayRemote {
 
   struct Counters {
     std::uint64_t requests = 0;           // requests taken (duplicates not counted)
-    std::uint64_t loader_probes = 0;      // probe_loaders() questions (not in `requests`)
+    std::uint64_t census_probes = 0;      // ask_silent_nodes() questions (not in `requests`)
     std::uint64_t failed = 0;             // results with an abort code (cancelled ones included)
     std::uint64_t cancelled = 0;          // answered "cancelled"
     std::uint64_t duplicates = 0;         // repeated request ids: answered with nothing
@@ -82,14 +82,22 @@ class GatewayRemote {
   // from the surface master to it must not reach the bus (the gateway answers it with an abort).
   bool transferring(std::size_t module_index, canopen::NodeId local) const;
 
-  // Asks each of `locals` on module `module_index` whether it waits in its qd loader, with the
-  // flash probe's upload of 1F57h:01 (a loader answers it; an application says the object does
-  // not exist): for nodes the gateway has not heard from since it started, which may have entered
-  // their loader before it and stay silent there. Each waits for a master's open transfer with
-  // the node, as any transfer of the gateway does, and gives up after `timeout`. What the loaders
-  // answered comes out of take_found_in_loader(); nothing reaches the surface.
-  void probe_loaders(std::size_t module_index, const std::vector<canopen::NodeId>& locals,
-                     std::chrono::milliseconds timeout, TimePoint now);
+  // The census's question to a node the gateway has not heard from since it started: one that
+  // booted before it and stays silent (a loader never sends on its own; an application with its
+  // heartbeat off, CANopenNode's default, sends nothing after its boot-up).
+  enum class CensusQuestion : std::uint8_t {
+    // qd: the flash probe's upload of 1F57h:01 (a loader answers it; an application says the
+    // object does not exist, and that answer lists it too: NodeTable reads every SDO answer).
+    in_loader,
+    // Other profiles: an upload of the device type, 1000h:00, which every CiA 301 node has.
+    present,
+  };
+  // Asks each of `locals` on module `module_index` `question`. Each waits for a master's open
+  // transfer with the node, as any transfer of the gateway does, and gives up after `timeout`.
+  // The answers cross the module bus, where the node table hears them; the loaders that
+  // answered also come out of take_found_in_loader(). Nothing reaches the surface.
+  void ask_silent_nodes(std::size_t module_index, const std::vector<canopen::NodeId>& locals,
+                        CensusQuestion question, std::chrono::milliseconds timeout, TimePoint now);
   struct FoundInLoader {
     std::size_t module_index = 0;
     canopen::NodeId local = 0;
@@ -138,7 +146,7 @@ class GatewayRemote {
   };
   using LaneKey = std::pair<std::size_t, canopen::NodeId>;
 
-  // A request taken from the surface, or a probe (probe_loaders): validated, queued on its
+  // A request taken from the surface, or a probe (ask_silent_nodes): validated, queued on its
   // node's lane, started when it can run.
   void take(const v1::RemoteRequest& request, TimePoint now);
   // The one result of request `id`, queued for the surface.
@@ -180,11 +188,15 @@ class GatewayRemote {
   std::unordered_set<std::uint64_t> finished_;
   std::deque<std::uint64_t> finished_order_;  // oldest first, at most kRememberedIds
   std::size_t flashes_running_ = 0;           // bus frames are shown to every running flash
-  // probe_loaders(): its requests' ids (kProbeIdBit set: a surface request carrying it is
-  // refused by on_request) and the node each asks.
+  // ask_silent_nodes(): its requests' ids (kProbeIdBit set: a surface request carrying it is
+  // refused by on_request), the node each asks and what.
   static constexpr std::uint64_t kProbeIdBit = std::uint64_t{1} << 63;
+  struct CensusProbe {
+    FoundInLoader node;
+    CensusQuestion question = CensusQuestion::present;
+  };
   std::uint64_t probes_sent_ = 0;
-  std::map<std::uint64_t, FoundInLoader> probes_;
+  std::map<std::uint64_t, CensusProbe> probes_;
   std::vector<FoundInLoader> found_in_loader_;
   Counters counters_;
 };

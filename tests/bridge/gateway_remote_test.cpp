@@ -523,7 +523,8 @@ TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
   rig.advance(10ms);
   ASSERT_TRUE(rig.node(4).in_loader());
   ASSERT_FALSE(rig.node(5).in_loader());
-  rig.core->probe_loaders(0, {4, 5, 6}, 200ms, rig.now);
+  rig.core->ask_silent_nodes(0, {4, 5, 6}, GatewayRemote::CensusQuestion::in_loader, 200ms,
+                             rig.now);
   rig.run();
   for (int i = 0; i < 5; ++i) rig.advance(100ms);  // node 6 never answers
   const auto found = rig.core->take_found_in_loader();
@@ -532,7 +533,7 @@ TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
   EXPECT_EQ(found[0].local, 4);
   EXPECT_TRUE(rig.core->take_found_in_loader().empty());  // taken once
   EXPECT_TRUE(rig.results.empty());
-  EXPECT_EQ(rig.core->counters().loader_probes, 3u);
+  EXPECT_EQ(rig.core->counters().census_probes, 3u);
   EXPECT_EQ(rig.core->counters().requests, 0u);  // the surface asked nothing
   for (const Frame& f : rig.surface) {
     EXPECT_FALSE(is_sdo_response_of(f, 4) || is_sdo_response_of(f, 5)) << f.id;
@@ -548,7 +549,8 @@ TEST(GatewayRemote, ARequestIdOfTheCensusFromTheSurfaceIsRefusedNotSwallowed) {
   stuck.loader.application_valid = false;
   Rig rig({stuck}, {}, IdProfile::qd);
   rig.advance(10ms);
-  rig.core->probe_loaders(0, {4}, 200ms, rig.now);  // its id: 2^63 + 1
+  rig.core->ask_silent_nodes(0, {4}, GatewayRemote::CensusQuestion::in_loader, 200ms,
+                             rig.now);  // its id: 2^63 + 1
   constexpr std::uint64_t kFirstProbeId = (std::uint64_t{1} << 63) | 1;
   v1::RemoteRequest read = sdo_request(kFirstProbeId, 4, true, 0x1000);
   rig.request(read);
@@ -562,7 +564,7 @@ TEST(GatewayRemote, ARequestIdOfTheCensusFromTheSurfaceIsRefusedNotSwallowed) {
   ASSERT_EQ(found.size(), 1u);
   EXPECT_EQ(found[0].local, 4);
   EXPECT_EQ(rig.core->counters().requests, 2u);
-  EXPECT_EQ(rig.core->counters().loader_probes, 1u);
+  EXPECT_EQ(rig.core->counters().census_probes, 1u);
 }
 
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end

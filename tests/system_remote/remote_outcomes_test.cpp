@@ -285,7 +285,7 @@ TEST_F(RemoteOutcomes, AGatewayKilledWithWritesInFlightLeavesNoFailureThatWasDon
 // started announced it to nobody that is still there, and a loader sends nothing on its own. The
 // new gateway's census asks the ids it has not heard from (an upload of 1F57h:01, which only the
 // loader has) and lists the node in its loader. Fails without the census (Gateway::start() never
-// setting loader_census_at_): the node list never shows local 1.
+// setting census_at_): the node list never shows local 1.
 TEST_F(RemoteOutcomes, ANodeWaitingInItsLoaderBeforeTheGatewayStartedIsListed) {
   BusLog vcan2("vcan2");
   // Net 3 node 1 (qd-a) stops its program: its loader announces itself and stays (seeds/003).
@@ -332,6 +332,54 @@ TEST_F(RemoteOutcomes, ANodeWaitingInItsLoaderBeforeTheGatewayStartedIsListed) {
   EXPECT_TRUE(listed) << all << processes_->gateway->output();
   for (const BusLog::Entry& e : vcan2.entries(restarted_at)) {
     EXPECT_FALSE(asked(2)(e.frame)) << "a beating node was asked";
+  }
+}
+
+// Issue 28, "a node without heartbeat that answers SDO is alive": node 12 ('quiet', 1017h = 0 as
+// CANopenNode ships) booted before this gateway process started and has sent nothing since. The
+// new gateway's census asks the ids it has not heard from for their device type (1000h:00); node
+// 12 answers and is listed alive, state unknown (no heartbeat has told it), with no heartbeat age.
+// Fails without the census (Gateway::start() never setting census_at_) or without the node table
+// reading SDO answers of nodes it does not know (NodeTable::note_answering): no row for local 12.
+TEST_F(RemoteOutcomes, ANodeWithItsHeartbeatOffBeforeTheGatewayStartedIsListedAlive) {
+  constexpr std::uint32_t kQuiet = 12;
+  ASSERT_EQ(processes_->gateway->stop(), 0) << processes_->gateway->output();
+  const std::size_t restarted_at = vcan1_->mark();
+  ASSERT_NO_FATAL_FAILURE(processes_->restart_gateway());
+  ASSERT_TRUE(processes_->gateway->wait_for_line("for their device type", kEvent))
+      << processes_->gateway->output();
+  const auto asked = [](std::uint32_t node) {
+    return [node](const Frame& f) {
+      return f.id == 0x600u + node && f.len == 8 && f.data[0] == 0x40 && f.data[1] == 0x00 &&
+             f.data[2] == 0x10 && f.data[3] == 0x00;
+    };
+  };
+  ASSERT_TRUE(vcan1_->wait_for(restarted_at, asked(kQuiet), kEvent)) << "node 12 was not asked";
+  ASSERT_TRUE(vcan1_->wait_for(
+      restarted_at,
+      [](const Frame& f) {
+        return f.id == 0x580u + kQuiet && f.len == 8 && f.data[0] == 0x43 && f.data[1] == 0x00 &&
+               f.data[2] == 0x10;
+      },
+      kEvent))
+      << "node 12 did not answer";
+  const std::regex alive_row(
+      "node net=2 module=1 gateway=remote-gateway local=12 surface=\\d+ \\S+ \\S+ "
+      "state=unknown hb_age_ms=- ");
+  bool listed = false;
+  std::string all;
+  const auto until = std::chrono::steady_clock::now() + kEvent;
+  for (int n = 10; !listed && std::chrono::steady_clock::now() < until; ++n) {
+    const std::string seq = "[" + std::to_string(n) + "]";
+    client_->send(seq + " 2 nodes\n");
+    all.clear();
+    for (const auto& l : client_->lines_until(seq + " OK", kEvent)) all += l + "\n";
+    listed = std::regex_search(all, alive_row);
+  }
+  EXPECT_TRUE(listed) << all << processes_->gateway->output();
+  EXPECT_EQ(all.find("local=12 surface=44 profile=cia301 kind=- state=lost"), std::string::npos);
+  for (const BusLog::Entry& e : vcan1_->entries(restarted_at)) {
+    EXPECT_FALSE(asked(kLocalNode)(e.frame)) << "a beating node was asked";
   }
 }
 
