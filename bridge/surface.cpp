@@ -13,7 +13,6 @@
 #include "bridge/line_loss_counter.hpp"
 #include "bridge/node_event_text.hpp"
 #include "bridge/role_statistics_fill.hpp"
-#include "bridge/surface_pdop.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::bridge {
@@ -111,7 +110,7 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
       conflate_pdos_(conflate_pdos),
       table_(name_, policy.gateways, policy.require_authenticated_peers),
       guard_(guard_options(policy.master_sdo_timeout)),
-      relay_(rpdop_relay),
+      pdop_(rpdop_relay),
       deadlines_(executor_),
       writer_(
           executor_, *bus_, backbone_fed_write_options(),
@@ -127,9 +126,9 @@ Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_p
   identity_.name = name_;
   identity_.session_id = backbone::random_session_id();
   deadlines_.add(
-      "RPDOP relay", [this] { return relay_.next_deadline(); },
+      "RPDOP relay", [this] { return pdop_.next_deadline(); },
       [this](DeadlineDriver::TimePoint now) {
-        relay_.tick(now, relay_out_);
+        pdop_.tick(now);
         flush_relay();
       });
   deadlines_.add(
@@ -170,34 +169,20 @@ void Surface::on_task_end(const std::string& task, const std::string& why) {
 }
 
 void Surface::flush_relay() {
-  // Taken out first: answering a packet at once (link down) appends its acknowledgement to
-  // relay_out_.frames, after those already there.
-  std::vector<RpdopRelay::Packet> packets;
-  packets.swap(relay_out_.packets);
-  for (RpdopRelay::Packet& packet : packets) {
-    const PdopOwner owner = pdop_owner_[packet.node];
-    Gateway* gateway =
-        owner.gateway >= 0 ? by_id_[static_cast<std::size_t>(owner.gateway)] : nullptr;
-    if (!gateway || !gateway->stream.up()) {
-      // The master learns at once: its packet cannot reach the node now (0x82, no room).
-      ++counters_.rpdop_failed;
-      relay_.on_outcome(packet.request_id, canopen::pdop::AckStatus::out_of_memory, relay_out_);
-      continue;
-    }
-    v1::Payload payload;
-    v1::PdopPacket& p = *payload.mutable_pdop_packets()->add_packets();
-    p.set_module_id(owner.module_id);
-    p.set_surface_node(packet.node);
-    p.set_pdo(packet.rpdo);
-    p.set_data(packet.bytes.data(), packet.bytes.size());
-    p.set_request_id(packet.request_id);
-    gateway->rpdop_out.push_back(payload.SerializeAsString());
-    gateway->stream.wake();
-    ++counters_.rpdop_forwarded;
+  SurfacePdopWork::Output& out = pdop_.flush([this](SurfacePdopWork::GatewayId g) {
+    return g < by_id_.size() && by_id_[g] != nullptr && by_id_[g]->stream.up();
+  });
+  for (auto& [gateway, payload] : out.payloads) {
+    by_id_[gateway]->rpdop_out.push_back(std::move(payload));
+    by_id_[gateway]->stream.wake();
   }
-  for (const can::Frame& ack : relay_out_.frames) send_to_bus(ack);
-  relay_out_.frames.clear();
+  for (const can::Frame& ack : out.frames) send_to_bus(ack);
   deadlines_.reschedule();
+}
+
+SurfacePdopWork::From Surface::pdop_from(const Gateway& gateway) const {
+  return {gateway.id, gateway.name, gateway.modules,
+          [this, id = gateway.id](canopen::NodeId node) { return table_.speaks_for(id, node); }};
 }
 
 void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
@@ -310,7 +295,7 @@ asio::awaitable<std::error_code> Surface::read_bus() {
       }
       // RPDOP to a pdop node behind a gateway: the relay acknowledges the master and forwards
       // whole packets.
-      if (relay_.on_frame(frame, now, relay_out_)) continue;
+      if (pdop_.on_bus_frame(frame, now)) continue;
       const auto verdict = guard_.on_surface_frame(
           frame,
           [this](SdoLinkGuard::GatewayId g) {
@@ -357,7 +342,7 @@ void Surface::forward_to(Gateway& gateway, const can::Frame& frame,
   // RPDOP fragments to a node whose packets cross as frames: in bus order, never conflated.
   const DeliveryOptions delivery{
       .conflate_pdos = conflate_pdos_,
-      .pdop_fragments = fragments_as_frames_[frame.id & canopen::pdop::kMaxNode]};
+      .pdop_fragments = pdop_.fragments_as_frames(static_cast<canopen::NodeId>(frame.id))};
   if (gateway.outbox.push(kAnyModule, frame, delivery, now)) return;
   warn_.warn(Warn::kRefused,
              "surface: backbone queue to gateway '{}' full: frames refused (counted per lane; "
@@ -381,9 +366,10 @@ void Surface::on_payload(Gateway& from, std::span<const std::uint8_t> payload) {
     case v1::Payload::kPdopPackets:
       return on_pdop_packets(from, inbound_.pdop_packets());
     case v1::Payload::kPdopReports:
-      return on_pdop_reports(from, inbound_.pdop_reports());
+      pdop_.on_reports(pdop_from(from), inbound_.pdop_reports());
+      return flush_relay();  // each outcome answers its master
     case v1::Payload::kPdopNodes:
-      return on_pdop_nodes(from, inbound_.pdop_nodes());
+      return pdop_.on_nodes(pdop_from(from), inbound_.pdop_nodes());
     case v1::Payload::kRemoteResult:
     case v1::Payload::kRemoteProgress:
       if (remote_observer_) return remote_observer_(from.id, inbound_);
@@ -483,69 +469,31 @@ void Surface::on_node_events(Gateway& from, const v1::NodeEvents& events) {
   }
 }
 
-void Surface::on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes) {
-  for (const v1::PdopNodes::Node& n : nodes.nodes()) {
-    if (n.surface_node() < 1 || n.surface_node() > canopen::pdop::kMaxNode ||
-        std::find(from.modules.begin(), from.modules.end(), n.module_id()) == from.modules.end() ||
-        !table_.speaks_for(from.id, static_cast<canopen::NodeId>(n.surface_node()))) {
-      ++counters_.pdop_malformed;
-      continue;
-    }
-    const auto node = static_cast<canopen::NodeId>(n.surface_node());
-    pdop_owner_[node] = {static_cast<int>(from.id), n.module_id()};
-    relay_.set_relayed(node, n.whole());
-    fragments_as_frames_[node] = !n.whole();
-  }
-  const auto whole = std::count_if(nodes.nodes().begin(), nodes.nodes().end(),
-                                   [](const v1::PdopNodes::Node& n) { return n.whole(); });
-  spdlog::info("surface: gateway '{}' has {} pdop node(s), {} carrying PDO Packets whole",
-               from.name, nodes.nodes_size(), whole);
-}
-
 // A packet goes on the bus as the node sent it, under its surface id (docs/pdop.md section 2),
 // so a master on the surface bus sees PDOP unchanged.
 void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
-  const auto speaks_for = [&](canopen::NodeId node) { return table_.speaks_for(from.id, node); };
+  const SurfacePdopWork::From source = pdop_from(from);
   for (const v1::PdopPacket& p : packets.packets()) {
-    const std::string& data = p.data();
-    const bool announced =
-        std::find(from.modules.begin(), from.modules.end(), p.module_id()) != from.modules.end();
-    PdopPacketToBus to_bus = surface_pdop_packet(p, announced, speaks_for);
+    const PdopPacketToBus to_bus = pdop_.on_packet(source, p);
     if (to_bus.verdict == PdopPacketToBus::Verdict::not_its_own) {
       drop_not_its_own(from, NotItsOwn::outside_claims, to_bus.cob_id);
       continue;
     }
-    const std::vector<can::Frame>& fragments = to_bus.fragments;
-    if (to_bus.verdict != PdopPacketToBus::Verdict::to_bus) {
-      ++counters_.pdop_malformed;
-      warn_.warn(Warn::kPdopMalformed,
-                 "surface: gateway '{}' sent a PDO Packet with module {} node {} TPDO {} and {} "
-                 "bytes, which cannot be put on the bus: dropped (counted)",
-                 from.name, p.module_id(), p.surface_node(), p.pdo(), data.size());
-      continue;
-    }
+    if (to_bus.verdict != PdopPacketToBus::Verdict::to_bus) continue;  // counted there
     // Whole or not at all (a packet with fragments missing can pass a master's toggle check),
     // and in order: a packet waits while the bus's transmit queue cannot take all of it.
-    if (!writer_.write(fragments, BusWriteQueue::Lane::reliable)) {
+    if (!writer_.write(to_bus.fragments, BusWriteQueue::Lane::reliable)) {
       ++counters_.pdop_bus_refused;
       warn_.warn(Warn::kBusRefused,
                  "surface: bus {} cannot hold a PDO Packet of {} fragments: refused (counted as "
                  "pdop bus-refused)",
-                 bus_->name(), fragments.size());
+                 bus_->name(), to_bus.fragments.size());
       continue;
     }
-    if (monitor_) monitor_(fragments, p.module_id(), true);
-    ++counters_.pdop_packets;
-    counters_.pdop_packet_bytes += data.size();
-    if (p.probable_repeat()) {
-      ++counters_.pdop_probable_repeats;
-      warn_.warn(Warn::kPdopRepeat,
-                 "surface: gateway '{}' node {} TPDO{}: a one-frame packet repeating the last "
-                 "fragment of the packet before it, probably received twice on the module bus; "
-                 "delivered all the same (counted as probable-repeats)",
-                 from.name, p.surface_node(), p.pdo());
-    }
+    if (monitor_) monitor_(to_bus.fragments, p.module_id(), true);
+    pdop_.delivered(source, p);
     if (pdop_observer_) {
+      const std::string& data = p.data();
       const std::span<const std::uint8_t> bytes(reinterpret_cast<const std::uint8_t*>(data.data()),
                                                 data.size());
       pdop_observer_({from.name, p.module_id(), static_cast<canopen::NodeId>(p.local_node()),
@@ -553,33 +501,6 @@ void Surface::on_pdop_packets(Gateway& from, const v1::PdopPackets& packets) {
                       p.first_fragment_us(), p.duration_us(), p.probable_repeat()});
     }
   }
-}
-
-void Surface::on_pdop_reports(Gateway& from, const v1::PdopReports& reports) {
-  for (const v1::PdopDiscard& d : reports.discards()) {
-    ++counters_.pdop_discards;
-    warn_.warn(Warn::kPdopDiscard,
-               "surface: gateway '{}' module {} node {} (surface {}) TPDO{}: broken PDO Packet "
-               "discarded ({}, after {} fragments) (counted; later ones only in the counters)",
-               from.name, d.module_id(), d.local_node(), d.surface_node(), d.tpdo(),
-               v1::PdopDiscard::Reason_Name(d.reason()), d.fragments());
-  }
-  for (const v1::RpdopOutcome& o : reports.outcomes()) {
-    const canopen::pdop::AckStatus status = rpdop_ack_status(o);
-    if (status == canopen::pdop::AckStatus::complete) {
-      ++counters_.rpdop_complete;
-    } else {
-      ++counters_.rpdop_failed;
-      warn_.warn(
-          Warn::kRpdopFailed,
-          "surface: gateway '{}' node {} RPDO{}: packet not delivered ({}, status 0x{:02X}); "
-          "the master sees the status (counted; later ones only in the counters)",
-          from.name, o.surface_node(), o.rpdo(), v1::RpdopOutcome::Result_Name(o.result()),
-          o.status());
-    }
-    relay_.on_outcome(o.request_id(), status, relay_out_);
-  }
-  flush_relay();
 }
 
 void Surface::send_to_bus(const can::Frame& frame, std::uint32_t module_id) {
@@ -681,6 +602,15 @@ SurfaceCounters Surface::counters() const {
   c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;
   c.sdo_withdrawn_answered_before = guard_.counters().withdrawn_answered_before;
   c.sdo_withdrawn_untracked = guard_.counters().withdrawn_untracked;
+  const SurfacePdopWork::Counters& pdop = pdop_.counters();
+  c.pdop_packets = pdop.pdop_packets;
+  c.pdop_packet_bytes = pdop.pdop_packet_bytes;
+  c.pdop_malformed = pdop.pdop_malformed;
+  c.pdop_probable_repeats = pdop.pdop_probable_repeats;
+  c.pdop_discards = pdop.pdop_discards;
+  c.rpdop_forwarded = pdop.rpdop_forwarded;
+  c.rpdop_complete = pdop.rpdop_complete;
+  c.rpdop_failed = pdop.rpdop_failed;
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {

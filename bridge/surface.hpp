@@ -26,6 +26,7 @@
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/surface_counters.hpp"
 #include "bridge/surface_node_states.hpp"
+#include "bridge/surface_pdop_work.hpp"
 #include "bridge/surface_statistics.hpp"
 #include "bridge/warn_once.hpp"
 #include "can/bus.hpp"
@@ -105,7 +106,7 @@ class Surface {
   void on_pdop_packet(std::function<void(const SurfacePdopPacket&)> observer) {
     pdop_observer_ = std::move(observer);
   }
-  const RpdopRelay& rpdop_relay() const { return relay_; }
+  const RpdopRelay& rpdop_relay() const { return pdop_.relay(); }
 
   // Remote access (bridge/surface_remote.hpp) rides on these.
   // Who owns which surface node and module, and which gateways are connected.
@@ -156,9 +157,9 @@ class Surface {
   void send_to_bus(const can::Frame& frame, std::uint32_t module_id = 0);
   // Input from every gateway waits while the bus is backed up (BusWriteQueue::backlogged).
   void on_bus_backlog(bool backlogged);
-  void on_pdop_nodes(Gateway& from, const v1::PdopNodes& nodes);
   void on_pdop_packets(Gateway& from, const v1::PdopPackets& packets);
-  void on_pdop_reports(Gateway& from, const v1::PdopReports& reports);
+  // The PDOP work's view of a gateway.
+  SurfacePdopWork::From pdop_from(const Gateway& gateway) const;
   // Sends the relay's acknowledgements to the bus and its packets to their gateways.
   // Also re-arms the deadline driver: the relay's deadline may have moved earlier.
   void flush_relay();
@@ -169,10 +170,6 @@ class Surface {
     kMalformed,
     kRefused,
     kBusRefused,
-    kPdopMalformed,
-    kPdopDiscard,
-    kRpdopFailed,
-    kPdopRepeat,
     kUnclaimed,
     kStranger,
     kWarnKinds
@@ -192,18 +189,9 @@ class Surface {
   SdoLinkGuard guard_;
   // Every gateway's nodes by their events: the node summary of statistics().
   SurfaceNodeStates node_states_;
-  RpdopRelay relay_;
-  RpdopRelay::Output relay_out_;
-  // One timer for every core with deadlines (today the RPDOP relay).
+  SurfacePdopWork pdop_;  // pdop nodes' owners, the RPDOP relay, TPDOP packets and reports
+  // One timer for every core with deadlines (the RPDOP relay, the SDO guard).
   DeadlineDriver deadlines_;
-  // Surface node id -> the gateway (SdoLinkGuard id) and module of its pdop node; -1: none.
-  struct PdopOwner {
-    int gateway = -1;
-    std::uint32_t module_id = 0;
-  };
-  std::array<PdopOwner, canopen::pdop::kMaxNode + 1> pdop_owner_{};
-  // Surface node ids of pdop nodes whose fragments cross as frames: kept in bus order.
-  std::array<bool, canopen::pdop::kMaxNode + 1> fragments_as_frames_{};
   std::function<void(const SurfacePdopPacket&)> pdop_observer_;
   LoopGuard loop_guard_;
   // Frames (TPDOP packets whole) waiting for room on the bus: bursts from the backbone outrun it.
