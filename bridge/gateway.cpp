@@ -263,6 +263,7 @@ bool Gateway::refuse_colliding_sdo(std::size_t m, const can::Frame& local) {
   }
   const auto node = static_cast<canopen::NodeId>(local.id - canopen::cob::sdo_rx);
   if (!remote_.transferring(m, node)) return false;
+  if (remote_.yield_census(m, node)) return false;  // the census only asks: it gives way
   ++counters_.sdo_collisions;
   warn_.warn(Warn::kSdoCollision,
              "gateway {}: an SDO request from the surface to module {} node {} met the gateway's "

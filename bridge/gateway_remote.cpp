@@ -306,6 +306,18 @@ bool GatewayRemote::transferring(std::size_t module_index, NodeId local) const {
   return it != lanes_.end() && it->second.running && it->second.running->uses_channel();
 }
 
+bool GatewayRemote::yield_census(std::size_t module_index, NodeId local) {
+  auto it = lanes_.find({module_index, local});
+  if (it == lanes_.end() || !it->second.running) return false;
+  const auto probe = probes_.find(it->second.running->id);
+  if (probe == probes_.end()) return false;
+  // Not pumped here: the lane's next job waits for the master's transfer, which starts now.
+  it->second.running.reset();
+  probes_.erase(probe);
+  ++counters_.census_yielded;
+  return true;
+}
+
 std::vector<v1::RemoteProgress> GatewayRemote::take_progress() {
   std::vector<v1::RemoteProgress> out;
   for (auto& [id, progress] : progress_) out.push_back(std::move(progress));

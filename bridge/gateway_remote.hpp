@@ -46,11 +46,12 @@ class GatewayRemote {
   };
 
   struct Counters {
-    std::uint64_t requests = 0;           // requests taken (duplicates not counted)
-    std::uint64_t census_probes = 0;      // ask_silent_nodes() questions (not in `requests`)
-    std::uint64_t failed = 0;             // results with an abort code (cancelled ones included)
-    std::uint64_t cancelled = 0;          // answered "cancelled"
-    std::uint64_t duplicates = 0;         // repeated request ids: answered with nothing
+    std::uint64_t requests = 0;        // requests taken (duplicates not counted)
+    std::uint64_t census_probes = 0;   // ask_silent_nodes() questions (not in `requests`)
+    std::uint64_t census_yielded = 0;  // ... ended unanswered for a surface master (yield_census)
+    std::uint64_t failed = 0;          // results with an abort code (cancelled ones included)
+    std::uint64_t cancelled = 0;       // answered "cancelled"
+    std::uint64_t duplicates = 0;      // repeated request ids: answered with nothing
     std::uint64_t waited_for_master = 0;  // transfers that waited for a master's transfer
     std::uint64_t sdo_frames_taken = 0;   // node responses that went to the runner
     // Results the session gave up for their age (a long cut or stall), queued again: the
@@ -103,6 +104,12 @@ class GatewayRemote {
     canopen::NodeId local = 0;
   };
   std::vector<FoundInLoader> take_found_in_loader() { return std::exchange(found_in_loader_, {}); }
+  // A surface master's SDO request to `local` met the gateway's own transfer with it: true when
+  // that transfer is a census question, which then ends at once, unanswered and with nothing
+  // written (an abort frame would end the master's transfer at the node too), so the master's
+  // request goes to the node. The census only asks: it never makes a master see a collision
+  // (0x08000021) from a node that may not even exist. False for any other transfer.
+  bool yield_census(std::size_t module_index, canopen::NodeId local);
 
   // Output, taken by the gateway.
   std::vector<BusFrames>& bus_frames() { return bus_frames_; }

@@ -567,6 +567,33 @@ TEST(GatewayRemote, ARequestIdOfTheCensusFromTheSurfaceIsRefusedNotSwallowed) {
   EXPECT_EQ(rig.core->counters().census_probes, 1u);
 }
 
+// Issue 28: the census only asks. A surface master's request to a node under a census question
+// (an absent one here, which never answers) must not meet a collision abort (0x08000021) that a
+// scanning master would take for a node: the question ends at once, unanswered, with nothing
+// written (an abort frame would end the master's own transfer at the node). A surface request's
+// transfer never gives way.
+TEST(GatewayRemote, ACensusQuestionGivesWayToASurfaceMaster) {
+  Rig rig({node_spec(4)});
+  rig.advance(10ms);
+  rig.core->ask_silent_nodes(0, {6}, GatewayRemote::CensusQuestion::present, 200ms, rig.now);
+  rig.run();
+  ASSERT_TRUE(rig.core->transferring(0, 6));
+  const std::size_t written = rig.written.size();
+  EXPECT_TRUE(rig.core->yield_census(0, 6));
+  EXPECT_FALSE(rig.core->transferring(0, 6));
+  EXPECT_EQ(rig.core->pending(), 0u);
+  EXPECT_EQ(rig.core->counters().census_yielded, 1u);
+  for (int i = 0; i < 5; ++i) rig.advance(100ms);
+  EXPECT_EQ(rig.written.size(), written);  // no abort, no retry
+  EXPECT_TRUE(rig.results.empty());
+  EXPECT_TRUE(rig.core->take_found_in_loader().empty());
+  EXPECT_FALSE(rig.core->yield_census(0, 6));  // nothing running
+  rig.request(sdo_request(7, 4, true, 0x1000), false);
+  ASSERT_TRUE(rig.core->transferring(0, 4));
+  EXPECT_FALSE(rig.core->yield_census(0, 4));
+  EXPECT_TRUE(rig.core->transferring(0, 4));
+}
+
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
 // (its own PeerStream over an in-memory link) that sends RemoteRequest payloads and frames.
 class GatewayWithScriptedSurface : public ::testing::Test {
