@@ -79,6 +79,7 @@ std::vector<GatewayModule> open_modules(asio::any_io_executor ex,
     module.conflate_pdos = m.conflate_pdos;
     module.lss = options.lss_module == m.id;
     module.heartbeat_lost_after = m.heartbeat_lost_after;
+    module.census = m.census;
     module.reassemble_pdop = m.reassemble_pdop;
     module.pdop_reassembly = m.pdop_reassembly;
     module.pdop_segmentation = m.pdop_segmentation;

@@ -189,6 +189,7 @@ void Gateway::start() {
 
 void Gateway::ask_silent_nodes(DeadlineDriver::TimePoint now) {
   for (std::size_t m = 0; m < map_.modules().size(); ++m) {
+    if (!modules_[m].census) continue;
     const IdProfile profile = map_.modules()[m].profile;
     std::vector<NodeId> unknown;
     for (NodeId local = 1; local <= max_node_id(profile); ++local) {
@@ -683,6 +684,8 @@ GatewayCounters Gateway::counters() const {
   c.remote_cancelled = remote.cancelled;
   c.remote_duplicates = remote.duplicates;
   c.remote_waited_for_master = remote.waited_for_master;
+  c.census_questions = remote.census_probes;
+  c.census_yielded = remote.census_yielded;
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {

@@ -43,6 +43,7 @@ struct GatewayModule {
   bool conflate_pdos = true;
   bool lss = false;  // LSS reaches this module (at most one module of a gateway)
   std::optional<std::chrono::milliseconds> heartbeat_lost_after{};  // unset: 3 x observed interval
+  bool census = true;  // ask the silent mapped ids 2 s after start (Gateway::ask_silent_nodes)
   // pdop modules (docs/pdop.md): TPDOP fragments are reassembled and cross as one packet each
   // (false: forwarded frame by frame, as on any other module), RPDOP packets from the surface
   // are segmented toward the node with its flow control. Ignored on other profiles.

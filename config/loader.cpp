@@ -428,13 +428,15 @@ bool read_module_nodes(Reader& in, const YAML::Node& m, const std::string& path,
 // module is returned when it has an id and a bus.
 std::optional<ModuleOptions> read_module(Reader& in, const YAML::Node& m, const std::string& path,
                                          std::set<std::string>& buses, bridge::NodeMap& map) {
-  in.only_keys(m, path,
-               {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "pdop"});
+  in.only_keys(
+      m, path,
+      {"id", "bus", "nodes", "conflate_pdos", "profile", "heartbeat_lost_ms", "census", "pdop"});
   ModuleOptions module;
   auto id = in.integer(m, "id", path, 0, 0xFFFFFFFELL, true);
   auto bus = in.interface_name(m, "bus", path, true);
   const bool profile_ok = read_module_profile(in, m, path, module);
   if (auto conflate = in.boolean(m, "conflate_pdos", path)) module.conflate_pdos = *conflate;
+  if (auto census = in.boolean(m, "census", path)) module.census = *census;
   if (auto lost = in.integer(m, "heartbeat_lost_ms", path, 10, 600000, false)) {
     module.heartbeat_lost_after = std::chrono::milliseconds(*lost);
   }

@@ -44,6 +44,10 @@ struct ModuleOptions {
   // A node whose heartbeat is silent this long is reported lost to the surface; unset: three
   // times the node's own heartbeat interval, as observed (docs/canopen-bridging.md).
   std::optional<std::chrono::milliseconds> heartbeat_lost_after;
+  // Two seconds after start the gateway asks the mapped ids it has not heard from whether they
+  // are there (1000h:00; qd: 1F57h:01), so that nodes booted before it are listed
+  // (docs/remote-access.md, "census"); false: no frame on this bus the gateway was not asked for.
+  bool census = true;
   // profile pdop only (`pdop:` block; docs/pdop.md section 5): packets cross the backbone whole
   // (reassemble false: fragment by fragment), with these limits in both directions.
   bool reassemble_pdop = true;

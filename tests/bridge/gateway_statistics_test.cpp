@@ -81,14 +81,18 @@ TEST(GatewayStatistics, LineSaysWhatIsThereAndNothingElse) {
   EXPECT_NE(line.find("vcan2"), std::string::npos) << line;
   EXPECT_EQ(line.find("pdop packets"), std::string::npos) << line;
   EXPECT_EQ(line.find("remote requests"), std::string::npos) << line;
+  EXPECT_EQ(line.find("census"), std::string::npos) << line;
 
   GatewayStatsSnapshot busy = snapshot();
   busy.pdop_active = true;
   busy.pdop_dropped_frames = 12;
   busy.counters.remote_requests = 2;
+  busy.counters.census_questions = 30;
+  busy.counters.census_yielded = 1;
   const std::string busy_line = gateway_stats_line(busy);
   EXPECT_NE(busy_line.find("dropped-frames 12"), std::string::npos) << busy_line;
   EXPECT_NE(busy_line.find("remote requests 2"), std::string::npos) << busy_line;
+  EXPECT_NE(busy_line.find("census questions 30 gave-way 1"), std::string::npos) << busy_line;
 }
 
 }  // namespace

@@ -303,6 +303,8 @@ TEST(Config, SerialGatewayLoads) {
   ASSERT_EQ(g.modules.size(), 2u);
   EXPECT_TRUE(g.modules[0].conflate_pdos);
   EXPECT_FALSE(g.modules[1].conflate_pdos);
+  EXPECT_TRUE(g.modules[0].census);  // the default
+  EXPECT_FALSE(g.modules[1].census);
 }
 
 TEST(Config, SurfaceWithListenerAndTwoSerialLinesLoads) {
@@ -389,6 +391,7 @@ INSTANTIATE_TEST_SUITE_P(
                 "'xonxoff' is not one of none, hardware"},
         BadCase{"gateway_conflate_not_bool.yaml", 8, "modules[0].conflate_pdos",
                 "must be true or false"},
+        BadCase{"gateway_census_not_bool.yaml", 8, "modules[0].census", "must be true or false"},
         BadCase{"surface_conflate_not_bool.yaml", 6, "backbone.conflate_pdos",
                 "must be true or false"},
         BadCase{"gateway_conflate_after_too_long.yaml", 6, "backbone.conflate_after_ms",
