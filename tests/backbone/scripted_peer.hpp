@@ -35,23 +35,23 @@ class PeerScript {
 
   // The next envelope the side under test sends must match (tolerated ones are passed over).
   PeerScript& expect(EnvelopeMatch match) {
-    return add({Step::expect, std::move(match.description), std::move(match.accepts)});
+    return add({Step::expect_step, std::move(match.description), std::move(match.accepts)});
   }
   // Writes `envelope` to the side under test.
   PeerScript& reply(v1::Envelope envelope) {
-    Step s{Step::reply, "reply " + describe(envelope)};
+    Step s{Step::reply_step, "reply " + describe(envelope)};
     s.envelope = std::move(envelope);
     return add(std::move(s));
   }
   // Does nothing for `delay` (what arrives meanwhile waits for the next expect).
   PeerScript& after(Clock::duration delay) {
-    Step s{Step::after, "wait " + std::to_string(ms(delay)) + " ms"};
+    Step s{Step::after_step, "wait " + std::to_string(ms(delay)) + " ms"};
     s.delay = delay;
     return add(std::move(s));
   }
   // For `duration`, nothing but tolerated envelopes may arrive: nothing more was sent.
   PeerScript& quiet_for(Clock::duration duration) {
-    Step s{Step::quiet,
+    Step s{Step::quiet_step,
            "nothing but tolerated envelopes for " + std::to_string(ms(duration)) + " ms"};
     s.delay = duration;
     return add(std::move(s));
@@ -59,36 +59,36 @@ class PeerScript {
   // The `n`th envelope the side under test writes from this step on is lost and the link breaks
   // there: the envelopes before it reach the script, it and everything after it do not.
   PeerScript& fail_write(int n) {
-    Step s{Step::fail_write, "fail write " + std::to_string(n) + " of the side under test"};
+    Step s{Step::fail_write_step, "fail write " + std::to_string(n) + " of the side under test"};
     s.count = n;
     return add(std::move(s));
   }
   // Closes the link from the peer's end.
-  PeerScript& close() { return add({Step::close, "close the link"}); }
+  PeerScript& close() { return add({Step::close_step, "close the link"}); }
   // The link must end (the side under test closes it, or a failed write broke it).
-  PeerScript& expect_closed() { return add({Step::expect_closed, "the link closes"}); }
+  PeerScript& expect_closed() { return add({Step::expect_closed_step, "the link closes"}); }
   // From here on, envelopes matching `match` that the current expectation does not are passed
   // over (recorded, not checked): keepalives and bare acks an idle side sends when it likes.
   PeerScript& tolerate(EnvelopeMatch match) {
-    Step s{Step::tolerate, "tolerate " + match.description, std::move(match.accepts)};
+    Step s{Step::tolerate_step, "tolerate " + match.description, std::move(match.accepts)};
     return add(std::move(s));
   }
-  PeerScript& tolerate_nothing() { return add({Step::tolerate, "tolerate nothing"}); }
+  PeerScript& tolerate_nothing() { return add({Step::tolerate_step, "tolerate nothing"}); }
   // Runs `action` on the side under test at this point (e.g. queue payloads).
   PeerScript& act(std::string description, std::function<void()> action) {
-    Step s{Step::act, std::move(description)};
+    Step s{Step::act_step, std::move(description)};
     s.action = std::move(action);
     return add(std::move(s));
   }
   // `condition` must hold when the script gets here.
   PeerScript& check(std::string description, std::function<bool()> condition) {
-    Step s{Step::check, std::move(description)};
+    Step s{Step::check_step, std::move(description)};
     s.condition = std::move(condition);
     return add(std::move(s));
   }
   // Waits until `condition` holds (re-checked on every event and every few ms).
   PeerScript& wait_for(std::string description, std::function<bool()> condition) {
-    Step s{Step::wait_for, std::move(description)};
+    Step s{Step::wait_for_step, std::move(description)};
     s.condition = std::move(condition);
     return add(std::move(s));
   }
@@ -101,18 +101,19 @@ class PeerScript {
   }
 
   struct Step {
+    // Named apart from the builder methods above (clang's -Wshadow).
     enum Kind {
-      expect,
-      reply,
-      after,
-      quiet,
-      fail_write,
-      close,
-      expect_closed,
-      tolerate,
-      act,
-      check,
-      wait_for
+      expect_step,
+      reply_step,
+      after_step,
+      quiet_step,
+      fail_write_step,
+      close_step,
+      expect_closed_step,
+      tolerate_step,
+      act_step,
+      check_step,
+      wait_for_step
     };
     Kind kind;
     std::string description;
@@ -270,7 +271,7 @@ class ScriptedPeer {
     bool play(PeerScript::Step& step) {
       using Step = PeerScript::Step;
       switch (step.kind) {
-        case Step::expect:
+        case Step::expect_step:
           while (inbox_next < received.size()) {
             const Received& r = received[inbox_next++];
             if (step.accepts(r.envelope)) return in_time(step, r.at);
@@ -279,43 +280,43 @@ class ScriptedPeer {
           }
           if (closed) fail(where() + ": the link closed" + recent());
           return false;
-        case Step::expect_closed:
+        case Step::expect_closed_step:
           while (inbox_next < received.size()) {
             const Received& r = received[inbox_next++];
             if (tolerated && tolerated(r.envelope)) continue;
             return fail(where() + ": got " + describe(r.envelope));
           }
           return closed && in_time(step, closed_at);
-        case Step::reply:
+        case Step::reply_step:
           if (closed) return fail(where() + ": the link closed" + recent());
           outbox.emplace_back();
           append_message(outbox.back(), step.envelope);
           link->wake_writer();
           return true;
-        case Step::quiet:
+        case Step::quiet_step:
           while (inbox_next < received.size()) {
             const Received& r = received[inbox_next++];
             if (tolerated && tolerated(r.envelope)) continue;
             return fail(where() + ": got " + describe(r.envelope));
           }
           return waited_for(step.delay);
-        case Step::after:
+        case Step::after_step:
           return waited_for(step.delay);
-        case Step::fail_write:
+        case Step::fail_write_step:
           fail_countdown = step.count;
           return true;
-        case Step::close:
+        case Step::close_step:
           link->close();
           return true;
-        case Step::tolerate:
+        case Step::tolerate_step:
           tolerated = step.accepts;
           return true;
-        case Step::act:
+        case Step::act_step:
           step.action();
           return true;
-        case Step::check:
+        case Step::check_step:
           return step.condition() || fail(where() + ": does not hold");
-        case Step::wait_for:
+        case Step::wait_for_step:
           return step.condition();
       }
       return false;
