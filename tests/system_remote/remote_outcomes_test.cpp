@@ -20,6 +20,7 @@
 #include <string>
 #include <string_view>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "tests/support/bus_log.hpp"
@@ -98,6 +99,21 @@ class RemoteOutcomes : public ::testing::Test {
         kEvent))
         << "node 10 does not beat";
     client_ = std::make_unique<EndpointClient>(socket_path_);
+  }
+
+  // Asks for network `net`'s node list until a row matches `row` (the surface learns the nodes
+  // from the gateway's events) or kEvent passes: whether one did, and the last list.
+  std::pair<bool, std::string> poll_nodes(int net, const std::regex& row) {
+    std::string all;
+    const auto until = std::chrono::steady_clock::now() + kEvent;
+    for (int n = 10; std::chrono::steady_clock::now() < until; ++n) {
+      const std::string seq = "[" + std::to_string(n) + "]";
+      client_->send(seq + " " + std::to_string(net) + " nodes\n");
+      all.clear();
+      for (const auto& l : client_->lines_until(seq + " OK", kEvent)) all += l + "\n";
+      if (std::regex_search(all, row)) return {true, all};
+    }
+    return {false, all};
   }
 
   void TearDown() override {
@@ -319,16 +335,7 @@ TEST_F(RemoteOutcomes, ANodeWaitingInItsLoaderBeforeTheGatewayStartedIsListed) {
   // The node list shows it in its loader (the surface learns it from the new gateway's events).
   const std::regex loader_row(
       "node net=3 module=2 gateway=remote-gateway local=1 surface=5 \\S+ \\S+ state=loader ");
-  bool listed = false;
-  std::string all;
-  const auto until = std::chrono::steady_clock::now() + kEvent;
-  for (int n = 10; !listed && std::chrono::steady_clock::now() < until; ++n) {
-    const std::string seq = "[" + std::to_string(n) + "]";
-    client_->send(seq + " 3 nodes\n");
-    all.clear();
-    for (const auto& l : client_->lines_until(seq + " OK", kEvent)) all += l + "\n";
-    listed = std::regex_search(all, loader_row);
-  }
+  const auto [listed, all] = poll_nodes(3, loader_row);
   EXPECT_TRUE(listed) << all << processes_->gateway->output();
   for (const BusLog::Entry& e : vcan2.entries(restarted_at)) {
     EXPECT_FALSE(asked(2)(e.frame)) << "a beating node was asked";
@@ -366,16 +373,7 @@ TEST_F(RemoteOutcomes, ANodeWithItsHeartbeatOffBeforeTheGatewayStartedIsListedAl
   const std::regex alive_row(
       "node net=2 module=1 gateway=remote-gateway local=12 surface=\\d+ \\S+ \\S+ "
       "state=unknown hb_age_ms=- ");
-  bool listed = false;
-  std::string all;
-  const auto until = std::chrono::steady_clock::now() + kEvent;
-  for (int n = 10; !listed && std::chrono::steady_clock::now() < until; ++n) {
-    const std::string seq = "[" + std::to_string(n) + "]";
-    client_->send(seq + " 2 nodes\n");
-    all.clear();
-    for (const auto& l : client_->lines_until(seq + " OK", kEvent)) all += l + "\n";
-    listed = std::regex_search(all, alive_row);
-  }
+  const auto [listed, all] = poll_nodes(2, alive_row);
   EXPECT_TRUE(listed) << all << processes_->gateway->output();
   EXPECT_EQ(all.find("local=12 surface=44 profile=cia301 kind=- state=lost"), std::string::npos);
   for (const BusLog::Entry& e : vcan1_->entries(restarted_at)) {
