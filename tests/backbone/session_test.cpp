@@ -228,7 +228,10 @@ TEST_F(SessionTest, APeerThatGoesSilentIsDeclaredDeadWithinDeadAfter) {
 
 TEST_F(SessionTest, IncompatibleMajorIsRefusedWithTheReasonOnBothSides) {
   gateway.identity().name = "old-gw";
-  auto [client, server] = connected_sockets(io);
+  // Named, not bound: clang 14 (Debian 12) cannot capture a structured binding in a lambda.
+  auto sockets = connected_sockets(io);
+  auto& client = sockets.client;
+  auto& server = sockets.server;
   // The gateway's hello claims another major: build it by hand through a raw link.
   v1::Envelope hello;
   hello.mutable_hello()->set_protocol_major(kProtocolMajor + 1);
@@ -278,7 +281,10 @@ TEST_F(SessionTest, TwoGatewaysRefuseEachOthersRoleAndNeitherComesUp) {
 }
 
 TEST_F(SessionTest, DataInTheSameReadAsThePeersHelloIsDelivered) {
-  auto [client, server] = connected_sockets(io);
+  // Named, not bound: clang 14 (Debian 12) cannot capture a structured binding in a lambda.
+  auto sockets = connected_sockets(io);
+  auto& client = sockets.client;
+  auto& server = sockets.server;
   gateway.attach(StreamLink::create(std::move(client)));
   // A raw surface: its hello and two reliable payloads in one write, as a real surface sends them
   // when it has data queued for a gateway that reconnects.
