@@ -398,7 +398,12 @@ tunnel_row() {
   [[ $label =~ ${CANBRIDGE_BENCH_ROWS:-.} ]] || return 0
   [[ -n $baud ]] && count=$serial_burst
   start_bridge "$name" "$exe" "$conf" "$baud"
+  # Each role's CPU over the burst, % of one guest CPU: whether a role is the bottleneck (near
+  # 100) or the pipeline waits (both well below).
+  local gb sb burst_cpu
+  gb=$(cpu_ticks "$gpid"); sb=$(cpu_ticks "$spid")
   measure "$name" vcan1 vcan0 1a1 "$count" burst
+  burst_cpu="$(cpu_pct $(($(cpu_ticks "$gpid") - gb)) "$(out "$name" seconds)") $(cpu_pct $(($(cpu_ticks "$spid") - sb)) "$(out "$name" seconds)")"
   # CPU per frame on the latency path: each role's CPU time over the 1k/s run / frames delivered.
   local g0 s0 us1k=(- -)
   g0=$(cpu_ticks "$gpid"); s0=$(cpu_ticks "$spid")
@@ -410,7 +415,7 @@ tunnel_row() {
   stop_bridge
   local bpf notes fb=(- - - - - - -) sc=(- -)
   bpf=$(bytes_per_frame "$name")
-  notes="$(counters "$name")"
+  notes="$(counters "$name"); burst CPU % gw sf: $burst_cpu over $(out "$name" seconds) s"
   if [[ -z $baud ]]; then
     start_bridge "$name.4" "$exe" "$conf-4bus"
     fourbus "$name.4"
