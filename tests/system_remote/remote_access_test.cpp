@@ -164,12 +164,14 @@ class RemoteAccess : public ::testing::Test {
     if (::testing::Test::HasFatalFailure()) return;
     ASSERT_TRUE(std::filesystem::exists(socket_path_)) << processes_->surface->output();
     // Every node has booted and beats (qd nodes: after their loader's boot-up).
-    for (const auto& [bus, local] : {std::pair{vcan1_.get(), 10u},
-                                     {vcan1_.get(), 11u},
-                                     {vcan2_.get(), 1u},
-                                     {vcan2_.get(), 2u},
-                                     {vcan2_.get(), 3u}}) {
-      ASSERT_TRUE(bus->wait_for(
+    // A pair, not a structured binding: clang 14 (Debian 12) cannot capture one in a lambda.
+    for (const auto& node : {std::pair{vcan1_.get(), 10u},
+                             {vcan1_.get(), 11u},
+                             {vcan2_.get(), 1u},
+                             {vcan2_.get(), 2u},
+                             {vcan2_.get(), 3u}}) {
+      const unsigned local = node.second;
+      ASSERT_TRUE(node.first->wait_for(
           0, [local](const Frame& f) { return is_heartbeat(f, local, 0x7F); }, kEvent))
           << "node " << local << " does not beat";
     }
