@@ -9,6 +9,7 @@
 #   CANBRIDGE_BASELINE=/work/baseline17/canbridge bench/speed_bench.sh ...   (before/after)
 #   CANBRIDGE_BENCH_TUNE="key=value ..." bench/speed_bench.sh ...            (the tcp-tuned row)
 #   CANBRIDGE_BENCH_ROWS=serial bench/speed_bench.sh ...     (only the canbridge rows matching it)
+#   CANBRIDGE_BENCH_PERF=/var/tmp/perf bench/speed_bench.sh ...  (perf reports of the 1k/s run)
 #
 # Rows (paths), each run:
 #   raw             cangen vcan0 -> receiver on vcan0 (the ceiling)
@@ -407,7 +408,28 @@ tunnel_row() {
   # CPU per frame on the latency path: each role's CPU time over the 1k/s run / frames delivered.
   local g0 s0 us1k=(- -)
   g0=$(cpu_ticks "$gpid"); s0=$(cpu_ticks "$spid")
+  # CANBRIDGE_BENCH_PERF=DIR: both roles profiled over the 1k/s run (perf record, call graphs),
+  # each report in DIR/NAME.{gw,sf}.perf.txt (where a frame's CPU goes when nothing batches).
+  local perf_pids=()
+  if [[ -n ${CANBRIDGE_BENCH_PERF:-} ]]; then
+    mkdir -p "$CANBRIDGE_BENCH_PERF"
+    perf record -F 4999 -g -p "$gpid" -o "$CANBRIDGE_BENCH_PERF/$name.gw.perf.data" \
+      >/dev/null 2>&1 &
+    perf_pids+=($!)
+    perf record -F 4999 -g -p "$spid" -o "$CANBRIDGE_BENCH_PERF/$name.sf.perf.data" \
+      >/dev/null 2>&1 &
+    perf_pids+=($!)
+    sleep 1  # perf attaches asynchronously; a benchmark may wait (tests may not)
+  fi
   measure "$name.p1k" vcan1 vcan0 1a1 $paced paced1k
+  if ((${#perf_pids[@]})); then
+    kill -INT "${perf_pids[@]}"
+    wait "${perf_pids[@]}" || true
+    for side in gw sf; do
+      perf report -i "$CANBRIDGE_BENCH_PERF/$name.$side.perf.data" --stdio --no-children \
+        --sort dso,sym 2>/dev/null | grep -v '^$' | head -80 >"$CANBRIDGE_BENCH_PERF/$name.$side.perf.txt" || true
+    done
+  fi
   us1k[0]=$(cpu_us_per_frame $(($(cpu_ticks "$gpid") - g0)) "$(out "$name.p1k" delivered)")
   us1k[1]=$(cpu_us_per_frame $(($(cpu_ticks "$spid") - s0)) "$(out "$name.p1k" delivered)")
   measure "$name.pmax" vcan1 vcan0 1a1 $max_count pacedmax
