@@ -409,7 +409,8 @@ tunnel_row() {
   local g0 s0 us1k=(- -)
   g0=$(cpu_ticks "$gpid"); s0=$(cpu_ticks "$spid")
   # CANBRIDGE_BENCH_PERF=DIR: both roles profiled over the 1k/s run (perf record, call graphs),
-  # each report in DIR/NAME.{gw,sf}.perf.txt (where a frame's CPU goes when nothing batches).
+  # each report in DIR/NAME.{gw,sf}.perf.txt (where a frame's CPU goes when nothing batches),
+  # with task clock and context switches in DIR/NAME.{gw,sf}.stat.txt.
   local perf_pids=()
   if [[ -n ${CANBRIDGE_BENCH_PERF:-} ]]; then
     mkdir -p "$CANBRIDGE_BENCH_PERF"
@@ -418,6 +419,13 @@ tunnel_row() {
     perf_pids+=($!)
     perf record -F 4999 -g -p "$spid" -o "$CANBRIDGE_BENCH_PERF/$name.sf.perf.data" \
       >/dev/null 2>&1 &
+    perf_pids+=($!)
+    # Task clock and context switches of each role over the same window.
+    perf stat -e task-clock,context-switches,cpu-migrations -p "$gpid" \
+      -o "$CANBRIDGE_BENCH_PERF/$name.gw.stat.txt" >/dev/null 2>&1 &
+    perf_pids+=($!)
+    perf stat -e task-clock,context-switches,cpu-migrations -p "$spid" \
+      -o "$CANBRIDGE_BENCH_PERF/$name.sf.stat.txt" >/dev/null 2>&1 &
     perf_pids+=($!)
     sleep 1  # perf attaches asynchronously; a benchmark may wait (tests may not)
   fi
