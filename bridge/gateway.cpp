@@ -686,6 +686,7 @@ GatewayCounters Gateway::counters() const {
   c.remote_waited_for_master = remote.waited_for_master;
   c.census_questions = remote.census_probes;
   c.census_yielded = remote.census_yielded;
+  c.census_late_answers = remote.census_late_answers;
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {

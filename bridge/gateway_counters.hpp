@@ -75,9 +75,11 @@ struct GatewayCounters {
   std::uint64_t sdo_collisions = 0;
   // The start-up census (Gateway::ask_silent_nodes): questions asked (each an SDO request on the
   // module bus, and an abort after 200 ms when nothing answers), and those that gave way to a
-  // surface master's request.
+  // surface master's request, and the late answers to those taken so that only the master's own
+  // answer reaches it.
   std::uint64_t census_questions = 0;
   std::uint64_t census_yielded = 0;
+  std::uint64_t census_late_answers = 0;
 };
 
 }  // namespace canbridge::bridge

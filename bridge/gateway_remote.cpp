@@ -189,7 +189,7 @@ void GatewayRemote::on_cancel(const v1::RemoteCancel& cancel, TimePoint now) {
 }
 
 bool GatewayRemote::on_bus_frame(std::size_t module_index, const can::Frame& frame, TimePoint now) {
-  if (lanes_.empty() || !frame.is_standard_data()) return false;
+  if ((lanes_.empty() && yielded_.empty()) || !frame.is_standard_data()) return false;
   if (frame.id == canopen::cob::lss_slave) {
     // An answer to the gateway's LSS service: the runner's (a surface master did not ask).
     auto it = lanes_.find({module_index, 0});
@@ -219,6 +219,7 @@ bool GatewayRemote::on_bus_frame(std::size_t module_index, const can::Frame& fra
   }
   if (!sdo_response) return false;
   const auto node = static_cast<NodeId>(frame.id - canopen::cob::sdo_tx);
+  if (!yielded_.empty() && take_late_census_answer(module_index, node, frame, now)) return true;
   auto it = lanes_.find({module_index, node});
   if (it == lanes_.end() || !it->second.running || !it->second.running->uses_channel()) {
     return false;
@@ -306,12 +307,35 @@ bool GatewayRemote::transferring(std::size_t module_index, NodeId local) const {
   return it != lanes_.end() && it->second.running && it->second.running->uses_channel();
 }
 
+bool GatewayRemote::take_late_census_answer(std::size_t module_index, NodeId node,
+                                            const can::Frame& frame, TimePoint now) {
+  const auto y = yielded_.find({module_index, node});
+  if (y == yielded_.end()) return false;
+  const YieldedQuestion q = y->second;
+  if (now >= q.until) {
+    yielded_.erase(y);  // too late to be the census's answer
+    return false;
+  }
+  // An initiate answer or an abort names its object in bytes 1-3.
+  if (frame.len != 8 || frame.data[1] != (q.index & 0xFF) || frame.data[2] != (q.index >> 8) ||
+      frame.data[3] != q.subindex) {
+    return false;
+  }
+  yielded_.erase(y);
+  ++counters_.census_late_answers;
+  return true;
+}
+
 bool GatewayRemote::yield_census(std::size_t module_index, NodeId local) {
   auto it = lanes_.find({module_index, local});
   if (it == lanes_.end() || !it->second.running) return false;
   const auto probe = probes_.find(it->second.running->id);
   if (probe == probes_.end()) return false;
   // Not pumped here: the lane's next job waits for the master's transfer, which starts now.
+  const bool loader = probe->second.question == CensusQuestion::in_loader;
+  yielded_[{module_index, local}] = {
+      loader ? canopen::firmware_objects::flash_status : std::uint16_t{0x1000},
+      static_cast<std::uint8_t>(loader ? 1 : 0), it->second.running->next_deadline()};
   it->second.running.reset();
   probes_.erase(probe);
   ++counters_.census_yielded;

@@ -49,11 +49,12 @@ class GatewayRemote {
     std::uint64_t requests = 0;        // requests taken (duplicates not counted)
     std::uint64_t census_probes = 0;   // ask_silent_nodes() questions (not in `requests`)
     std::uint64_t census_yielded = 0;  // ... ended unanswered for a surface master (yield_census)
-    std::uint64_t failed = 0;          // results with an abort code (cancelled ones included)
-    std::uint64_t cancelled = 0;       // answered "cancelled"
-    std::uint64_t duplicates = 0;      // repeated request ids: answered with nothing
-    std::uint64_t waited_for_master = 0;  // transfers that waited for a master's transfer
-    std::uint64_t sdo_frames_taken = 0;   // node responses that went to the runner
+    std::uint64_t census_late_answers = 0;  // ... whose answer came after all: taken, not forwarded
+    std::uint64_t failed = 0;               // results with an abort code (cancelled ones included)
+    std::uint64_t cancelled = 0;            // answered "cancelled"
+    std::uint64_t duplicates = 0;           // repeated request ids: answered with nothing
+    std::uint64_t waited_for_master = 0;    // transfers that waited for a master's transfer
+    std::uint64_t sdo_frames_taken = 0;     // node responses that went to the runner
     // Results the session gave up for their age (a long cut or stall), queued again: the
     // surface still waits for them (bridge/remote_request_ledger.hpp).
     std::uint64_t results_resent = 0;
@@ -109,6 +110,9 @@ class GatewayRemote {
   // written (an abort frame would end the master's transfer at the node too), so the master's
   // request goes to the node. The census only asks: it never makes a master see a collision
   // (0x08000021) from a node that may not even exist. False for any other transfer.
+  // The node may still answer the question (it was on the bus): until the question's own
+  // deadline, an SDO answer of the node naming the question's object is taken here, so that the
+  // master gets only the answer to its own request (counted as census_late_answers).
   bool yield_census(std::size_t module_index, canopen::NodeId local);
 
   // Output, taken by the gateway.
@@ -204,6 +208,17 @@ class GatewayRemote {
   };
   std::uint64_t probes_sent_ = 0;
   std::map<std::uint64_t, CensusProbe> probes_;
+  // Questions that gave way (yield_census): the object each asked and until when its answer may
+  // come. An answer naming it is the census's, never the master's.
+  struct YieldedQuestion {
+    std::uint16_t index = 0;
+    std::uint8_t subindex = 0;
+    TimePoint until{};
+  };
+  std::map<LaneKey, YieldedQuestion> yielded_;
+  // True when `frame` (an SDO answer of `node`) answers a question that gave way: taken.
+  bool take_late_census_answer(std::size_t module_index, canopen::NodeId node,
+                               const can::Frame& frame, TimePoint now);
   std::vector<FoundInLoader> found_in_loader_;
   Counters counters_;
 };

@@ -95,7 +95,8 @@ std::string gateway_stats_line(const GatewayStatsSnapshot& snapshot) {
         c.remote_waited_for_master, c.sdo_collisions);
   }
   if (c.census_questions != 0) {
-    s += fmt::format("; census questions {} gave-way {}", c.census_questions, c.census_yielded);
+    s += fmt::format("; census questions {} gave-way {} late-answers {}", c.census_questions,
+                     c.census_yielded, c.census_late_answers);
   }
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
     s += "; " + framing_counters_text(c.framing);

@@ -594,6 +594,35 @@ TEST(GatewayRemote, ACensusQuestionGivesWayToASurfaceMaster) {
   EXPECT_TRUE(rig.core->transferring(0, 4));
 }
 
+// The question was already on the bus when it gave way: the node's answer to it is the census's,
+// taken here, so that the master gets only the answer to its own request. An answer naming
+// another object (the master's) passes, and so does one after the question's own deadline.
+TEST(GatewayRemote, AnAnswerToACensusQuestionThatGaveWayNeverReachesTheMaster) {
+  Rig rig({node_spec(4)});
+  rig.advance(10ms);
+  rig.core->ask_silent_nodes(0, {4}, GatewayRemote::CensusQuestion::present, 200ms, rig.now);
+  std::vector<Frame> question;  // written, not yet on the bus: the master's request meets it
+  for (auto& b : rig.core->bus_frames())
+    question.insert(question.end(), b.frames.begin(), b.frames.end());
+  rig.core->bus_frames().clear();
+  ASSERT_EQ(question.size(), 1u);
+  ASSERT_TRUE(rig.core->yield_census(0, 4));
+  rig.to_bus(question[0]);  // node 4 answers 1000h:00
+  EXPECT_EQ(rig.core->counters().census_late_answers, 1u);
+  for (const Frame& f : rig.surface) EXPECT_FALSE(is_sdo_response_of(f, 4)) << f.id;
+  // The master's own answer (another object) passes.
+  const Frame masters = Frame::standard(0x584, {0x43, 0x03, 0x20, 0x00, 1, 2, 3, 4});
+  EXPECT_FALSE(rig.core->on_bus_frame(0, masters, rig.now));
+  // Once taken, or after the question's deadline, a 1000h:00 answer is the master's.
+  const Frame device_type = Frame::standard(0x584, {0x43, 0x00, 0x10, 0x00, 0x91, 0x01, 0, 0});
+  EXPECT_FALSE(rig.core->on_bus_frame(0, device_type, rig.now));
+  rig.core->ask_silent_nodes(0, {4}, GatewayRemote::CensusQuestion::present, 200ms, rig.now);
+  rig.core->bus_frames().clear();
+  ASSERT_TRUE(rig.core->yield_census(0, 4));
+  EXPECT_FALSE(rig.core->on_bus_frame(0, device_type, rig.now + 200ms));
+  EXPECT_EQ(rig.core->counters().census_late_answers, 1u);
+}
+
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
 // (its own PeerStream over an in-memory link) that sends RemoteRequest payloads and frames.
 class GatewayWithScriptedSurface : public ::testing::Test {

@@ -89,10 +89,12 @@ TEST(GatewayStatistics, LineSaysWhatIsThereAndNothingElse) {
   busy.counters.remote_requests = 2;
   busy.counters.census_questions = 30;
   busy.counters.census_yielded = 1;
+  busy.counters.census_late_answers = 1;
   const std::string busy_line = gateway_stats_line(busy);
   EXPECT_NE(busy_line.find("dropped-frames 12"), std::string::npos) << busy_line;
   EXPECT_NE(busy_line.find("remote requests 2"), std::string::npos) << busy_line;
-  EXPECT_NE(busy_line.find("census questions 30 gave-way 1"), std::string::npos) << busy_line;
+  EXPECT_NE(busy_line.find("census questions 30 gave-way 1 late-answers 1"), std::string::npos)
+      << busy_line;
 }
 
 }  // namespace
