@@ -11,6 +11,7 @@
 #include <signal.h>
 
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <map>
 #include <memory>
@@ -62,6 +63,16 @@ std::optional<std::string> error_code_of(std::string_view answer) {
   answer.remove_prefix(6);
   if (answer.starts_with(" ")) answer.remove_prefix(1);
   return std::string(answer.substr(0, answer.find(' ')));
+}
+
+// The census's question to `node` on the module bus, as candump shows it: an SDO upload request
+// (40h) of `index`:`subindex`.
+std::function<bool(const Frame&)> census_question(std::uint32_t node, std::uint16_t index,
+                                                  std::uint8_t subindex) {
+  return [=](const Frame& f) {
+    return f.id == 0x600u + node && f.len == 8 && f.data[0] == 0x40 &&
+           f.data[1] == (index & 0xFF) && f.data[2] == (index >> 8) && f.data[3] == subindex;
+  };
 }
 
 bool any_failure() {
@@ -318,12 +329,7 @@ TEST_F(RemoteOutcomes, ANodeWaitingInItsLoaderBeforeTheGatewayStartedIsListed) {
       << processes_->gateway->output();
   // The probe on the module bus, as candump would show it: node 1 is asked, and answers with its
   // flash status; node 2, which beats, is not asked.
-  const auto asked = [](std::uint32_t node) {
-    return [node](const Frame& f) {
-      return f.id == 0x600u + node && f.len == 8 && f.data[0] == 0x40 && f.data[1] == 0x57 &&
-             f.data[2] == 0x1F && f.data[3] == 0x01;
-    };
-  };
+  const auto asked = [](std::uint32_t node) { return census_question(node, 0x1F57, 1); };
   ASSERT_TRUE(vcan2.wait_for(restarted_at, asked(1), kEvent));
   ASSERT_TRUE(vcan2.wait_for(
       restarted_at,
@@ -355,12 +361,7 @@ TEST_F(RemoteOutcomes, ANodeWithItsHeartbeatOffBeforeTheGatewayStartedIsListedAl
   ASSERT_NO_FATAL_FAILURE(processes_->restart_gateway());
   ASSERT_TRUE(processes_->gateway->wait_for_line("for their device type", kEvent))
       << processes_->gateway->output();
-  const auto asked = [](std::uint32_t node) {
-    return [node](const Frame& f) {
-      return f.id == 0x600u + node && f.len == 8 && f.data[0] == 0x40 && f.data[1] == 0x00 &&
-             f.data[2] == 0x10 && f.data[3] == 0x00;
-    };
-  };
+  const auto asked = [](std::uint32_t node) { return census_question(node, 0x1000, 0); };
   ASSERT_TRUE(vcan1_->wait_for(restarted_at, asked(kQuiet), kEvent)) << "node 12 was not asked";
   ASSERT_TRUE(vcan1_->wait_for(
       restarted_at,
