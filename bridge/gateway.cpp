@@ -36,7 +36,7 @@ std::vector<GatewayPdopWork::Module> pdop_modules_of(const std::vector<GatewayMo
 
 std::vector<GatewayRemote::Module> remote_modules_of(const std::vector<GatewayModule>& modules) {
   std::vector<GatewayRemote::Module> remote;
-  for (const GatewayModule& m : modules) remote.push_back({m.id, m.lss});
+  for (const GatewayModule& m : modules) remote.push_back({m.id, m.lss, m.census});
   return remote;
 }
 
@@ -188,25 +188,12 @@ void Gateway::start() {
 }
 
 void Gateway::ask_silent_nodes(DeadlineDriver::TimePoint now) {
-  for (std::size_t m = 0; m < map_.modules().size(); ++m) {
-    if (!modules_[m].census) continue;
-    const IdProfile profile = map_.modules()[m].profile;
-    std::vector<NodeId> unknown;
-    for (NodeId local = 1; local <= max_node_id(profile); ++local) {
-      if (map_.surface_of(m, local) != 0 && node_table_.node(m, local) == nullptr) {
-        unknown.push_back(local);
-      }
-    }
-    if (unknown.empty()) continue;
-    // qd: whether it waits in its loader (an application's refusal lists it as well).
-    const auto question = profile == IdProfile::qd ? GatewayRemote::CensusQuestion::in_loader
-                                                   : GatewayRemote::CensusQuestion::present;
-    spdlog::info("gateway {}: module {}: asking {} silent id(s) {}", name_, modules_[m].id,
-                 unknown.size(),
-                 question == GatewayRemote::CensusQuestion::in_loader
+  for (const GatewayRemote::CensusAsked& asked : remote_.census(kCensusTimeout, now)) {
+    spdlog::info("gateway {}: module {}: asking {} silent id(s) {}", name_,
+                 modules_[asked.module_index].id, asked.ids,
+                 asked.question == GatewayRemote::CensusQuestion::in_loader
                      ? "whether they wait in their loader"
                      : "for their device type (a node with its heartbeat off is listed)");
-    remote_.ask_silent_nodes(m, unknown, question, kCensusTimeout, now);
   }
 }
 
@@ -669,24 +656,8 @@ GatewayCounters Gateway::counters() const {
   c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;
   c.outbox = outbox_.counters();
   c.process_lost_on_line = line_loss_.lost();
-  const GatewayPdopWork::Counters& pdop = pdop_.counters();
-  c.pdop_packets = pdop.packets;
-  c.pdop_packet_bytes = pdop.packet_bytes;
-  c.pdop_fragments = pdop.fragments;
-  c.pdop_discards = pdop.discards;
-  c.pdop_refused = pdop.refused;
-  c.rpdop_packets = pdop.rpdop_packets;
-  c.rpdop_complete = pdop.rpdop_complete;
-  c.rpdop_failed = pdop.rpdop_failed;
-  const GatewayRemote::Counters& remote = remote_.counters();
-  c.remote_requests = remote.requests;
-  c.remote_failed = remote.failed;
-  c.remote_cancelled = remote.cancelled;
-  c.remote_duplicates = remote.duplicates;
-  c.remote_waited_for_master = remote.waited_for_master;
-  c.census_questions = remote.census_probes;
-  c.census_yielded = remote.census_yielded;
-  c.census_late_answers = remote.census_late_answers;
+  c.pdop = pdop_.counters();
+  c.remote = remote_.counters();
   c.framing = old_links_framing_;
   c.backbone_tx_bytes = old_links_tx_bytes_;
   if (link_) {

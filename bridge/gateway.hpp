@@ -43,7 +43,7 @@ struct GatewayModule {
   bool conflate_pdos = true;
   bool lss = false;  // LSS reaches this module (at most one module of a gateway)
   std::optional<std::chrono::milliseconds> heartbeat_lost_after{};  // unset: 3 x observed interval
-  bool census = true;  // ask the silent mapped ids 2 s after start (Gateway::ask_silent_nodes)
+  bool census = true;  // ask the silent mapped ids 2 s after start (GatewayRemote::census)
   // pdop modules (docs/pdop.md): TPDOP fragments are reassembled and cross as one packet each
   // (false: forwarded frame by frame, as on any other module), RPDOP packets from the surface
   // are segmented toward the node with its flow control. Ignored on other profiles.
@@ -141,8 +141,7 @@ class Gateway {
   // Remote services: their frames to the buses, the driver re-armed, results to the stream, the
   // loaders the census found to the node table.
   void after_remote_input();
-  // The census: the mapped ids the node table does not know yet are asked whether they are there
-  // (qd: whether they wait in their loader; GatewayRemote::ask_silent_nodes).
+  // The census (GatewayRemote::census), logged per module.
   void ask_silent_nodes(DeadlineDriver::TimePoint now);
   // A surface master's SDO request to a node the gateway runs its own transfer with: not
   // written; answered toward the surface with abort 0x08000021 (counted). True when refused.

@@ -9,6 +9,8 @@
 #include "backbone/session.hpp"
 #include "bridge/bus_write_queue.hpp"
 #include "bridge/frame_outbox.hpp"
+#include "bridge/gateway_pdop_work.hpp"
+#include "bridge/gateway_remote.hpp"
 #include "routing/cob_id_translator.hpp"
 
 namespace canbridge::bridge {
@@ -53,33 +55,15 @@ struct GatewayCounters {
   // (refused commands are counted in translation as rename-refused).
   std::uint64_t nodes_moved = 0;
   std::uint64_t node_moves_refused = 0;
-  // PDO Packets (pdop modules with reassembly; docs/pdop.md).
-  std::uint64_t pdop_packets = 0;       // TPDOP packets queued for the surface
-  std::uint64_t pdop_packet_bytes = 0;  // ... their data bytes
-  std::uint64_t pdop_fragments = 0;     // ... their fragments (frames not sent one by one)
-  std::uint64_t pdop_discards = 0;      // broken TPDOP packets, reported to the surface
-  std::uint64_t pdop_refused = 0;       // packets or reports refused: the queue was full
-  std::uint64_t rpdop_packets = 0;      // RPDOP packets from the surface
-  std::uint64_t rpdop_complete = 0;     // ... the node acknowledged them complete
-  std::uint64_t rpdop_failed = 0;       // ... any other outcome
+  // PDO Packets (pdop modules with reassembly; docs/pdop.md), as the core counts them.
+  GatewayPdopWork::Counters pdop;
   std::uint64_t backbone_tx_bytes = 0;  // bytes written on backbone links, all links so far
-  // Services run for the surface (remote access, docs/remote-access.md): requests taken, those
-  // answered with an abort (cancelled ones too), cancelled, repeated ids answered with nothing,
-  // transfers that waited for a master's, and a master's SDO requests refused with 0x08000021
-  // because the gateway ran its own transfer with the node.
-  std::uint64_t remote_requests = 0;
-  std::uint64_t remote_failed = 0;
-  std::uint64_t remote_cancelled = 0;
-  std::uint64_t remote_duplicates = 0;
-  std::uint64_t remote_waited_for_master = 0;
+  // Services run for the surface (remote access, docs/remote-access.md) and the start-up census
+  // (Gateway::start), as the core counts them.
+  GatewayRemote::Counters remote;
+  // A master's SDO requests refused with 0x08000021: the gateway ran its own transfer with the
+  // node.
   std::uint64_t sdo_collisions = 0;
-  // The start-up census (Gateway::ask_silent_nodes): questions asked (each an SDO request on the
-  // module bus, and an abort after 200 ms when nothing answers), and those that gave way to a
-  // surface master's request, and the late answers to those taken so that only the master's own
-  // answer reaches it.
-  std::uint64_t census_questions = 0;
-  std::uint64_t census_yielded = 0;
-  std::uint64_t census_late_answers = 0;
 };
 
 }  // namespace canbridge::bridge

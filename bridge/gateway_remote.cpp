@@ -375,9 +375,31 @@ void GatewayRemote::ask_silent_nodes(std::size_t module_index,
       r.mutable_sdo()->set_subindex(0);
     }
     probes_[r.request_id()] = {{module_index, local}, question};
-    ++counters_.census_probes;
+    ++counters_.census_questions;
     take(r, now);
   }
+}
+
+std::vector<GatewayRemote::CensusAsked> GatewayRemote::census(std::chrono::milliseconds timeout,
+                                                              TimePoint now) {
+  std::vector<CensusAsked> asked;
+  for (std::size_t m = 0; m < modules_.size() && m < map_->modules().size(); ++m) {
+    if (!modules_[m].census) continue;
+    const IdProfile profile = map_->modules()[m].profile;
+    std::vector<canopen::NodeId> silent;
+    for (canopen::NodeId local = 1; local <= max_node_id(profile); ++local) {
+      if (map_->surface_of(m, local) != 0 && table_->node(m, local) == nullptr) {
+        silent.push_back(local);
+      }
+    }
+    if (silent.empty()) continue;
+    // qd: whether it waits in its loader (an application's refusal lists it as well).
+    const CensusQuestion question =
+        profile == IdProfile::qd ? CensusQuestion::in_loader : CensusQuestion::present;
+    ask_silent_nodes(m, silent, question, timeout, now);
+    asked.push_back({m, silent.size(), question});
+  }
+  return asked;
 }
 
 void GatewayRemote::answer(std::uint64_t id, std::uint32_t abort_code, std::string detail,

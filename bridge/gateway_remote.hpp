@@ -34,7 +34,8 @@ class GatewayRemote {
 
   struct Module {
     ModuleId id = 0;
-    bool lss = false;  // LSS reaches this module's bus
+    bool lss = false;    // LSS reaches this module's bus
+    bool census = true;  // census() asks its silent ids
   };
   // True while a master on the surface (through the tunnel) has an SDO transfer open with the
   // node (ModuleSdoTracking): the gateway's own transfer waits (first come owns the channel).
@@ -46,9 +47,9 @@ class GatewayRemote {
   };
 
   struct Counters {
-    std::uint64_t requests = 0;        // requests taken (duplicates not counted)
-    std::uint64_t census_probes = 0;   // ask_silent_nodes() questions (not in `requests`)
-    std::uint64_t census_yielded = 0;  // ... ended unanswered for a surface master (yield_census)
+    std::uint64_t requests = 0;          // requests taken (duplicates not counted)
+    std::uint64_t census_questions = 0;  // ask_silent_nodes() questions (not in `requests`)
+    std::uint64_t census_yielded = 0;    // ... ended unanswered for a surface master (yield_census)
     std::uint64_t census_late_answers = 0;  // ... whose answer came after all: taken, not forwarded
     std::uint64_t failed = 0;               // results with an abort code (cancelled ones included)
     std::uint64_t cancelled = 0;            // answered "cancelled"
@@ -100,6 +101,15 @@ class GatewayRemote {
   // answered also come out of take_found_in_loader(). Nothing reaches the surface.
   void ask_silent_nodes(std::size_t module_index, const std::vector<canopen::NodeId>& locals,
                         CensusQuestion question, std::chrono::milliseconds timeout, TimePoint now);
+  // The start-up census, run once the nodes with a heartbeat have all been heard: on each module
+  // with `census` on, the mapped ids the node table does not know are asked their profile's
+  // question (in_loader on qd, present otherwise). What each module asked, for the log.
+  struct CensusAsked {
+    std::size_t module_index = 0;
+    std::size_t ids = 0;
+    CensusQuestion question = CensusQuestion::present;
+  };
+  std::vector<CensusAsked> census(std::chrono::milliseconds timeout, TimePoint now);
   struct FoundInLoader {
     std::size_t module_index = 0;
     canopen::NodeId local = 0;

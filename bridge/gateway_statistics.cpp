@@ -79,24 +79,25 @@ std::string gateway_stats_line(const GatewayStatsSnapshot& snapshot) {
       "queued-total {} sdo-requests-withdrawn {}; {}",
       c.from_buses, c.frames_received, c.unknown_module, c.process_lost_on_line, c.outbox.queued,
       c.outbox.sdo_requests_withdrawn, session_counters_text(c.session));
-  if (snapshot.pdop_active || c.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
+  if (snapshot.pdop_active ||
+      c.pdop.rpdop_packets != 0) {  // RPDOP packets to no pdop node: refused
     s += fmt::format(
         "; pdop packets {} ({} bytes, {} fragments) discarded {} dropped-frames {} refused {}, "
         "rpdop packets {} complete {} failed {}",
-        c.pdop_packets, c.pdop_packet_bytes, c.pdop_fragments, c.pdop_discards,
-        snapshot.pdop_dropped_frames, c.pdop_refused, c.rpdop_packets, c.rpdop_complete,
-        c.rpdop_failed);
+        c.pdop.packets, c.pdop.packet_bytes, c.pdop.fragments, c.pdop.discards,
+        snapshot.pdop_dropped_frames, c.pdop.refused, c.pdop.rpdop_packets, c.pdop.rpdop_complete,
+        c.pdop.rpdop_failed);
   }
-  if (c.remote_requests + c.sdo_collisions + c.remote_duplicates != 0) {
+  if (c.remote.requests + c.sdo_collisions + c.remote.duplicates != 0) {
     s += fmt::format(
         "; remote requests {} failed {} cancelled {} duplicates {} waited-for-master {} "
         "sdo-collisions {}",
-        c.remote_requests, c.remote_failed, c.remote_cancelled, c.remote_duplicates,
-        c.remote_waited_for_master, c.sdo_collisions);
+        c.remote.requests, c.remote.failed, c.remote.cancelled, c.remote.duplicates,
+        c.remote.waited_for_master, c.sdo_collisions);
   }
-  if (c.census_questions != 0) {
-    s += fmt::format("; census questions {} gave-way {} late-answers {}", c.census_questions,
-                     c.census_yielded, c.census_late_answers);
+  if (c.remote.census_questions != 0) {
+    s += fmt::format("; census questions {} gave-way {} late-answers {}", c.remote.census_questions,
+                     c.remote.census_yielded, c.remote.census_late_answers);
   }
   if (c.framing.frames + c.framing.discarded_bytes != 0) {
     s += "; " + framing_counters_text(c.framing);

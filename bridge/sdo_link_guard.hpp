@@ -71,6 +71,11 @@ class SdoLinkGuard {
     std::uint64_t withdrawn_pending = 0;
     std::uint64_t withdrawn_answered_before = 0;
     std::uint64_t withdrawn_untracked = 0;
+
+    // Requests answered with 0x05040000 because of their link (down, or could not queue).
+    std::uint64_t aborted() const {
+      return aborted_at_once + aborted_in_flight + aborted_not_forwarded;
+    }
   };
 
   // A frame a gateway sent towards the surface: its node-addressed COB-IDs (heartbeats, EMCY,

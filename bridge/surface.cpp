@@ -592,25 +592,8 @@ SurfaceCounters Surface::counters() const {
   c.bus_waiting_peak = q.peak_waiting;
   c.bus_drops = q.dropped;
   c.bus_refused += writer_.queue().dropped() + writer_.refused();
-  c.sdo_aborted = guard_.counters().aborted_at_once + guard_.counters().aborted_in_flight +
-                  guard_.counters().aborted_not_forwarded;
-  c.sdo_late_responses_dropped = guard_.counters().late_responses_dropped;
-  c.sdo_answers_recovered = guard_.counters().answers_recovered;
-  c.sdo_aborted_overdue = guard_.counters().aborted_overdue;
-  c.sdo_stale_responses_dropped = guard_.counters().stale_responses_dropped;
-  c.sdo_stale_aborts_dropped = guard_.counters().stale_aborts_dropped;
-  c.sdo_withdrawn_pending = guard_.counters().withdrawn_pending;
-  c.sdo_withdrawn_answered_before = guard_.counters().withdrawn_answered_before;
-  c.sdo_withdrawn_untracked = guard_.counters().withdrawn_untracked;
-  const SurfacePdopWork::Counters& pdop = pdop_.counters();
-  c.pdop_packets = pdop.pdop_packets;
-  c.pdop_packet_bytes = pdop.pdop_packet_bytes;
-  c.pdop_malformed = pdop.pdop_malformed;
-  c.pdop_probable_repeats = pdop.pdop_probable_repeats;
-  c.pdop_discards = pdop.pdop_discards;
-  c.rpdop_forwarded = pdop.rpdop_forwarded;
-  c.rpdop_complete = pdop.rpdop_complete;
-  c.rpdop_failed = pdop.rpdop_failed;
+  c.sdo_guard = guard_.counters();
+  c.pdop = pdop_.counters();
   c.framing = closed_links_framing_;
   for (const auto& l : links_) c.framing += l->message_link()->counters().deframer;
   for (const auto& [name, g] : gateways_) {

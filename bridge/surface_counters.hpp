@@ -13,6 +13,8 @@
 #include "bridge/bus_write_queue.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/gateway_table.hpp"
+#include "bridge/sdo_link_guard.hpp"
+#include "bridge/surface_pdop_work.hpp"
 
 namespace canbridge::bridge {
 
@@ -33,24 +35,14 @@ struct SurfaceCounters {
   std::uint64_t unknown_module = 0;        // batches for a module the gateway did not announce
   std::uint64_t process_lost_on_line = 0;  // process frames gateways sent that never arrived
   backbone::DeframerCounters framing{};    // CRC-framed links (serial), all links so far
-  std::uint64_t sdo_aborted = 0;     // SDO requests answered with 0x05040000: gateway link down
-  std::uint64_t echoes_dropped = 0;  // frames the surface wrote, read back from its bus
-  std::uint64_t node_events = 0;     // node table events the gateways reported
+  std::uint64_t echoes_dropped = 0;        // frames the surface wrote, read back from its bus
+  std::uint64_t node_events = 0;           // node table events the gateways reported
   // SDO requests never sent because the master got an abort when their link went down: queued
   // ones are in outbox.sdo_requests_withdrawn, these were sent and not yet acknowledged.
   std::uint64_t sdo_requests_withdrawn_unacked = 0;
-  std::uint64_t sdo_late_responses_dropped = 0;  // answers to requests the master saw aborted
-  // Answers to requests in flight when their link dropped, brought by the next link in time.
-  std::uint64_t sdo_answers_recovered = 0;
-  // SDO requests aborted on a live link: no answer within four fifths of the master's time-out.
-  std::uint64_t sdo_aborted_overdue = 0;
-  std::uint64_t sdo_stale_responses_dropped = 0;  // answers that cannot answer the pending request
-  // Link-down aborts not sent: the request was older than its master can still be waiting.
-  std::uint64_t sdo_stale_aborts_dropped = 0;
-  // The withdrawn SDO requests by how their master gets its answer (SdoLinkGuard::Counters).
-  std::uint64_t sdo_withdrawn_pending = 0;
-  std::uint64_t sdo_withdrawn_answered_before = 0;
-  std::uint64_t sdo_withdrawn_untracked = 0;
+  // SDO requests whose master the surface answered for itself (aborts, recovered answers) and
+  // answers it kept from the master, as the link guard counts them.
+  SdoLinkGuard::Counters sdo_guard;
   // Reliable frames for a gateway given up before it acknowledged them, by reason (queued ones
   // and sent ones); SDO requests among them were answered with an abort if still open.
   std::uint64_t reliable_dropped_too_old = 0;  // never sent: the gateway never had them
@@ -60,15 +52,8 @@ struct SurfaceCounters {
   std::uint64_t reliable_expired_unacked = 0;
   std::uint64_t sdo_aborted_dropped = 0;
   // PDO Packets (docs/pdop.md).
-  std::uint64_t pdop_packets = 0;  // TPDOP packets from gateways, put on the bus
-  std::uint64_t pdop_packet_bytes = 0;
-  std::uint64_t pdop_bus_refused = 0;       // packets refused: more fragments than the bus holds
-  std::uint64_t pdop_malformed = 0;         // packets with a bad node, TPDO or size (dropped)
-  std::uint64_t pdop_probable_repeats = 0;  // flagged as a probable double reception
-  std::uint64_t pdop_discards = 0;          // broken packets the gateways reported
-  std::uint64_t rpdop_forwarded = 0;        // RPDOP packets from the master sent to gateways
-  std::uint64_t rpdop_complete = 0;         // ... acknowledged complete by the node
-  std::uint64_t rpdop_failed = 0;           // ... any other outcome (the master saw the status)
+  SurfacePdopWork::Counters pdop;      // as the core counts them
+  std::uint64_t pdop_bus_refused = 0;  // packets refused: more fragments than the bus holds
   // Who may speak (issue 15): hellos refused for who the peer is (a name not configured, an
   // identity not proven), and frames bound gateways sent that are not theirs to send, by reason
   // (NotItsOwn), summed and per gateway (configured names only: bounded).

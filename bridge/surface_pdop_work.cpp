@@ -17,7 +17,7 @@ void SurfacePdopWork::on_nodes(const From& from, const v1::PdopNodes& nodes) {
     if (n.surface_node() < 1 || n.surface_node() > canopen::pdop::kMaxNode ||
         !announced(from, n.module_id()) ||
         !from.speaks_for(static_cast<canopen::NodeId>(n.surface_node()))) {
-      ++counters_.pdop_malformed;
+      ++counters_.malformed;
       continue;
     }
     const auto node = static_cast<canopen::NodeId>(n.surface_node());
@@ -35,7 +35,7 @@ PdopPacketToBus SurfacePdopWork::on_packet(const From& from, const v1::PdopPacke
   PdopPacketToBus to_bus =
       surface_pdop_packet(packet, announced(from, packet.module_id()), from.speaks_for);
   if (to_bus.verdict == PdopPacketToBus::Verdict::cannot_be_put) {
-    ++counters_.pdop_malformed;
+    ++counters_.malformed;
     warn_.warn(Warn::kMalformed,
                "surface: gateway '{}' sent a PDO Packet with module {} node {} TPDO {} and {} "
                "bytes, which cannot be put on the bus: dropped (counted)",
@@ -46,10 +46,10 @@ PdopPacketToBus SurfacePdopWork::on_packet(const From& from, const v1::PdopPacke
 }
 
 void SurfacePdopWork::delivered(const From& from, const v1::PdopPacket& packet) {
-  ++counters_.pdop_packets;
-  counters_.pdop_packet_bytes += packet.data().size();
+  ++counters_.packets;
+  counters_.packet_bytes += packet.data().size();
   if (!packet.probable_repeat()) return;
-  ++counters_.pdop_probable_repeats;
+  ++counters_.probable_repeats;
   warn_.warn(Warn::kRepeat,
              "surface: gateway '{}' node {} TPDO{}: a one-frame packet repeating the last "
              "fragment of the packet before it, probably received twice on the module bus; "
@@ -59,7 +59,7 @@ void SurfacePdopWork::delivered(const From& from, const v1::PdopPacket& packet) 
 
 void SurfacePdopWork::on_reports(const From& from, const v1::PdopReports& reports) {
   for (const v1::PdopDiscard& d : reports.discards()) {
-    ++counters_.pdop_discards;
+    ++counters_.discards;
     warn_.warn(Warn::kDiscard,
                "surface: gateway '{}' module {} node {} (surface {}) TPDO{}: broken PDO Packet "
                "discarded ({}, after {} fragments) (counted; later ones only in the counters)",

@@ -31,11 +31,11 @@ class SurfacePdopWork {
   using GatewayId = std::size_t;
 
   struct Counters {
-    std::uint64_t pdop_packets = 0;  // TPDOP packets put on the bus (delivered())
-    std::uint64_t pdop_packet_bytes = 0;
-    std::uint64_t pdop_malformed = 0;  // bad node, TPDO, size or module: dropped
-    std::uint64_t pdop_probable_repeats = 0;
-    std::uint64_t pdop_discards = 0;    // broken packets the gateways reported
+    std::uint64_t packets = 0;  // TPDOP packets put on the bus (delivered())
+    std::uint64_t packet_bytes = 0;
+    std::uint64_t malformed = 0;  // bad node, TPDO, size or module: dropped
+    std::uint64_t probable_repeats = 0;
+    std::uint64_t discards = 0;         // broken packets the gateways reported
     std::uint64_t rpdop_forwarded = 0;  // the master's RPDOP packets sent to gateways
     std::uint64_t rpdop_complete = 0;   // ... acknowledged complete by the node
     std::uint64_t rpdop_failed = 0;     // ... any other outcome, or no link to send it on

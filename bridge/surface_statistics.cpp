@@ -36,19 +36,19 @@ RoleStatistics surface_statistics(const SurfaceStatsSnapshot& snapshot) {
   s.drops.push_back({"process-lost-on-line", c.process_lost_on_line});
   s.drops.push_back({"malformed-payload", c.malformed_payloads + c.session.malformed});
   s.drops.push_back({"unknown-module", c.unknown_module});
-  s.drops.push_back({"pdop-malformed", c.pdop_malformed});
+  s.drops.push_back({"pdop-malformed", c.pdop.malformed});
   s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
   s.sdo_requests = {
-      {"aborted-link-down", c.sdo_aborted},
+      {"aborted-link-down", c.sdo_guard.aborted()},
       {"aborted-given-up", c.sdo_aborted_dropped},
-      {"answers-recovered", c.sdo_answers_recovered},
-      {"aborted-overdue", c.sdo_aborted_overdue},
-      {"withdrawn-pending", c.sdo_withdrawn_pending},
-      {"withdrawn-answered-before", c.sdo_withdrawn_answered_before},
-      {"withdrawn-untracked", c.sdo_withdrawn_untracked},
-      {"late-answers-dropped", c.sdo_late_responses_dropped},
-      {"stale-answers-dropped", c.sdo_stale_responses_dropped},
-      {"stale-aborts-dropped", c.sdo_stale_aborts_dropped},
+      {"answers-recovered", c.sdo_guard.answers_recovered},
+      {"aborted-overdue", c.sdo_guard.aborted_overdue},
+      {"withdrawn-pending", c.sdo_guard.withdrawn_pending},
+      {"withdrawn-answered-before", c.sdo_guard.withdrawn_answered_before},
+      {"withdrawn-untracked", c.sdo_guard.withdrawn_untracked},
+      {"late-answers-dropped", c.sdo_guard.late_responses_dropped},
+      {"stale-answers-dropped", c.sdo_guard.stale_responses_dropped},
+      {"stale-aborts-dropped", c.sdo_guard.stale_aborts_dropped},
   };
   s.nodes = snapshot.nodes;
   return s;
@@ -74,18 +74,19 @@ std::string surface_stats_line(const SurfaceStatsSnapshot& snapshot) {
       snapshot.name, snapshot.gateways_up, snapshot.gateways_configured, c.outbox.frames_sent,
       c.to_bus, c.outbox.conflated, c.outbox.process_dropped, c.outbox.reliable_refused,
       c.session.reliable_sent, c.session.reliable_resent, c.session.dead_links,
-      c.session.refusals_sent, c.session.refusals_received, c.sdo_aborted,
-      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked, c.sdo_withdrawn_pending,
-      c.sdo_withdrawn_answered_before, c.sdo_withdrawn_untracked, c.sdo_answers_recovered,
-      c.sdo_aborted_overdue, c.sdo_late_responses_dropped, c.sdo_stale_responses_dropped,
-      c.sdo_stale_aborts_dropped, c.reliable_dropped_too_old, c.reliable_dropped_gateway_restart,
-      c.sdo_aborted_dropped, c.reliable_expired_unacked, c.session.stale_links_closed,
-      c.echoes_dropped, c.bus_refused, c.dropped_no_gateway, c.dropped_unclaimed,
-      c.malformed_payloads + c.session.malformed, c.unknown_module, c.node_events, c.pdop_packets,
-      c.pdop_packet_bytes, c.pdop_discards, c.pdop_malformed, c.pdop_probable_repeats,
-      c.pdop_bus_refused, c.rpdop_forwarded, c.rpdop_complete, c.rpdop_failed, c.from_bus,
-      c.frames_received, c.process_lost_on_line, c.outbox.batches_sent, c.outbox.queued,
-      session_counters_text(c.session),
+      c.session.refusals_sent, c.session.refusals_received, c.sdo_guard.aborted(),
+      c.outbox.sdo_requests_withdrawn + c.sdo_requests_withdrawn_unacked,
+      c.sdo_guard.withdrawn_pending, c.sdo_guard.withdrawn_answered_before,
+      c.sdo_guard.withdrawn_untracked, c.sdo_guard.answers_recovered, c.sdo_guard.aborted_overdue,
+      c.sdo_guard.late_responses_dropped, c.sdo_guard.stale_responses_dropped,
+      c.sdo_guard.stale_aborts_dropped, c.reliable_dropped_too_old,
+      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.reliable_expired_unacked,
+      c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
+      c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
+      c.node_events, c.pdop.packets, c.pdop.packet_bytes, c.pdop.discards, c.pdop.malformed,
+      c.pdop.probable_repeats, c.pdop_bus_refused, c.pdop.rpdop_forwarded, c.pdop.rpdop_complete,
+      c.pdop.rpdop_failed, c.from_bus, c.frames_received, c.process_lost_on_line,
+      c.outbox.batches_sent, c.outbox.queued, session_counters_text(c.session),
       bus_counters_text(snapshot.bus.interface, snapshot.bus.counters), c.bus_waited,
       c.bus_waiting_peak, c.backbone_pauses);
   for (std::size_t r = 0; r < BusWriteQueue::kDropReasons; ++r) {

@@ -533,7 +533,7 @@ TEST(GatewayRemote, TheLoaderProbeFindsTheNodeInItsLoaderOnly) {
   EXPECT_EQ(found[0].local, 4);
   EXPECT_TRUE(rig.core->take_found_in_loader().empty());  // taken once
   EXPECT_TRUE(rig.results.empty());
-  EXPECT_EQ(rig.core->counters().census_probes, 3u);
+  EXPECT_EQ(rig.core->counters().census_questions, 3u);
   EXPECT_EQ(rig.core->counters().requests, 0u);  // the surface asked nothing
   for (const Frame& f : rig.surface) {
     EXPECT_FALSE(is_sdo_response_of(f, 4) || is_sdo_response_of(f, 5)) << f.id;
@@ -564,7 +564,7 @@ TEST(GatewayRemote, ARequestIdOfTheCensusFromTheSurfaceIsRefusedNotSwallowed) {
   ASSERT_EQ(found.size(), 1u);
   EXPECT_EQ(found[0].local, 4);
   EXPECT_EQ(rig.core->counters().requests, 2u);
-  EXPECT_EQ(rig.core->counters().census_probes, 1u);
+  EXPECT_EQ(rig.core->counters().census_questions, 1u);
 }
 
 // Issue 28: the census only asks. A surface master's request to a node under a census question
@@ -621,6 +621,48 @@ TEST(GatewayRemote, AnAnswerToACensusQuestionThatGaveWayNeverReachesTheMaster) {
   ASSERT_TRUE(rig.core->yield_census(0, 4));
   EXPECT_FALSE(rig.core->on_bus_frame(0, device_type, rig.now + 200ms));
   EXPECT_EQ(rig.core->counters().census_late_answers, 1u);
+}
+
+// The census asks exactly the silent mapped ids: those the node table has heard, the unmapped
+// ones and modules with the census off are not asked; a qd module asks 1F57h:01 (its loaders),
+// any other 1000h:00.
+TEST(GatewayRemote, TheCensusAsksEachSilentMappedIdItsProfilesQuestion) {
+  NodeMap map;
+  ASSERT_TRUE(map.add_module(1, {{1, 11}, {2, 12}, {3, 13}}, IdProfile::cia301).empty());
+  ASSERT_TRUE(map.add_module(2, {{4, 24}}, IdProfile::qd).empty());
+  ASSERT_TRUE(map.add_module(3, {{5, 35}}, IdProfile::cia301).empty());
+  NodeTable table;
+  table.add_module(IdProfile::cia301);
+  table.add_module(IdProfile::qd);
+  table.add_module(IdProfile::cia301);
+  std::vector<NodeEvent> events;
+  table.on_bus_frame(0, Frame::standard(0x702, {0x05}), t0, events);  // node 2 beats
+  ASSERT_NE(table.node(0, 2), nullptr);
+  GatewayRemote core(map, table, {{1, false, true}, {2, false, true}, {3, false, false}}, {},
+                     [](std::size_t, NodeId) { return false; });
+  const auto asked = core.census(200ms, t0);
+  ASSERT_EQ(asked.size(), 2u);
+  EXPECT_EQ(asked[0].module_index, 0u);
+  EXPECT_EQ(asked[0].ids, 2u);  // 1 and 3
+  EXPECT_EQ(asked[0].question, GatewayRemote::CensusQuestion::present);
+  EXPECT_EQ(asked[1].module_index, 1u);
+  EXPECT_EQ(asked[1].ids, 1u);
+  EXPECT_EQ(asked[1].question, GatewayRemote::CensusQuestion::in_loader);
+  std::set<std::pair<std::size_t, std::uint32_t>> requests;
+  for (const auto& b : core.bus_frames()) {
+    for (const Frame& f : b.frames) {
+      requests.insert({b.module_index, f.id});
+      const std::uint16_t index = static_cast<std::uint16_t>(f.data[1] | (f.data[2] << 8));
+      EXPECT_EQ(f.data[0], 0x40) << f.id;  // an upload request
+      EXPECT_EQ(index, b.module_index == 1 ? 0x1F57 : 0x1000) << f.id;
+      EXPECT_EQ(f.data[3], b.module_index == 1 ? 1 : 0) << f.id;
+    }
+  }
+  const std::set<std::pair<std::size_t, std::uint32_t>> expected{
+      {0, 0x601}, {0, 0x603}, {1, 0x604}};
+  EXPECT_EQ(requests, expected);
+  EXPECT_EQ(core.counters().census_questions, 3u);
+  EXPECT_EQ(core.counters().requests, 0u);
 }
 
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
@@ -780,9 +822,9 @@ TEST_F(GatewayWithScriptedSurface, ARequestGetsOneResultAndItsSdoFramesNeverReac
   EXPECT_EQ(surface_frames.back().data[0], 0x43);  // the node's expedited answer to the master
   EXPECT_EQ(results.size(), 2u);
   const GatewayCounters c = gateway->counters();
-  EXPECT_EQ(c.remote_requests, 2u);
-  EXPECT_EQ(c.remote_duplicates, 1u);
-  EXPECT_EQ(c.remote_failed, 0u);
+  EXPECT_EQ(c.remote.requests, 2u);
+  EXPECT_EQ(c.remote.duplicates, 1u);
+  EXPECT_EQ(c.remote.failed, 0u);
 }
 
 }  // namespace

@@ -86,10 +86,10 @@ TEST(GatewayStatistics, LineSaysWhatIsThereAndNothingElse) {
   GatewayStatsSnapshot busy = snapshot();
   busy.pdop_active = true;
   busy.pdop_dropped_frames = 12;
-  busy.counters.remote_requests = 2;
-  busy.counters.census_questions = 30;
-  busy.counters.census_yielded = 1;
-  busy.counters.census_late_answers = 1;
+  busy.counters.remote.requests = 2;
+  busy.counters.remote.census_questions = 30;
+  busy.counters.remote.census_yielded = 1;
+  busy.counters.remote.census_late_answers = 1;
   const std::string busy_line = gateway_stats_line(busy);
   EXPECT_NE(busy_line.find("dropped-frames 12"), std::string::npos) << busy_line;
   EXPECT_NE(busy_line.find("remote requests 2"), std::string::npos) << busy_line;

@@ -219,11 +219,11 @@ TEST_F(PdopBridging, TpdopPacketsCrossWholeAndReappearUnderTheSurfaceId) {
   EXPECT_EQ(tpdo_frames_on_surface(kSurfaceB).size(), 3u);
 
   const GatewayCounters g = gateway->counters();
-  EXPECT_EQ(g.pdop_packets, 3u);
-  EXPECT_EQ(g.pdop_fragments, 17u);
-  EXPECT_EQ(g.pdop_packet_bytes, 125u);
+  EXPECT_EQ(g.pdop.packets, 3u);
+  EXPECT_EQ(g.pdop.fragments, 17u);
+  EXPECT_EQ(g.pdop.packet_bytes, 125u);
   EXPECT_EQ(g.outbox.frames_sent, 0u);  // no fragment crossed as a frame of its own
-  EXPECT_EQ(surface.counters().pdop_packets, 3u);
+  EXPECT_EQ(surface.counters().pdop.packets, 3u);
   EXPECT_NE(gateway->stats_line().find("pdop packets 3 (125 bytes, 17 fragments) discarded 0"),
             std::string::npos)
       << gateway->stats_line();
@@ -235,7 +235,7 @@ TEST_F(PdopBridging, PacketsWaitWholeAndInOrderWhileTheSurfaceBusIsFull) {
   const auto a = pattern(100, 1), b = pattern(100, 2);
   send_packet(kLocalA, 1, a);
   send_packet(kLocalA, 1, b);
-  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop_packets == 2; }));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop.packets == 2; }));
   EXPECT_TRUE(tpdo_frames_on_surface(kSurfaceA).empty());  // no partial packet on the bus
   surface_port->set_room(RoomLimitedBus::kUnbounded);      // the queue drains
   ASSERT_TRUE(run_until(io, [&] { return tpdo_frames_on_surface(kSurfaceA).size() == 26; }));
@@ -260,9 +260,9 @@ TEST_F(PdopBridging, ABrokenPacketIsReportedToTheSurfaceAndNeverDelivered) {
   ASSERT_TRUE(node->send(frames[4]));  // c = 0: the stream is in step again
   send_packet(kLocalA, 1, pattern(16, 4));
   ASSERT_TRUE(run_until(io, [&] { return packets.size() == 1; }));
-  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop_discards == 1; }));
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop.discards == 1; }));
   EXPECT_EQ(packets[0].data, pattern(16, 4));
-  EXPECT_EQ(gateway->counters().pdop_discards, 1u);
+  EXPECT_EQ(gateway->counters().pdop.discards, 1u);
   EXPECT_EQ(tpdo_frames_on_surface(kSurfaceA).size(), 2u);  // only the good packet
 }
 
@@ -273,7 +273,7 @@ TEST_F(PdopBridging, ALastFragmentReceivedTwiceIsDeliveredFlaggedAsAProbableRepe
   ASSERT_TRUE(node->send(frames.back()));  // CAN's double reception of the last fragment
   ASSERT_TRUE(run_until(io, [&] { return packets.size() == 2; }));
   EXPECT_EQ(packets[1].data.size(), 1u);
-  EXPECT_EQ(surface.counters().pdop_probable_repeats, 1u);
+  EXPECT_EQ(surface.counters().pdop.probable_repeats, 1u);
   EXPECT_NE(surface.stats_line().find("probable-repeats 1"), std::string::npos);
 }
 
@@ -289,8 +289,8 @@ TEST_F(PdopBridging, LostFramesOnTheModuleBusDiscardWhatTheyMayHaveBroken) {
   send_packet(kLocalA, 1, pattern(24, 7));
   ASSERT_TRUE(run_until(io, [&] { return packets.size() == 1; }));
   EXPECT_EQ(packets[0].data, pattern(24, 7));
-  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop_discards == 1; }));
-  EXPECT_EQ(gateway->counters().pdop_discards, 1u);
+  ASSERT_TRUE(run_until(io, [&] { return surface.counters().pdop.discards == 1; }));
+  EXPECT_EQ(gateway->counters().pdop.discards, 1u);
 }
 
 TEST_F(PdopBridging, FragmentsOfANodeWithoutASurfaceIdAreCountedNotReassembled) {
@@ -302,7 +302,7 @@ TEST_F(PdopBridging, FragmentsOfANodeWithoutASurfaceIdAreCountedNotReassembled) 
   std::uint64_t dropped = 0;
   for (auto d : gateway->counters().translation) dropped += d;
   EXPECT_EQ(dropped, 3u);
-  EXPECT_EQ(gateway->counters().pdop_packets, 1u);
+  EXPECT_EQ(gateway->counters().pdop.packets, 1u);
 }
 
 TEST_F(PdopBridging, WithoutReassemblyFragmentsCrossOneByOne) {
@@ -311,7 +311,7 @@ TEST_F(PdopBridging, WithoutReassemblyFragmentsCrossOneByOne) {
   send_packet(kLocalA, 1, data);
   ASSERT_TRUE(run_until(io, [&] { return tpdo_frames_on_surface(kSurfaceA).size() == 4; }));
   EXPECT_TRUE(packets.empty());
-  EXPECT_EQ(gateway->counters().pdop_packets, 0u);
+  EXPECT_EQ(gateway->counters().pdop.packets, 0u);
   EXPECT_EQ(gateway->counters().outbox.frames_sent, 4u);
 }
 
@@ -405,8 +405,8 @@ TEST_F(PdopBridging, RpdopFromTheSurfaceMasterReachesTheNodePacedByItsAcknowledg
   EXPECT_EQ(receiver.fragments, 128u);
   EXPECT_EQ(receiver.over_limit, 0u);
   EXPECT_GE(receiver.acks, 128u / kWindow);  // paced by the node, window by window
-  EXPECT_EQ(gateway->counters().rpdop_complete, 1u);
-  EXPECT_EQ(surface.counters().rpdop_complete, 1u);
+  EXPECT_EQ(gateway->counters().pdop.rpdop_complete, 1u);
+  EXPECT_EQ(surface.counters().pdop.rpdop_complete, 1u);
 }
 
 TEST_F(PdopBridging, RpdopToANodeWhoseGatewayIsNotConnectedEndsAtOnceWith0x82) {
@@ -433,7 +433,7 @@ TEST_F(PdopBridging, RpdopToANodeWhoseGatewayIsNotConnectedEndsAtOnceWith0x82) {
   EXPECT_EQ(out.outcomes[0].result, PdopResult::receiver_abort);
   EXPECT_EQ(out.outcomes[0].status, pdop::AckStatus::out_of_memory);
   EXPECT_LT(std::chrono::steady_clock::now() - started, 100ms);  // not the sender's timeout
-  EXPECT_EQ(surface.counters().rpdop_failed, 1u);
+  EXPECT_EQ(surface.counters().pdop.rpdop_failed, 1u);
 }
 
 }  // namespace

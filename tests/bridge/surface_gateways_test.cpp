@@ -514,13 +514,13 @@ TEST_F(SurfaceGateways, SdoToANodeBehindALostLinkIsAbortedBeforeTheMastersTimeOu
   ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeA, 2)));
   ASSERT_TRUE(
       run_until(io, [&] { return master.count(0x580 + kSurfaceNodeA) == aborts_before + 1; }));
-  EXPECT_EQ(surface.counters().sdo_aborted, 2u);
+  EXPECT_EQ(surface.counters().sdo_guard.aborted(), 2u);
   // B's node is untouched: its request goes through, its answer comes back.
   ASSERT_TRUE(master.send(sdo_request(kSurfaceNodeB, 3)));
   ASSERT_TRUE(run_until(io, [&] { return b->node().count(0x600 + kLocal) == 1; }));
   ASSERT_TRUE(b->node().send(sdo_response(kLocal, 3)));
   ASSERT_TRUE(run_until(io, [&] { return master.count(0x580 + kSurfaceNodeB) == 1; }));
-  EXPECT_EQ(surface.counters().sdo_aborted, 2u);
+  EXPECT_EQ(surface.counters().sdo_guard.aborted(), 2u);
 }
 
 // Issue 27: the request reached the node before the cut and was executed; the node's answer
@@ -537,8 +537,8 @@ TEST_F(SurfaceGateways, TheAnswerToARequestInFlightAtACutComesWithTheNextLink) {
   ASSERT_TRUE(a->node().send(sdo_response(kLocal, 1)));  // executed; answered while cut
   ASSERT_TRUE(run_until(io, [&] { return master.count(0x580 + kSurfaceNodeA) == 1; }));
   EXPECT_TRUE(master.saw(sdo_response(kSurfaceNodeA, 1)));
-  EXPECT_EQ(surface.counters().sdo_answers_recovered, 1u);
-  EXPECT_EQ(surface.counters().sdo_aborted, 0u);
+  EXPECT_EQ(surface.counters().sdo_guard.answers_recovered, 1u);
+  EXPECT_EQ(surface.counters().sdo_guard.aborted(), 0u);
   // Nothing else follows: no abort when the wait would have ended (1.6 s after the request).
   EXPECT_FALSE(run_until(
       io, [&] { return master.count(0x580 + kSurfaceNodeA) > 1; }, 1700ms));
@@ -560,11 +560,12 @@ TEST_F(SurfaceGateways, ARequestUnansweredOnALiveLinkIsAbortedBeforeTheMastersTi
   EXPECT_GE(aborted_after, 1600ms);
   EXPECT_LT(aborted_after, 2000ms);
   EXPECT_TRUE(a->connected());
-  EXPECT_EQ(surface.counters().sdo_aborted_overdue, 1u);
-  EXPECT_EQ(surface.counters().sdo_aborted, 0u);  // no link went down
+  EXPECT_EQ(surface.counters().sdo_guard.aborted_overdue, 1u);
+  EXPECT_EQ(surface.counters().sdo_guard.aborted(), 0u);  // no link went down
   // The node answers after all: too late, never passed to the master.
   ASSERT_TRUE(a->node().send(sdo_response(kLocal, 1)));
-  ASSERT_TRUE(run_until(io, [&] { return surface.counters().sdo_late_responses_dropped == 1; }));
+  ASSERT_TRUE(
+      run_until(io, [&] { return surface.counters().sdo_guard.late_responses_dropped == 1; }));
   EXPECT_EQ(master.count(0x580 + kSurfaceNodeA), 1u);
 }
 
@@ -663,7 +664,7 @@ TEST_F(SurfaceGateways, NoSdoRequestToANeverSeenNodeVanishesWhenItsLinkIsCut) {
     }
     return true;
   })) << surface.stats_line();
-  EXPECT_EQ(surface.counters().sdo_aborted, 2 * kNodes);
+  EXPECT_EQ(surface.counters().sdo_guard.aborted(), 2 * kNodes);
   for (std::uint32_t i = 0; i < kNodes; ++i) {
     EXPECT_EQ(master.count(0x580 + 33 + i), 1u);
     EXPECT_EQ(master.count(0x580 + 65 + i), 1u);

@@ -47,7 +47,7 @@ std::vector<can::Frame> master_packet(canopen::NodeId node) {
 TEST(SurfacePdopWork, TheNodeListDecidesOwnersAndHowPacketsCross) {
   SurfacePdopWork work;
   work.on_nodes(gateway_a(), nodes_list());
-  EXPECT_EQ(work.counters().pdop_malformed, 3u);
+  EXPECT_EQ(work.counters().malformed, 3u);
   EXPECT_TRUE(work.relay().relayed(5));
   EXPECT_FALSE(work.fragments_as_frames(5));
   EXPECT_TRUE(work.fragments_as_frames(6));
@@ -89,7 +89,7 @@ TEST(SurfacePdopWork, AMastersPacketGoesToItsOwnersGatewayAndItsOutcomeAnswersTh
   discard.set_surface_node(5);
   work.on_reports(gateway_a(), reports);
   EXPECT_EQ(work.counters().rpdop_complete, 1u);
-  EXPECT_EQ(work.counters().pdop_discards, 1u);
+  EXPECT_EQ(work.counters().discards, 1u);
   const SurfacePdopWork::Output& acked =
       work.flush([](SurfacePdopWork::GatewayId) { return true; });
   EXPECT_TRUE(acked.payloads.empty());
@@ -119,16 +119,16 @@ TEST(SurfacePdopWork, TpdopPacketsAreJudgedAndCounted) {
   ASSERT_EQ(work.on_packet(gateway_a(), packet).verdict, PdopPacketToBus::Verdict::to_bus);
   packet.set_probable_repeat(true);
   work.delivered(gateway_a(), packet);
-  EXPECT_EQ(work.counters().pdop_packets, 1u);
-  EXPECT_EQ(work.counters().pdop_packet_bytes, 20u);
-  EXPECT_EQ(work.counters().pdop_probable_repeats, 1u);
+  EXPECT_EQ(work.counters().packets, 1u);
+  EXPECT_EQ(work.counters().packet_bytes, 20u);
+  EXPECT_EQ(work.counters().probable_repeats, 1u);
   packet.set_module_id(2);  // not announced
   EXPECT_EQ(work.on_packet(gateway_a(), packet).verdict, PdopPacketToBus::Verdict::cannot_be_put);
-  EXPECT_EQ(work.counters().pdop_malformed, 1u);
+  EXPECT_EQ(work.counters().malformed, 1u);
   packet.set_module_id(1);
   packet.set_surface_node(9);  // outside the claims: the caller's to count, per gateway
   EXPECT_EQ(work.on_packet(gateway_a(), packet).verdict, PdopPacketToBus::Verdict::not_its_own);
-  EXPECT_EQ(work.counters().pdop_malformed, 1u);
+  EXPECT_EQ(work.counters().malformed, 1u);
 }
 
 }  // namespace

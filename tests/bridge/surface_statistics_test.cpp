@@ -28,8 +28,8 @@ SurfaceStatsSnapshot snapshot() {
   s.round_trip = 2ms;
   s.counters.outbox.sdo_requests_withdrawn = 4;
   s.counters.sdo_requests_withdrawn_unacked = 5;
-  s.counters.sdo_withdrawn_pending = 9;
-  s.counters.sdo_answers_recovered = 2;
+  s.counters.sdo_guard.withdrawn_pending = 9;
+  s.counters.sdo_guard.answers_recovered = 2;
   return s;
 }
 
