@@ -11,6 +11,7 @@
 #include "bridge/gateway_statistics.hpp"
 #include "bridge/role_statistics_fill.hpp"
 #include "canopen/sdo_abort.hpp"
+#include "canopen/sdo_codec.hpp"
 #include "coro/spawn_owned.hpp"
 #include "routing/rename_follower.hpp"
 
@@ -259,31 +260,12 @@ bool Gateway::refuse_colliding_sdo(std::size_t m, const can::Frame& local) {
              name_, modules_[m].id, node);
   if ((local.data[0] >> 5) == 4) return true;  // the master's own abort: nothing to answer
   // As if from the node: the same path as its responses (translated, value tracking sees it).
-  can::Frame abort =
-      can::Frame::standard(static_cast<std::uint16_t>(canopen::cob::sdo_tx + node),
-                           {0x80, local.data[1], local.data[2], local.data[3], 0, 0, 0, 0});
-  const auto code = static_cast<std::uint32_t>(canopen::SdoAbort::local_control);
-  for (int b = 0; b < 4; ++b) abort.data[4 + b] = static_cast<std::uint8_t>(code >> (8 * b));
+  const canopen::sdo::Multiplexer mux{
+      static_cast<std::uint16_t>(local.data[1] | (local.data[2] << 8)), local.data[3]};
+  const can::Frame abort =
+      canopen::sdo::abort_response(node, mux, canopen::SdoAbort::local_control);
   queue_for_surface(m, abort, LoopGuard::Clock::now());
   return true;
-}
-
-void Gateway::produce_remote(backbone::PayloadSink& sink) {
-  v1::Payload payload;
-  while (remote_.has_results()) {
-    *payload.mutable_remote_result() = remote_.front_result();
-    const std::size_t size = payload.ByteSizeLong();
-    if (sink.room() < size + 16 || !sink.reliable_room(size)) return;
-    sink.send_reliable(payload.SerializeAsString());
-    remote_.pop_result();
-  }
-  // Unreliable, the latest of each request: one lost is replaced by the next.
-  for (const v1::RemoteProgress& progress : remote_.take_progress()) {
-    *payload.mutable_remote_progress() = progress;
-    const std::string bytes = payload.SerializeAsString();
-    if (sink.room() < bytes.size() + 16) break;
-    sink.send_unreliable({reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size()});
-  }
 }
 
 void Gateway::after_node_input() {
@@ -391,20 +373,9 @@ void Gateway::queue_node_snapshot(const v1::Hello& surface) {
 void Gateway::produce(backbone::PayloadSink& sink) {
   // PDO Packets and their reports: reliable, in order, ahead of frames (a packet is data that
   // already waited for all its fragments).
-  while (const v1::Payload* front = pdop_.next_payload()) {
-    // A packet larger than one write still goes: the session writes any message it takes.
-    const std::size_t size = front->ByteSizeLong();
-    if (size > tuning_.session.resend_buffer_bytes) {
-      // Never accepted by the resend buffer (config validation prevents it): do not block.
-      pdop_.refuse_payload(size);
-      continue;
-    }
-    if (sink.room() == 0 || !sink.reliable_room(size)) break;  // serialized only when it goes
-    sink.send_reliable(front->SerializeAsString());
-    pdop_.pop_payload();
-  }
+  pdop_.produce(sink, tuning_.session.resend_buffer_bytes);
   // Results of services the surface asked for: few and small (a flash image goes the other way).
-  produce_remote(sink);
+  remote_.produce(sink);
   // Events first: they are few, and a master's view of a node should not lag its frames.
   while (std::string* payload = reports_.front()) {
     if (sink.room() < payload->size() + 16 || !sink.reliable_room(payload->size())) break;

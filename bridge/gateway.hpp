@@ -146,7 +146,6 @@ class Gateway {
   // A surface master's SDO request to a node the gateway runs its own transfer with: not
   // written; answered toward the surface with abort 0x08000021 (counted). True when refused.
   bool refuse_colliding_sdo(std::size_t module_index, const can::Frame& local);
-  void produce_remote(backbone::PayloadSink& sink);
 
   enum Warn : std::size_t {
     kUnknownModule,

@@ -6,6 +6,7 @@
 #include <limits>
 #include <utility>
 
+#include "backbone/peer_stream.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "canopen/pdop.hpp"
 
@@ -259,6 +260,21 @@ void GatewayPdopWork::refuse_payload(std::size_t serialized_bytes) {
              "(counted as pdop-refused)",
              log_name_, serialized_bytes);
   pop_payload();
+}
+
+void GatewayPdopWork::produce(backbone::PayloadSink& sink, std::size_t max_reliable_bytes) {
+  while (const v1::Payload* front = next_payload()) {
+    // A packet larger than one write still goes: the session writes any message it takes.
+    const std::size_t size = front->ByteSizeLong();
+    if (size > max_reliable_bytes) {
+      // Never accepted by the resend buffer (config validation prevents it): do not block.
+      refuse_payload(size);
+      continue;
+    }
+    if (sink.room() == 0 || !sink.reliable_room(size)) return;  // serialized only when it goes
+    sink.send_reliable(front->SerializeAsString());
+    pop_payload();
+  }
 }
 
 std::uint64_t GatewayPdopWork::dropped_frames() const {

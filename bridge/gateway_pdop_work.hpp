@@ -20,6 +20,10 @@
 #include "routing/pdop_reassembler.hpp"
 #include "routing/pdop_segmenter.hpp"
 
+namespace canbridge::backbone {
+class PayloadSink;
+}
+
 namespace canbridge::bridge {
 
 class GatewayPdopWork {
@@ -96,6 +100,10 @@ class GatewayPdopWork {
   void pop_payload();
   // The next payload can never be sent (larger than the resend buffer): dropped and counted.
   void refuse_payload(std::size_t serialized_bytes);
+  // Hands `sink` the payloads above while it has room, reliable and in order; one larger than
+  // `max_reliable_bytes` (the resend buffer, which would never take it) is refused instead of
+  // blocking the rest.
+  void produce(backbone::PayloadSink& sink, std::size_t max_reliable_bytes);
   std::size_t queued_bytes() const { return out_bytes_; }
   std::size_t queued_payloads() const { return out_.size(); }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <stdexcept>
 
+#include "backbone/peer_stream.hpp"
 #include "canopen/nmt_node_id.hpp"
 #include "canopen/sdo_abort.hpp"
 
@@ -377,6 +378,23 @@ void GatewayRemote::ask_silent_nodes(std::size_t module_index,
     probes_[r.request_id()] = {{module_index, local}, question};
     ++counters_.census_questions;
     take(r, now);
+  }
+}
+
+void GatewayRemote::produce(backbone::PayloadSink& sink) {
+  v1::Payload payload;
+  while (has_results()) {
+    *payload.mutable_remote_result() = front_result();
+    const std::size_t size = payload.ByteSizeLong();
+    if (sink.room() < size + 16 || !sink.reliable_room(size)) return;
+    sink.send_reliable(payload.SerializeAsString());
+    pop_result();
+  }
+  for (const v1::RemoteProgress& progress : take_progress()) {
+    *payload.mutable_remote_progress() = progress;
+    const std::string bytes = payload.SerializeAsString();
+    if (sink.room() < bytes.size() + 16) return;
+    sink.send_unreliable({reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size()});
   }
 }
 

@@ -25,6 +25,10 @@
 #include "routing/node_map.hpp"
 #include "routing/node_table.hpp"
 
+namespace canbridge::backbone {
+class PayloadSink;
+}
+
 namespace canbridge::bridge {
 
 class GatewayRemote {
@@ -137,6 +141,9 @@ class GatewayRemote {
   }
   // The latest progress of each request that made some since the last call (unreliable).
   std::vector<v1::RemoteProgress> take_progress();
+  // Hands `sink` the results (reliable, in order, while it has room) and then the latest
+  // progress of each request (unreliable: one that finds no room is replaced by the next).
+  void produce(backbone::PayloadSink& sink);
 
   const Counters& counters() const { return counters_; }
   std::size_t pending() const;  // requests queued or running

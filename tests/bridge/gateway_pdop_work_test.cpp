@@ -13,6 +13,7 @@
 #include "canopen/pdop.hpp"
 #include "routing/node_map.hpp"
 #include "tests/bridge/rpdop_test_helpers.hpp"
+#include "tests/support/fake_payload_sink.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -132,6 +133,34 @@ TEST_F(GatewayPdopWorkTest, AFullQueueRefusesPacketsAndCountsThem) {
   work.refuse_payload(1 << 30);
   EXPECT_EQ(work.next_payload(), nullptr);
   EXPECT_EQ(work.counters().refused, 2u);
+}
+
+// produce(): payloads go to the session reliable and in order while it has room; a full resend
+// buffer keeps them queued, and one the resend buffer could never hold is refused, not waited for.
+TEST_F(GatewayPdopWorkTest, ProduceSendsReliablyInOrderAndRefusesWhatNoBufferHolds) {
+  GatewayPdopWork work = make();
+  for (std::uint8_t i = 0; i < 100; ++i) feed(work, tpdop(kLocal, 1, counting(8, i)), t0);
+  ASSERT_EQ(work.queued_payloads(), 2u);
+  test::FakeSink sink;
+  sink.reliable_room_ = false;
+  work.produce(sink, 1 << 20);
+  EXPECT_TRUE(sink.sent.empty());
+  EXPECT_EQ(work.queued_payloads(), 2u);
+  sink.reliable_room_ = true;
+  work.produce(sink, 1 << 20);
+  ASSERT_EQ(sink.sent.size(), 2u);
+  for (const auto& sent : sink.sent) EXPECT_TRUE(sent.reliable);
+  v1::Payload first;
+  ASSERT_TRUE(first.ParseFromString(sink.sent[0].bytes));
+  EXPECT_EQ(first.pdop_packets().packets_size(), 64);  // the older payload first
+  EXPECT_EQ(work.queued_payloads(), 0u);
+  // Larger than the resend buffer: refused and counted, and the next one still goes.
+  feed(work, tpdop(kLocal, 1, counting(8, 1)), t0);
+  work.produce(sink, 16);
+  EXPECT_EQ(sink.sent.size(), 2u);
+  EXPECT_EQ(work.counters().refused, 1u);
+  EXPECT_EQ(work.queued_payloads(), 0u);
+  EXPECT_EQ(sink.reliable_calls_while_full_, 0u);
 }
 
 TEST_F(GatewayPdopWorkTest, AnRpdopPacketIsSegmentedByTheNodesCreditAndItsOutcomeReported) {

@@ -21,6 +21,7 @@
 #include "sim/sim_node.hpp"
 #include "tests/support/bus_recorder.hpp"
 #include "tests/support/event_loop.hpp"
+#include "tests/support/fake_payload_sink.hpp"
 
 namespace canbridge::bridge {
 namespace {
@@ -663,6 +664,41 @@ TEST(GatewayRemote, TheCensusAsksEachSilentMappedIdItsProfilesQuestion) {
   EXPECT_EQ(requests, expected);
   EXPECT_EQ(core.counters().census_questions, 3u);
   EXPECT_EQ(core.counters().requests, 0u);
+}
+
+// produce(): results go reliable and in order, and wait while the session has no room for them;
+// progress goes unreliable, after them, the latest of each request only.
+TEST(GatewayRemote, ProduceSendsResultsReliablyAndWaitsForRoom) {
+  Rig rig({node_spec(5)});
+  rig.core->on_request(sdo_request(1, 5, true, 0x1000), rig.now);
+  rig.core->on_request(sdo_request(2, 5, true, 0x1000), rig.now);
+  for (int round = 0; round < 10; ++round) {  // the bus only: Rig::run() would take the results
+    std::vector<Frame> out;
+    for (auto& b : rig.core->bus_frames()) out.insert(out.end(), b.frames.begin(), b.frames.end());
+    rig.core->bus_frames().clear();
+    for (const Frame& f : out) rig.to_bus(f);
+  }
+  ASSERT_TRUE(rig.core->has_results());
+  test::FakeSink sink;
+  sink.reliable_room_ = false;
+  rig.core->produce(sink);
+  EXPECT_TRUE(sink.sent.empty());
+  EXPECT_TRUE(rig.core->has_results());
+  sink.reliable_room_ = true;
+  rig.core->produce(sink);
+  ASSERT_EQ(sink.sent.size(), 2u);
+  std::vector<std::uint64_t> ids;
+  for (const auto& sent : sink.sent) {
+    EXPECT_TRUE(sent.reliable);
+    v1::Payload p;
+    ASSERT_TRUE(p.ParseFromString(sent.bytes));
+    ASSERT_TRUE(p.has_remote_result());
+    EXPECT_EQ(p.remote_result().abort_code(), 0u);
+    ids.push_back(p.remote_result().request_id());
+  }
+  EXPECT_EQ(ids, (std::vector<std::uint64_t>{1, 2}));
+  EXPECT_FALSE(rig.core->has_results());
+  EXPECT_EQ(sink.reliable_calls_while_full_, 0u);
 }
 
 // The Gateway class itself: a simulated node on a virtual module bus, and a scripted surface end
