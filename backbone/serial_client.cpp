@@ -7,11 +7,13 @@
 #include <boost/asio/serial_port.hpp>
 #include <boost/asio/use_awaitable.hpp>
 
+#include "coro/no_error.hpp"
 #include "coro/spawn_owned.hpp"
 
 namespace canbridge::backbone {
 
 namespace asio = boost::asio;
+using coro::kNoError;
 
 std::error_code open_serial_port(asio::serial_port& port, const SerialOptions& options) {
   boost::system::error_code ec;
@@ -69,7 +71,6 @@ void SerialClient::stop() {
 }
 
 asio::awaitable<void> SerialClient::run() {
-  constexpr auto kNoError = asio::as_tuple(asio::use_awaitable);
   while (!stopped_) {
     asio::serial_port port(executor_);
     if (const std::error_code ec = open_serial_port(port, options_)) {

@@ -64,12 +64,21 @@ rm -rf "$armhf_tree" "$armhf_session"
       "$root/tools/cross-build.sh" armhf "$armhf_tree" -- "${armhf_cmake_args[@]}"
 } >"$armhf_build_log" 2>&1 &
 armhf_build_pid=$!
+# clang's check of every source (tools/clang-check.sh: parse and warn only, no code), also in the
+# background at the lowest weight: CI's trees are GCC's, and sources only clang refuses reached
+# main unseen before. Its result is read before the armhf phase.
+clang_check_log=/tmp/canbridge-clang-check.log
+clang_check_session=/tmp/canbridge-clang-check.sid
+rm -rf "$root/build-clang-check" "$clang_check_session"
+lowest_weight "$clang_check_session" "$root/tools/clang-check.sh" "$root/build-clang-check" \
+  >"$clang_check_log" 2>&1 &
+clang_check_pid=$!
 # A failing phase ends this script early: the build's session (compilers included) goes with it.
 # The trap must not fail itself: under `set -e` a failing command in it (pkill finding nothing
 # left in the session, the normal case at the end of a green run) becomes the script's status.
 stop_background_jobs() {
   local sid_file
-  for sid_file in "$armhf_session" "$image_prep_session"; do
+  for sid_file in "$armhf_session" "$image_prep_session" "$clang_check_session"; do
     if [[ -s $sid_file ]]; then
       pkill -s "$(cat "$sid_file")" 2>/dev/null || true
     fi
@@ -126,6 +135,14 @@ phase "system tests and the other checks of the plain build"
 wait "$image_prep_pid" ||
   echo "image preparation failed (see $image_prep_log); the image test makes what it needs itself"
 ctest --test-dir "$product_tree" -j "$jobs" --output-on-failure
+
+phase "clang: every source compiled by clang 14 with -Werror (tools/clang-check.sh)"
+if ! wait "$clang_check_pid"; then
+  grep -E -B2 -A6 'error:|warning:' "$clang_check_log" | head -80 || tail -40 "$clang_check_log"
+  echo "test: clang refused sources (full log: $clang_check_log)" >&2
+  exit 1
+fi
+tail -1 "$clang_check_log"
 
 phase "armhf (the gateway's 32-bit ARM boards): cross build, unit tests under qemu-arm"
 # The unit tests once more, compiled for the board by Debian's cross compiler (the product at the
