@@ -309,6 +309,13 @@ counters() {
 
 # strace_calls PID FILE: total system calls in strace -c's summary.
 strace_total() { awk '$NF == "total" {print $4}' "$1" 2>/dev/null | tail -1; }
+# strace_breakdown FILE FRAMES: the most frequent system calls of strace -c's summary, per frame
+# ("epoll_wait 1.02 recvmmsg 1.00 ..."): at 1,000 frames/s each frame is a wake of its own, so
+# this is what one wake costs, call by call (epoll_wait counts the wakes).
+strace_breakdown() {
+  awk -v d="$2" '$4 ~ /^[0-9]+$/ && $NF != "total" && d > 0 {print $4 / d, $NF}' "$1" 2>/dev/null |
+    sort -rn | head -8 | awk '{printf "%s %.2f ", $2, $1}'
+}
 
 # fourbus NAME: the four-bus scenario against the running bridge (four-module configs).
 fourbus() {
@@ -377,6 +384,8 @@ syscalls() {
     awk -v c="$(strace_total "$work/$name.strace1k.$side")" -v d="${d:-0}" \
       'BEGIN{if (c > 0 && d > 0) printf "%.1f ", c / d; else printf "- "}'
   done >"$work/$name.sc1k"
+  echo "gw: $(strace_breakdown "$work/$name.strace1k.gw" "${d:-0}")sf: $(strace_breakdown \
+    "$work/$name.strace1k.sf" "${d:-0}")" >"$work/$name.sc1k.calls"
 }
 
 table=$work/table
@@ -454,7 +463,7 @@ tunnel_row() {
     stop_bridge
     read -r -a fb <<<"$(tr '\n' ' ' <"$work/$name.4.4bus.res")"
     read -r -a sc <"$work/$name.4.sc" || true
-    notes="$notes; four-bus $(counters "$name.4"); syscalls/frame at 1k gw sf: $(cat "$work/$name.4.sc1k"); gateway MB $(cat "$work/$name.4.4bus.mem"); four-bus sinks: $(cat "$work/$name.4.4bus.sinks")"
+    notes="$notes; four-bus $(counters "$name.4"); syscalls/frame at 1k gw sf: $(cat "$work/$name.4.sc1k")($(cat "$work/$name.4.sc1k.calls")); gateway MB $(cat "$work/$name.4.4bus.mem"); four-bus sinks: $(cat "$work/$name.4.4bus.sinks")"
   fi
   if [[ -n $baud ]]; then
     x=$(awk -v a="$(out "$name" rate_fps)" -v b="$baud" 'BEGIN{printf "%.3f", a / (b / 80)}')
