@@ -249,10 +249,10 @@ TEST_F(TlsTest, PskLinkCarriesMessagesBothWaysAndEachEndNamesItsPeer) {
   expect_messages_cross();
 }
 
-// More than a megabyte each way, more than both socket buffers hold, while one end does not read: OpenSSL finds the
-// socket full in the middle of records (the write is finished later with the same bytes), reads
-// several records per receive, and every message still arrives once, in order, on a link that
-// stays up.
+// More than a megabyte each way, more than both socket buffers hold, while one end does not read:
+// OpenSSL finds the socket full in the middle of records (the write is finished later with the same
+// bytes), reads several records per receive, and every message still arrives once, in order, on a
+// link that stays up.
 TEST_F(TlsTest, PskLinkCarriesABulkTransferBothWaysThroughFullSockets) {
   auto surface = TlsUpgrade::create(surface_psk("gw1", {key}));
   auto gateway = TlsUpgrade::create(gateway_psk("gw1", {key}));
@@ -271,13 +271,17 @@ TEST_F(TlsTest, PskLinkCarriesABulkTransferBothWaysThroughFullSockets) {
   client.start(client_in.on_message(), client_out.source(), client_in.on_closed());
   client.wake_writer();
   server.wake_writer();
-  ASSERT_TRUE(run_until(io, [&] { return server.input_waiting() && client_in.messages.size() > 0; }));
+  ASSERT_TRUE(
+      run_until(io, [&] { return server.input_waiting() && client_in.messages.size() > 0; }));
   io.poll();
   EXPECT_LT(server_in.messages.size(), kMessages);
   server.pause_reading(false);
-  ASSERT_TRUE(run_until(io, [&] {
-    return server_in.messages.size() == kMessages && client_in.messages.size() == kMessages;
-  })) << "server got " << server_in.messages.size() << ", client got " << client_in.messages.size();
+  ASSERT_TRUE(run_until(io,
+                        [&] {
+                          return server_in.messages.size() == kMessages &&
+                                 client_in.messages.size() == kMessages;
+                        }))
+      << "server got " << server_in.messages.size() << ", client got " << client_in.messages.size();
   for (std::uint32_t i = 0; i < kMessages; ++i) {
     ASSERT_EQ(server_in.messages[i], message(i)) << i;
     ASSERT_EQ(client_in.messages[i], message(i)) << i;
