@@ -569,10 +569,8 @@ void Surface::on_frame_dropped(const can::Frame& frame, backbone::ReliableDrop w
       break;
   }
   if (!is_sdo_request(frame)) return;
-  if (auto abort = guard_.on_request_discarded(frame, deadlines_.now())) {
-    ++counters_.sdo_aborted_dropped;
-    send_to_bus(*abort);
-  }
+  // Counted by the guard (aborted_discarded).
+  if (auto abort = guard_.on_request_discarded(frame, deadlines_.now())) send_to_bus(*abort);
 }
 
 void Surface::on_payload_dropped(const std::string& payload, backbone::ReliableDrop why) {

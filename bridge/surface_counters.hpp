@@ -50,7 +50,6 @@ struct SurfaceCounters {
   // Sent, then too old before an ack came: the gateway may have them (not a drop count; its
   // session's tombstones-received says how many payloads did not arrive).
   std::uint64_t reliable_expired_unacked = 0;
-  std::uint64_t sdo_aborted_dropped = 0;
   // PDO Packets (docs/pdop.md).
   SurfacePdopWork::Counters pdop;      // as the core counts them
   std::uint64_t pdop_bus_refused = 0;  // packets refused: more fragments than the bus holds

@@ -40,7 +40,7 @@ RoleStatistics surface_statistics(const SurfaceStatsSnapshot& snapshot) {
   s.drops.push_back({"pdop-bus-refused", c.pdop_bus_refused});
   s.sdo_requests = {
       {"aborted-link-down", c.sdo_guard.aborted()},
-      {"aborted-given-up", c.sdo_aborted_dropped},
+      {"aborted-given-up", c.sdo_guard.aborted_discarded},
       {"answers-recovered", c.sdo_guard.answers_recovered},
       {"aborted-overdue", c.sdo_guard.aborted_overdue},
       {"withdrawn-pending", c.sdo_guard.withdrawn_pending},
@@ -80,7 +80,7 @@ std::string surface_stats_line(const SurfaceStatsSnapshot& snapshot) {
       c.sdo_guard.withdrawn_untracked, c.sdo_guard.answers_recovered, c.sdo_guard.aborted_overdue,
       c.sdo_guard.late_responses_dropped, c.sdo_guard.stale_responses_dropped,
       c.sdo_guard.stale_aborts_dropped, c.reliable_dropped_too_old,
-      c.reliable_dropped_gateway_restart, c.sdo_aborted_dropped, c.reliable_expired_unacked,
+      c.reliable_dropped_gateway_restart, c.sdo_guard.aborted_discarded, c.reliable_expired_unacked,
       c.session.stale_links_closed, c.echoes_dropped, c.bus_refused, c.dropped_no_gateway,
       c.dropped_unclaimed, c.malformed_payloads + c.session.malformed, c.unknown_module,
       c.node_events, c.pdop.packets, c.pdop.packet_bytes, c.pdop.discards, c.pdop.malformed,
