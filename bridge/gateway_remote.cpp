@@ -11,6 +11,19 @@ namespace canbridge::bridge {
 
 namespace {
 
+// The object each census question uploads: a loader's flash status (1F57h:01), which only a
+// loader has, or the device type (1000h:00), which every CiA 301 node has.
+struct CensusObject {
+  std::uint16_t index = 0;
+  std::uint8_t subindex = 0;
+};
+CensusObject census_object(GatewayRemote::CensusQuestion question) {
+  if (question == GatewayRemote::CensusQuestion::in_loader) {
+    return {canopen::firmware_objects::flash_status, 1};
+  }
+  return {0x1000, 0};
+}
+
 // What a node is, from its device type (1000h:00) as CiA 301 splits it: the device profile
 // number in the low word ("CiA401"), or profile 0 (a manufacturer's profile, seed 003's qd
 // nodes) with its version in the high word ("mfr-v3"). No spaces: one field of `nodes`.
@@ -333,10 +346,9 @@ bool GatewayRemote::yield_census(std::size_t module_index, NodeId local) {
   const auto probe = probes_.find(it->second.running->id);
   if (probe == probes_.end()) return false;
   // Not pumped here: the lane's next job waits for the master's transfer, which starts now.
-  const bool loader = probe->second.question == CensusQuestion::in_loader;
-  yielded_[{module_index, local}] = {
-      loader ? canopen::firmware_objects::flash_status : std::uint16_t{0x1000},
-      static_cast<std::uint8_t>(loader ? 1 : 0), it->second.running->next_deadline()};
+  const CensusObject asked = census_object(probe->second.question);
+  yielded_[{module_index, local}] = {asked.index, asked.subindex,
+                                     it->second.running->next_deadline()};
   it->second.running.reset();
   probes_.erase(probe);
   ++counters_.census_yielded;
@@ -368,13 +380,9 @@ void GatewayRemote::ask_silent_nodes(std::size_t module_index,
     r.set_local_node(local);
     r.set_timeout_ms(static_cast<std::uint32_t>(timeout.count()));
     r.mutable_sdo()->set_upload(true);
-    if (question == CensusQuestion::in_loader) {
-      r.mutable_sdo()->set_index(canopen::firmware_objects::flash_status);
-      r.mutable_sdo()->set_subindex(1);
-    } else {
-      r.mutable_sdo()->set_index(0x1000);  // device type
-      r.mutable_sdo()->set_subindex(0);
-    }
+    const CensusObject asked = census_object(question);
+    r.mutable_sdo()->set_index(asked.index);
+    r.mutable_sdo()->set_subindex(asked.subindex);
     probes_[r.request_id()] = {{module_index, local}, question};
     ++counters_.census_questions;
     take(r, now);
