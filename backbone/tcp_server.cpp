@@ -63,6 +63,7 @@ TcpServer::TcpServer(asio::any_io_executor executor, ServerOptions options)
       acceptor_(executor_),
       retry_timer_(executor_),
       deadline_timer_(executor_, asio::steady_timer::time_point::max()),
+      handshakes_(LowPriorityQueue::create(executor_, options_.handshake_steps_per_pass)),
       admission_(options_.admission) {
   // Every accepted link warns once per kind of bad input for the whole server.
   if (!options_.link.warnings) options_.link.warnings = std::make_shared<StreamLinkWarnings>();
@@ -141,6 +142,7 @@ void TcpServer::cancel(Connection& connection) {
 ServerCounters TcpServer::counters() const {
   ServerCounters counters = counters_;
   counters.admission = admission_.counters();
+  counters.handshake_steps = handshakes_->counters();
   return counters;
 }
 
@@ -242,10 +244,12 @@ void TcpServer::take(tcp::socket socket, const tcp::endpoint& peer) {
   }
   arm_deadline();
   // Each connection waits and upgrades in its own coroutine, so a slow or silent peer never holds
-  // up the accept loop. The connection outlives the coroutine (its signal is bound to it): the
-  // last reference goes on a later turn of the loop.
+  // up the accept loop; the coroutine runs on the handshakes' queue, so a flood of them never
+  // holds up the established links either (the link it hands over runs on the loop's own
+  // executor). The connection outlives the coroutine (its signal is bound to it): the last
+  // reference goes on a later turn of the loop.
   auto slot = connection->cancel.slot();
-  coro::spawn_owned(executor_, serve(connection, std::move(socket), talking), slot,
+  coro::spawn_owned(handshakes_->executor(), serve(connection, std::move(socket), talking), slot,
                     [self = shared_from_this(), connection](const std::string& failure) mutable {
                       self->connection_done(*connection, failure);
                       asio::post(self->executor_, [c = std::move(connection)] {});

@@ -18,6 +18,7 @@
 
 #include "backbone/admission_control.hpp"
 #include "backbone/link_upgrade.hpp"
+#include "backbone/low_priority_executor.hpp"
 #include "backbone/stream_link.hpp"
 
 namespace canbridge::backbone {
@@ -36,6 +37,11 @@ struct ServerOptions {
   // real peer's SYN wait (the accept loop drains the queue quickly). The kernel caps it at
   // net.core.somaxconn.
   int listen_backlog = 4096;
+  // Steps of handshakes (the wait for a first byte, TLS work, the hand-over) run per pass of the
+  // event loop, behind what the established links have ready (LowPriorityQueue): a flood of
+  // failing handshakes delays an established link's reads, writes and keepalives by at most this
+  // many steps per pass.
+  std::size_t handshake_steps_per_pass = 2;
 };
 
 struct ServerCounters {
@@ -44,6 +50,7 @@ struct ServerCounters {
   std::uint64_t upgrade_failures = 0;  // the upgrade (TLS handshake) failed or was cancelled
   std::uint64_t left_silent = 0;       // the peer closed before it said anything
   std::uint64_t heap_trims = 0;        // freed heap pages given back after handshakes
+  LowPriorityQueue::Counters handshake_steps;  // the handshakes' queue behind the links
   AdmissionCounters admission;
 };
 
@@ -122,6 +129,8 @@ class TcpServer : public std::enable_shared_from_this<TcpServer> {
   boost::asio::steady_timer retry_timer_;
   boost::asio::steady_timer deadline_timer_;
   AcceptedHandler on_accepted_;
+  // Where every connection's coroutine runs until its link closes: behind the links' own work.
+  std::shared_ptr<LowPriorityQueue> handshakes_;
   AdmissionControl admission_;
   // Every connection whose coroutine runs; erased when it ends, so nothing outlives a close.
   std::unordered_map<ConnectionId, std::shared_ptr<Connection>> connections_;

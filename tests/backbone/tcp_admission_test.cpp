@@ -4,8 +4,10 @@
 
 #include <algorithm>
 #include <boost/asio/as_tuple.hpp>
+#include <boost/asio/post.hpp>
 #include <boost/asio/use_awaitable.hpp>
 #include <boost/asio/write.hpp>
+#include <string>
 
 #include "backbone/tcp_server.hpp"
 #include "tests/backbone/test_support.hpp"
@@ -74,6 +76,24 @@ struct StuckUpgrade {
       ++ended;
       last_error = ec;
       co_return UpgradeResult{nullptr, ec};
+    };
+  }
+};
+
+// An upgrade of `steps` steps, each a turn of the loop (TLS work on each flight of the peer),
+// noting 'L' in a trace the test shares with an established link's work.
+struct SteppedUpgrade {
+  std::string* trace = nullptr;
+  int steps = 0;
+  LinkUpgrade upgrade() {
+    return [this](tcp::socket socket, StreamLinkOptions) -> asio::awaitable<UpgradeResult> {
+      for (int i = 0; i < steps; ++i) {
+        co_await asio::post(asio::use_awaitable);  // the coroutine's own executor
+        *trace += 'L';
+      }
+      boost::system::error_code ignored;
+      socket.close(ignored);
+      co_return UpgradeResult{nullptr, std::make_error_code(std::errc::permission_denied)};
     };
   }
 };
@@ -277,6 +297,44 @@ TEST_F(TcpAdmission, AfterManyConnectionsTheFreedHeapIsGivenBackOnceNothingIsPen
   ASSERT_TRUE(run_until(
       io, [&] { return server->connections() == 0; }, 5s));
   EXPECT_EQ(server->counters().heap_trims, 1u);  // once, not once per connection
+}
+
+}  // namespace
+}  // namespace canbridge::backbone
+
+namespace canbridge::backbone {
+namespace {
+
+// An established link's work, ready again on every pass of the loop until `steps` handshake
+// steps ran.
+void keep_link_busy(asio::io_context& io, std::string& trace, std::size_t steps) {
+  asio::post(io, [&io, &trace, steps] {
+    if (static_cast<std::size_t>(std::count(trace.begin(), trace.end(), 'L')) >= steps) return;
+    trace += 'E';
+    keep_link_busy(io, trace, steps);
+  });
+}
+
+TEST_F(TcpAdmission, HandshakeStepsRunBehindTheEstablishedLinksAFewPerPass) {
+  std::string trace;
+  SteppedUpgrade stepped{&trace, 10};
+  start({32, 60s, 10}, stepped.upgrade());
+  keep_link_busy(io, trace, 80);
+  for (int i = 0; i < 8; ++i) connect(true);  // a flood of handshakes, all ready at once
+  ASSERT_TRUE(run_until(
+      io, [&] { return std::count(trace.begin(), trace.end(), 'L') == 80; }, 5s))
+      << trace;
+  // Between two turns of the link's work, at most handshake_steps_per_pass (2) steps ran: with
+  // the handshakes on the loop's own executor, all eight ready steps ran in a row.
+  std::size_t longest = 0;
+  std::size_t run = 0;
+  for (char c : trace) {
+    run = c == 'L' ? run + 1 : 0;
+    longest = std::max(longest, run);
+  }
+  EXPECT_LE(longest, ServerOptions{}.handshake_steps_per_pass) << trace;
+  EXPECT_GE(server->counters().handshake_steps.run, 80u);
+  EXPECT_GT(server->counters().handshake_steps.deferred, 0u);
 }
 
 }  // namespace
