@@ -10,10 +10,7 @@
 #include "bridge/gateway_claims.hpp"
 #include "bridge/gateway_statistics.hpp"
 #include "bridge/role_statistics_fill.hpp"
-#include "canopen/sdo_abort.hpp"
-#include "canopen/sdo_codec.hpp"
 #include "coro/spawn_owned.hpp"
-#include "routing/rename_follower.hpp"
 
 namespace canbridge::bridge {
 
@@ -65,6 +62,11 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
       remote_(map_, node_table_, remote_modules_of(modules_), remote,
               [this](std::size_t m, canopen::NodeId node) { return sdo_.transfer_open(m, node); }),
       deadlines_(executor_),
+      node_events_(name_, map_, module_ids_of(modules_),
+                   [this](std::size_t m) {
+                     // The surface's PDO Packet relay learns the pdop nodes' ids from PdopNodes.
+                     if (pdop_.reassembles(m)) pdop_.announce_nodes();
+                   }),
       reports_(map_, node_table_, module_ids_of(modules_), tuning.outbox.max_node_event_payloads),
       pdop_(map_, pdop_modules_of(modules_), name_),
       tuning_(tuning),
@@ -80,7 +82,7 @@ Gateway::Gateway(asio::any_io_executor executor, std::string name, NodeMap map,
   deadlines_.add(
       "node table", [this] { return node_table_.next_deadline(); },
       [this](DeadlineDriver::TimePoint now) {
-        node_table_.tick(now, node_events_);
+        node_table_.tick(now, node_events_.sink());
         queue_node_events();
       });
   deadlines_.add(
@@ -237,7 +239,7 @@ void Gateway::after_remote_input() {
   if (const auto found = remote_.take_found_in_loader(); !found.empty()) {
     const auto now = NodeTable::Clock::now();
     for (const GatewayRemote::FoundInLoader& f : found) {
-      node_table_.on_found_in_loader(f.module_index, f.local, now, node_events_);
+      node_table_.on_found_in_loader(f.module_index, f.local, now, node_events_.sink());
     }
     queue_node_events();
   }
@@ -246,25 +248,15 @@ void Gateway::after_remote_input() {
 }
 
 bool Gateway::refuse_colliding_sdo(std::size_t m, const can::Frame& local) {
-  if (local.is_extended() || local.id <= canopen::cob::sdo_rx ||
-      local.id > canopen::cob::sdo_rx + canopen::kMaxNodeId || local.len < 4) {
-    return false;
-  }
-  const auto node = static_cast<canopen::NodeId>(local.id - canopen::cob::sdo_rx);
-  if (!remote_.transferring(m, node)) return false;
-  if (remote_.yield_census(m, node)) return false;  // the census only asks: it gives way
+  const GatewayRemote::MasterCollision collision = remote_.on_master_frame(m, local);
+  if (!collision.refused) return false;
   ++counters_.sdo_collisions;
   warn_.warn(Warn::kSdoCollision,
              "gateway {}: an SDO request from the surface to module {} node {} met the gateway's "
              "own transfer: answered with abort 0x08000021 (counted as sdo-collisions)",
-             name_, modules_[m].id, node);
-  if ((local.data[0] >> 5) == 4) return true;  // the master's own abort: nothing to answer
+             name_, modules_[m].id, local.id - canopen::cob::sdo_rx);
   // As if from the node: the same path as its responses (translated, value tracking sees it).
-  const canopen::sdo::Multiplexer mux{
-      static_cast<std::uint16_t>(local.data[1] | (local.data[2] << 8)), local.data[3]};
-  const can::Frame abort =
-      canopen::sdo::abort_response(node, mux, canopen::SdoAbort::local_control);
-  queue_for_surface(m, abort, LoopGuard::Clock::now());
+  if (collision.abort) queue_for_surface(m, *collision.abort, LoopGuard::Clock::now());
   return true;
 }
 
@@ -273,86 +265,19 @@ void Gateway::after_node_input() {
   deadlines_.reschedule();
 }
 
-void Gateway::follow_node_events() {
-  for (; events_followed_ < node_events_.size(); ++events_followed_) {
-    NodeEvent& e = node_events_[events_followed_];
-    const RenameFollowed followed = follow_rename(map_, e);
-    if (followed.change == RenameFollowed::Change::moved) {
-      ++counters_.nodes_moved;
-      claims_changed_ = true;
-      spdlog::info("gateway {}: module {} node {} now has surface id {} (was {})", name_,
-                   modules_[e.module_index].id, e.local, map_.surface_of(e.module_index, e.local),
-                   e.previous_surface);
-      // The surface's PDO Packet relay learns the pdop nodes' surface ids from PdopNodes.
-      if (pdop_.reassembles(e.module_index)) pdop_.announce_nodes();
-    } else if (followed.change == RenameFollowed::Change::refused) {
-      ++counters_.node_moves_refused;
-      warn_.warn(Warn::kRenameRefused,
-                 "gateway {}: rename not followed in the node map: {} "
-                 "(counted; later ones only in the counters)",
-                 name_, followed.reason);
-    }
-  }
-}
-
-void Gateway::report_refused_rename() {
-  const RenameRefusal& r = translator_.rename_refusal();
-  warn_.warn(Warn::kRenameRefused,
-             "gateway {}: {}: refused (counted as rename-refused; later ones only counted)", name_,
-             r.reason);
-  if (!r.node) return;
-  NodeEvent e;
-  e.kind = NodeEvent::Kind::rename_unconfirmed;
-  e.module_index = r.node->module_index;
-  e.local = r.node->local;
-  e.at = NodeTable::Clock::now();
-  if (const NodeRecord* record = node_table_.node(e.module_index, e.local)) {
-    e.state = record->state;
-    e.boot_count = record->boot_count;
-  }
-  node_events_.push_back(e);
-}
-
 void Gateway::queue_node_events() {
-  follow_node_events();
-  events_followed_ = 0;  // node_events_ is emptied below
+  const std::optional<std::string> claims = node_events_.settle();
   if (node_events_.empty()) return;
-  std::string claims;
-  if (claims_changed_) {
-    // A node moved in the live map: the surface routes its new surface id here from now on, and
-    // the next hello carries the same claims.
-    identity_.application = encode_claims(claims_of(map_));
-    claims = identity_.application;
-    claims_changed_ = false;
-  }
-  for (const NodeEvent& e : node_events_) {
-    spdlog::info("gateway {}: {}", name_, to_string(e, modules_[e.module_index].id));
-    hint_loader_boot_on_cia301(e);
+  if (claims) identity_.application = *claims;  // the next hello carries them too
+  for (const NodeEvent& e : node_events_.events()) {
     sdo_.on_node_event(e);
     remote_.on_node_event(e, e.at);  // a boot-up confirms a set-node-id the gateway sent
   }
-  if (reports_.queue_events(node_events_, claims)) warn_events_dropped();
+  if (reports_.queue_events(node_events_.events(), claims.value_or(std::string()))) {
+    warn_events_dropped();
+  }
   node_events_.clear();
   stream_.wake();
-}
-
-void Gateway::hint_loader_boot_on_cia301(const NodeEvent& e) {
-  // qd puts node n's loader boot-up on 0x720 + n: read as CiA 301, that is a boot-up of node
-  // 32 + n, which no module of at most 31 nodes maps.
-  constexpr NodeId kLoaderBase = 0x20;
-  if (e.kind != NodeEvent::Kind::booted || e.local <= kLoaderBase || e.local >= 2 * kLoaderBase ||
-      map_.modules()[e.module_index].profile != IdProfile::cia301 ||
-      map_.surface_of(e.module_index, e.local) != 0) {
-    return;
-  }
-  // A hint, not a warning: a CiA 301 module may carry qd nodes among others (the demo does), whose
-  // applications work there and whose loaders are then simply not reachable.
-  warn_.hint(Warn::kLoaderBootOnCia301,
-             "gateway {}: module {}: a boot-up on 0x{:03X} (node {}) has no surface id: most "
-             "likely node {}'s qd loader announcing itself (0x720 + node id), which a cia301 "
-             "module does not map; to reach the loaders of a module of qd nodes, set 'profile: "
-             "qd' for it (said once; later ones counted as untranslatable)",
-             name_, modules_[e.module_index].id, 0x700u + e.local, e.local, e.local - kLoaderBase);
 }
 
 void Gateway::warn_events_dropped() {
@@ -429,14 +354,14 @@ void Gateway::on_bus_batch(std::size_t module_index, std::span<const can::Frame>
   for (const can::Frame& frame : batch) {
     // Error frames: bus state, counted by the bus itself.
     if (frame.is_error() || drop_echo(module_index, frame, now)) continue;
-    const std::size_t events_before = node_events_.size();
+    const std::size_t events_before = node_events_.events().size();
     note_bus_frame(module_index, frame, now);
     // The node's answers to the gateway's own transfer: the runner's, never the master's.
     if (remote_.on_bus_frame(module_index, frame, now)) continue;
     if (reassembles) {
       // In bus order: a boot-up ends the node's packets before its next fragment arrives.
-      for (std::size_t e = events_before; e < node_events_.size(); ++e) {
-        pdop_.on_node_event(node_events_[e], now);
+      for (const NodeEvent& e : node_events_.events().subspan(events_before)) {
+        pdop_.on_node_event(e, now);
       }
       const bool taken = pdop_.on_bus_frame(module_index, frame, now, clock_offset);
       write_pdop_frames();
@@ -460,11 +385,11 @@ bool Gateway::drop_echo(std::size_t module_index, const can::Frame& frame,
 
 void Gateway::note_bus_frame(std::size_t module_index, const can::Frame& frame,
                              LoopGuard::Clock::time_point now) {
-  node_table_.on_bus_frame(module_index, frame, now, node_events_);
+  node_table_.on_bus_frame(module_index, frame, now, node_events_.sink());
   if (frame.id == canopen::cob::nmt && !frame.is_extended()) {  // a master on the module bus
-    node_table_.on_nmt_to_bus(module_index, frame, now, node_events_);
+    node_table_.on_nmt_to_bus(module_index, frame, now, node_events_.sink());
   }
-  follow_node_events();  // a confirming boot-up crosses under the node's new surface id
+  node_events_.follow_renames();  // a confirming boot-up crosses under the node's new id
 }
 
 void Gateway::queue_for_surface(std::size_t module_index, const can::Frame& frame,
@@ -569,7 +494,8 @@ void Gateway::write_to_buses(std::optional<std::size_t> only) {
       to_bus_[m].push_back(local);
     });
     if (translator_.dropped(DropReason::rename_refused) != renames_refused) {
-      report_refused_rename();
+      node_events_.on_rename_refused(translator_.rename_refusal(), node_table_,
+                                     NodeTable::Clock::now());
     }
   }
   // A bus's frames of the batch at once, in order behind what waits for the bus: one batch send.
@@ -593,7 +519,7 @@ void Gateway::on_written(std::size_t m, std::span<const can::Frame> frames) {
   for (const can::Frame& frame : frames) {
     loop_guards_[m].wrote(frame, now);
     if (frame.id == canopen::cob::nmt && !frame.is_extended()) {
-      node_table_.on_nmt_to_bus(m, frame, now, node_events_);
+      node_table_.on_nmt_to_bus(m, frame, now, node_events_.sink());
       nmt = true;
     }
   }
@@ -622,6 +548,8 @@ GatewayCounters Gateway::counters() const {
   c.translation = translator_.drops();
   c.node_events = reports_.counters().events;
   c.node_events_dropped = reports_.counters().events_dropped;
+  c.nodes_moved = node_events_.counters().nodes_moved;
+  c.node_moves_refused = node_events_.counters().node_moves_refused;
   c.sdo_values_rewritten = sdo_.counters().values_rewritten;
   c.sdo_values_unmapped = sdo_.counters().values_unmapped;
   c.sdo_requests_withdrawn = sdo_.counters().requests_withdrawn;

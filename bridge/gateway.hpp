@@ -20,6 +20,7 @@
 #include "bridge/deadline_driver.hpp"
 #include "bridge/frame_outbox.hpp"
 #include "bridge/gateway_counters.hpp"
+#include "bridge/gateway_node_events.hpp"
 #include "bridge/gateway_pdop_work.hpp"
 #include "bridge/gateway_remote.hpp"
 #include "bridge/gateway_remote_options.hpp"
@@ -119,16 +120,9 @@ class Gateway {
   void on_payload_dropped(const std::string& payload, backbone::ReliableDrop why);
   // Node table events go to the surface as reliable payloads; the deadline driver re-arms.
   void after_node_input();
-  // Moves renamed nodes in the live map (rename_follower.hpp), for the events not yet followed:
-  // before the frame that confirmed a rename is translated.
-  void follow_node_events();
-  // The translator refused a set-node-id command: logged once, and the surface is told with a
-  // RENAME_UNCONFIRMED event of the commanded node (when the map has it).
-  void report_refused_rename();
+  // The input's node events (renames followed, claims re-encoded) to the SDO tracking, the
+  // remote services and the surface's report queue.
   void queue_node_events();
-  // A boot-up that looks like a qd loader's (0x720 + n) on a module configured as cia301: says
-  // once what it probably is, instead of leaving an unmapped node 32 + n in the table unexplained.
-  void hint_loader_boot_on_cia301(const NodeEvent& e);
   // A surface process the gateway has not reported to (the first ever, a restarted one) learns
   // every node the table knows, in their states now, from these events: behind what is queued.
   void queue_node_snapshot(const v1::Hello& surface);
@@ -153,9 +147,7 @@ class Gateway {
     kRefused,
     kBusRefused,
     kEventsDropped,
-    kRenameRefused,
     kSdoCollision,
-    kLoaderBootOnCia301,
     kWarnKinds
   };
 
@@ -171,9 +163,8 @@ class Gateway {
   GatewayRemote remote_;  // services the surface asks for (SDO, NMT, flash, nodes)
   // One timer for every core with deadlines: the node table and the PDOP work.
   DeadlineDriver deadlines_;
-  std::vector<NodeEvent> node_events_;  // of the input being handled
-  std::size_t events_followed_ = 0;     // node_events_[0, this) went through follow_rename
-  NodeReportQueue reports_;             // node events and snapshots waiting for the link
+  GatewayNodeEvents node_events_;  // of the input being handled
+  NodeReportQueue reports_;        // node events and snapshots waiting for the link
   // The surface process (its hello's session id) the node table was last sent to; 0: none yet.
   std::uint64_t snapshot_surface_ = 0;
   // When the census runs (once, kCensusAfter after start).
@@ -194,7 +185,6 @@ class Gateway {
   std::vector<can::Frame> decoded_;
   std::vector<std::vector<can::Frame>> to_bus_;  // per module bus: its frames of one batch
   WarnOnce<kWarnKinds> warn_;
-  bool claims_changed_ = false;  // a node moved: the next NodeEvents carries the new claims
   bool stopped_ = false;
   std::function<void(const std::string&)> on_failure_;
   std::string failure_;

@@ -6,6 +6,7 @@
 #include "backbone/peer_stream.hpp"
 #include "canopen/nmt_node_id.hpp"
 #include "canopen/sdo_abort.hpp"
+#include "canopen/sdo_codec.hpp"
 
 namespace canbridge::bridge {
 
@@ -353,6 +354,21 @@ bool GatewayRemote::yield_census(std::size_t module_index, NodeId local) {
   probes_.erase(probe);
   ++counters_.census_yielded;
   return true;
+}
+
+GatewayRemote::MasterCollision GatewayRemote::on_master_frame(std::size_t module_index,
+                                                              const can::Frame& local) {
+  if (local.is_extended() || local.id <= canopen::cob::sdo_rx ||
+      local.id > canopen::cob::sdo_rx + canopen::kMaxNodeId || local.len < 4) {
+    return {};
+  }
+  const auto node = static_cast<NodeId>(local.id - canopen::cob::sdo_rx);
+  if (!transferring(module_index, node)) return {};
+  if (yield_census(module_index, node)) return {};             // the census only asks: it gives way
+  if ((local.data[0] >> 5) == 4) return {true, std::nullopt};  // the master's own abort
+  const canopen::sdo::Multiplexer mux{
+      static_cast<std::uint16_t>(local.data[1] | (local.data[2] << 8)), local.data[3]};
+  return {true, canopen::sdo::abort_response(node, mux, canopen::SdoAbort::local_control)};
 }
 
 std::vector<v1::RemoteProgress> GatewayRemote::take_progress() {

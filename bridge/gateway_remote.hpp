@@ -89,6 +89,17 @@ class GatewayRemote {
   // from the surface master to it must not reach the bus (the gateway answers it with an abort).
   bool transferring(std::size_t module_index, canopen::NodeId local) const;
 
+  // A surface master's frame on its way to module `module_index`'s bus, when it is an SDO request
+  // to a node the gateway runs its own transfer with (transferring): a census question gives way
+  // (yield_census) and the frame passes; any other transfer refuses it, answered toward the
+  // surface as if by the node with abort 0x08000021 (unless it is the master's own abort, which
+  // needs no answer). Never written, a refused request cannot cross the gateway's transfer.
+  struct MasterCollision {
+    bool refused = false;
+    std::optional<can::Frame> abort;  // to the surface, as the node's answer
+  };
+  MasterCollision on_master_frame(std::size_t module_index, const can::Frame& local);
+
   // The census's question to a node the gateway has not heard from since it started: one that
   // booted before it and stays silent (a loader never sends on its own; an application with its
   // heartbeat off, CANopenNode's default, sends nothing after its boot-up).

@@ -595,6 +595,36 @@ TEST(GatewayRemote, ACensusQuestionGivesWayToASurfaceMaster) {
   EXPECT_TRUE(rig.core->transferring(0, 4));
 }
 
+// The rule for a surface master's frame to a node the gateway runs a transfer with, on its own:
+// a census question gives way and the frame passes; a surface request's transfer refuses it
+// with the node's abort 0x08000021 naming the master's object; the master's own abort is refused
+// with nothing to answer; anything else passes.
+TEST(GatewayRemote, AMastersRequestMeetingTheGatewaysTransferIsRefusedUnlessTheCensusAsks) {
+  Rig rig({node_spec(4)});
+  rig.advance(10ms);
+  const Frame read_2003 = Frame::standard(0x604, {0x40, 0x03, 0x20, 0x01, 0, 0, 0, 0});
+  EXPECT_FALSE(rig.core->on_master_frame(0, read_2003).refused);  // nothing running
+
+  rig.core->ask_silent_nodes(0, {4}, GatewayRemote::CensusQuestion::present, 200ms, rig.now);
+  ASSERT_TRUE(rig.core->transferring(0, 4));
+  EXPECT_FALSE(rig.core->on_master_frame(0, read_2003).refused);
+  EXPECT_FALSE(rig.core->transferring(0, 4));
+  EXPECT_EQ(rig.core->counters().census_yielded, 1u);
+
+  rig.request(sdo_request(7, 4, true, 0x1000), false);
+  ASSERT_TRUE(rig.core->transferring(0, 4));
+  const GatewayRemote::MasterCollision refused = rig.core->on_master_frame(0, read_2003);
+  EXPECT_TRUE(refused.refused);
+  ASSERT_TRUE(refused.abort.has_value());
+  EXPECT_EQ(*refused.abort, Frame::standard(0x584, {0x80, 0x03, 0x20, 0x01, 0x21, 0, 0, 0x08}));
+  const Frame masters_abort = Frame::standard(0x604, {0x80, 0x03, 0x20, 0x01, 0, 0, 0, 0x05});
+  EXPECT_TRUE(rig.core->on_master_frame(0, masters_abort).refused);
+  EXPECT_FALSE(rig.core->on_master_frame(0, masters_abort).abort.has_value());
+  EXPECT_FALSE(rig.core->on_master_frame(0, Frame::standard(0x204, {1})).refused);     // RPDO1
+  EXPECT_FALSE(rig.core->on_master_frame(0, Frame::standard(0x604, {0x40})).refused);  // short
+  EXPECT_TRUE(rig.core->transferring(0, 4));  // the request's transfer never gives way
+}
+
 // The question was already on the bus when it gave way: the node's answer to it is the census's,
 // taken here, so that the master gets only the answer to its own request. An answer naming
 // another object (the master's) passes, and so does one after the question's own deadline.
