@@ -3,14 +3,11 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <bitset>
-#include <deque>
 
 #include "bridge/bus_state_log.hpp"
 #include "bridge/delivery_class.hpp"
 #include "bridge/frame_batch_codec.hpp"
 #include "bridge/gateway_claims.hpp"
-#include "bridge/line_loss_counter.hpp"
 #include "bridge/node_event_text.hpp"
 #include "bridge/role_statistics_fill.hpp"
 #include "coro/spawn_owned.hpp"
@@ -28,77 +25,6 @@ SdoLinkGuard::Options guard_options(std::chrono::milliseconds master_sdo_timeout
 }
 
 }  // namespace
-
-// One gateway as the surface knows it, kept across its links so reliable streams resume.
-struct Surface::Gateway {
-  Gateway(std::string gateway_name, SdoLinkGuard::GatewayId gateway_id,
-          const BackboneTuning& tuning, Surface& surface)
-      : name(std::move(gateway_name)),
-        id(gateway_id),
-        outbox(tuning.outbox),
-        stream(tuning.session,
-               backbone::PeerStream::Handlers{
-                   [this](backbone::PayloadSink& sink) { produce(sink); },
-                   [this, &surface](std::span<const std::uint8_t> payload, bool) {
-                     surface.on_payload(*this, payload);
-                   },
-                   [this, &surface](const v1::Hello& peer) {
-                     outbox.set_head_runs(peer.protocol_minor() >= kHeadRunsMinor);
-                     surface.table_.set_connected(id, true);
-                   },
-                   [this, &surface] { surface.on_gateway_down(*this); },
-                   // A new gateway process: nothing queued for the old one goes, and the
-                   // nodes the old one reported are its no more (the new one reports them
-                   // again as it hears them).
-                   [this, &surface](const v1::Hello&) {
-                     outbox.discard_queued();
-                     discard_queued_remote_payloads();
-                     surface.node_states_.forget(id);
-                     surface.on_gateway_restart(*this);
-                   },
-                   [&surface](const std::string& payload, backbone::ReliableDrop why) {
-                     surface.on_payload_dropped(payload, why);
-                   }}) {
-    outbox.on_discard([&surface](std::uint32_t, const can::Frame& frame, FrameOutbox::Discard why) {
-      surface.on_frame_dropped(frame, why == FrameOutbox::Discard::too_old
-                                          ? backbone::ReliableDrop::too_old
-                                          : backbone::ReliableDrop::peer_restart);
-    });
-  }
-
-  // Remote requests and cancels queued for the old process (its link went down before they
-  // left) are not the new one's: it would run a request the surface has given up, seconds late.
-  // The surface's remote access ends them (bridge/remote_request_ledger.hpp).
-  void discard_queued_remote_payloads() {
-    std::erase_if(rpdop_out, [](const std::string& payload) {
-      v1::Payload parsed;
-      return parsed.ParseFromString(payload) &&
-             (parsed.has_remote_request() || parsed.has_remote_cancel());
-    });
-  }
-
-  // RPDOP packets first (the master waits on each), then frames.
-  void produce(backbone::PayloadSink& sink) {
-    while (!rpdop_out.empty()) {
-      if (sink.room() == 0 || !sink.reliable_room(rpdop_out.front().size())) break;
-      sink.send_reliable(std::move(rpdop_out.front()));
-      rpdop_out.pop_front();
-    }
-    outbox.produce(sink);
-  }
-
-  std::string name;
-  SdoLinkGuard::GatewayId id;
-  std::vector<std::uint32_t> modules;  // as announced in its latest accepted hello
-  FrameOutbox outbox;
-  // Serialized reliable payloads of the surface's own: PdopPackets, remote requests and cancels.
-  std::deque<std::string> rpdop_out;
-  backbone::PeerStream stream;
-  LineLossCounter line_loss;
-  // Frames it sent that were not its to send, by NotItsOwn; which reasons were warned already.
-  std::array<std::uint64_t, kNotItsOwnReasons> not_its_own{};
-  std::bitset<kNotItsOwnReasons> warned_not_its_own;
-};
 
 Surface::Surface(asio::any_io_executor executor, std::string name, std::unique_ptr<can::Bus> bus,
                  SurfacePolicy policy, BackboneTuning tuning, bool conflate_pdos,
@@ -207,6 +133,25 @@ void Surface::attach(std::shared_ptr<backbone::MessageLink> link) {
   session->start();
 }
 
+SurfaceGateway::Events Surface::gateway_events() {
+  return {
+      [this](Gateway& from, std::span<const std::uint8_t> payload) { on_payload(from, payload); },
+      [this](Gateway& gateway) { table_.set_connected(gateway.id, true); },
+      [this](Gateway& gateway) { on_gateway_down(gateway); },
+      // The nodes the old process reported are its no more (the new one reports them again
+      // as it hears them).
+      [this](Gateway& gateway) {
+        node_states_.forget(gateway.id);
+        on_gateway_restart(gateway);
+      },
+      [this](const std::string& payload, backbone::ReliableDrop why) {
+        on_payload_dropped(payload, why);
+      },
+      [this](const can::Frame& frame, backbone::ReliableDrop why) {
+        on_frame_dropped(frame, why);
+      }};
+}
+
 backbone::BindResult Surface::bind(const v1::Hello& hello, backbone::SessionLink& link) {
   GatewayTable::Hello wanted{hello.name(),
                              hello.session_id(),
@@ -241,7 +186,8 @@ backbone::BindResult Surface::bind(const v1::Hello& hello, backbone::SessionLink
             std::move(admission.to_peer), admission.repeated || admission.stranger};
   }
   if (by_id_[*admission.id] == nullptr) {
-    auto gateway = std::make_unique<Gateway>(hello.name(), *admission.id, tuning_, *this);
+    auto gateway =
+        std::make_unique<Gateway>(hello.name(), *admission.id, tuning_, gateway_events());
     by_id_[*admission.id] = gateway.get();
     if (writer_.queue().backlogged()) gateway->stream.pause_input(true);
     gateways_[hello.name()] = std::move(gateway);

@@ -25,6 +25,7 @@
 #include "bridge/role_statistics.hpp"
 #include "bridge/sdo_link_guard.hpp"
 #include "bridge/surface_counters.hpp"
+#include "bridge/surface_gateway.hpp"
 #include "bridge/surface_node_states.hpp"
 #include "bridge/surface_pdop_work.hpp"
 #include "bridge/surface_statistics.hpp"
@@ -130,7 +131,9 @@ class Surface {
   void on_monitor_frames(MonitorObserver observer) { monitor_ = std::move(observer); }
 
  private:
-  struct Gateway;
+  using Gateway = SurfaceGateway;
+  // What each gateway's stream reports, to the surface's handlers below.
+  SurfaceGateway::Events gateway_events();
 
   // Returns the bus's error when the bus ends (closed, or gone for good).
   boost::asio::awaitable<std::error_code> read_bus();
