@@ -6,7 +6,11 @@
 
 namespace canbridge::backbone {
 
+namespace {
+// The same alias as session_core.cpp's, in the same kind of scope: in a unity batch holding both
+// files a namespace-scope alias here shadowed that one (clang's -Wshadow).
 using Clock = std::chrono::steady_clock;
+}  // namespace
 
 std::uint64_t random_session_id() {
   std::random_device device;
