@@ -14,11 +14,7 @@ namespace {
 
 // The object each census question uploads: a loader's flash status (1F57h:01), which only a
 // loader has, or the device type (1000h:00), which every CiA 301 node has.
-struct CensusObject {
-  std::uint16_t index = 0;
-  std::uint8_t subindex = 0;
-};
-CensusObject census_object(GatewayRemote::CensusQuestion question) {
+canopen::sdo::Multiplexer census_object(GatewayRemote::CensusQuestion question) {
   if (question == GatewayRemote::CensusQuestion::in_loader) {
     return {canopen::firmware_objects::flash_status, 1};
   }
@@ -332,10 +328,7 @@ bool GatewayRemote::take_late_census_answer(std::size_t module_index, NodeId nod
     return false;
   }
   // An initiate answer or an abort names its object in bytes 1-3.
-  if (frame.len != 8 || frame.data[1] != (q.index & 0xFF) || frame.data[2] != (q.index >> 8) ||
-      frame.data[3] != q.subindex) {
-    return false;
-  }
+  if (frame.len != 8 || canopen::sdo::read_multiplexer(frame) != q.object) return false;
   yielded_.erase(y);
   ++counters_.census_late_answers;
   return true;
@@ -347,8 +340,7 @@ bool GatewayRemote::yield_census(std::size_t module_index, NodeId local) {
   const auto probe = probes_.find(it->second.running->id);
   if (probe == probes_.end()) return false;
   // Not pumped here: the lane's next job waits for the master's transfer, which starts now.
-  const CensusObject asked = census_object(probe->second.question);
-  yielded_[{module_index, local}] = {asked.index, asked.subindex,
+  yielded_[{module_index, local}] = {census_object(probe->second.question),
                                      it->second.running->next_deadline()};
   it->second.running.reset();
   probes_.erase(probe);
@@ -364,11 +356,10 @@ GatewayRemote::MasterCollision GatewayRemote::on_master_frame(std::size_t module
   }
   const auto node = static_cast<NodeId>(local.id - canopen::cob::sdo_rx);
   if (!transferring(module_index, node)) return {};
-  if (yield_census(module_index, node)) return {};             // the census only asks: it gives way
-  if ((local.data[0] >> 5) == 4) return {true, std::nullopt};  // the master's own abort
-  const canopen::sdo::Multiplexer mux{
-      static_cast<std::uint16_t>(local.data[1] | (local.data[2] << 8)), local.data[3]};
-  return {true, canopen::sdo::abort_response(node, mux, canopen::SdoAbort::local_control)};
+  if (yield_census(module_index, node)) return {};  // the census only asks: it gives way
+  if ((local.data[0] >> 5) == canopen::sdo::ccs::abort) return {true, std::nullopt};  // its own
+  return {true, canopen::sdo::abort_response(node, canopen::sdo::read_multiplexer(local),
+                                             canopen::SdoAbort::local_control)};
 }
 
 std::vector<v1::RemoteProgress> GatewayRemote::take_progress() {
@@ -396,9 +387,9 @@ void GatewayRemote::ask_silent_nodes(std::size_t module_index,
     r.set_local_node(local);
     r.set_timeout_ms(static_cast<std::uint32_t>(timeout.count()));
     r.mutable_sdo()->set_upload(true);
-    const CensusObject asked = census_object(question);
+    const canopen::sdo::Multiplexer asked = census_object(question);
     r.mutable_sdo()->set_index(asked.index);
-    r.mutable_sdo()->set_subindex(asked.subindex);
+    r.mutable_sdo()->set_subindex(asked.sub);
     probes_[r.request_id()] = {{module_index, local}, question};
     ++counters_.census_questions;
     take(r, now);

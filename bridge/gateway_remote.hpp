@@ -239,8 +239,7 @@ class GatewayRemote {
   // Questions that gave way (yield_census): the object each asked and until when its answer may
   // come. An answer naming it is the census's, never the master's.
   struct YieldedQuestion {
-    std::uint16_t index = 0;
-    std::uint8_t subindex = 0;
+    canopen::sdo::Multiplexer object;
     TimePoint until{};
   };
   std::map<LaneKey, YieldedQuestion> yielded_;
