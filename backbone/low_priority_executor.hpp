@@ -42,7 +42,6 @@ class LowPriorityQueue : public std::enable_shared_from_this<LowPriorityQueue> {
   };
   const Counters& counters() const noexcept { return counters_; }
   std::size_t queued() const noexcept { return queue_.size(); }
-  std::size_t per_pass() const noexcept { return per_pass_; }
 
  private:
   struct Work {
