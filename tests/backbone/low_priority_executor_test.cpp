@@ -108,7 +108,6 @@ TEST(LowPriorityQueue, WorkLeftQueuedWhenTheLoopGoesIsDestroyedNotLeaked) {
     asio::io_context io(1);
     auto queue = LowPriorityQueue::create(io.get_executor(), 1);
     watched_queue = queue;
-    asio::post(queue->executor(), [w = std::move(witness)] {});
     // A coroutine suspended on the queue's executor holds the queue through its frame.
     asio::co_spawn(
         queue->executor(),
@@ -117,7 +116,11 @@ TEST(LowPriorityQueue, WorkLeftQueuedWhenTheLoopGoesIsDestroyedNotLeaked) {
           co_await timer.async_wait(asio::use_awaitable);
         },
         [](std::exception_ptr) {});
-    io.poll();  // starts the coroutine; the first handler is still queued behind it or run
+    io.poll();  // the coroutine starts and waits on its timer
+    ASSERT_EQ(queue->queued(), 0u);
+    // Work queued and never run: its pass is posted, and the loop goes before running it.
+    asio::post(queue->executor(), [w = std::move(witness)] {});
+    ASSERT_EQ(queue->queued(), 1u);
     queue.reset();
   }
   EXPECT_TRUE(watched.expired());
